@@ -1,0 +1,23 @@
+"""Error types shared by every stage.
+
+``InputError`` means the user's input is wrong (missing file, malformed document,
+unsupported node, ...). The CLI maps it to exit code 2; every other
+``Mtlx2NeuralError`` maps to exit code 1. Messages name the file, prim or node,
+say what is wrong, and say what to do about it.
+"""
+
+
+class Mtlx2NeuralError(Exception):
+    """Base class for errors that mtlx2neural reports to the user."""
+
+    exit_code = 1
+
+
+class InputError(Mtlx2NeuralError):
+    """The input asset is missing, malformed or uses something unsupported."""
+
+    exit_code = 2
+
+
+class UnsupportedNodeError(InputError):
+    """A node whose nodedef has no torch implementation and no nodegraph to expand."""
