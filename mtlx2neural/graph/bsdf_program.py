@@ -1,0 +1,270 @@
+"""The BSDF program: the closure tree left after folding and lobe pruning.
+
+Combinator semantics are MaterialX's hardware ones: a layer adds the base's
+response scaled by the top's throughput; mix interpolates responses and
+throughputs; add sums responses and takes max(t1 + t2 - 1, 0) as throughput;
+multiply scales the response by a tint clamped to [0, 1] and keeps the
+throughput.
+
+Pruning replaces a closure whose contribution folds to nothing by
+``Zero(throughput)``, remembering why, then simplifies the combinators around
+it. Throughputs only matter below a layer's top, so pruning tracks whether the
+parent needs one (``need_tp``) and simplifies more aggressively when it does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from ..errors import UnsupportedNodeError
+from .evaluate import GraphEvaluator
+from .ir import Const, Input, Ref
+
+LOBES = {"oren_nayar_diffuse_bsdf", "burley_diffuse_bsdf", "dielectric_bsdf", "conductor_bsdf",
+         "generalized_schlick_bsdf", "sheen_bsdf", "subsurface_bsdf", "translucent_bsdf"}
+# Throughput MaterialX leaves when a lobe's weight is below M_FLOAT_EPS.
+ZERO_WEIGHT_THROUGHPUT = {"dielectric_bsdf": 1.0, "generalized_schlick_bsdf": 1.0, "sheen_bsdf": 1.0}
+EDFS = {"uniform_edf", "conical_edf", "measured_edf", "generalized_schlick_edf"}
+VDFS = {"anisotropic_vdf", "absorption_vdf"}
+CLOSURE_NODES = LOBES | EDFS | VDFS | {"layer", "surface"}
+APPROXIMATED = {"subsurface_bsdf": "subsurface scattering is replaced by MaterialX's hardware wrapped-diffusion "
+                                   "approximation for a flat surface"}
+
+
+@dataclass
+class Leaf:
+    node: int
+    category: str
+    path: str
+
+
+@dataclass
+class Zero:
+    throughput: float
+
+
+@dataclass
+class Layer:
+    top: object
+    base: object
+
+
+@dataclass
+class Mix:
+    fg: object
+    bg: object
+    amount: Input
+
+
+@dataclass
+class Add:
+    a: object
+    b: object
+
+
+@dataclass
+class Multiply:
+    child: object
+    tint: Input
+
+
+def plan_leaves(p) -> list[Leaf]:
+    """Leaves of a plan subtree, in evaluation order."""
+    if isinstance(p, Leaf):
+        return [p]
+    if isinstance(p, Layer):
+        return plan_leaves(p.top) + plan_leaves(p.base)
+    if isinstance(p, Mix):
+        return plan_leaves(p.fg) + plan_leaves(p.bg)
+    if isinstance(p, Add):
+        return plan_leaves(p.a) + plan_leaves(p.b)
+    if isinstance(p, Multiply):
+        return plan_leaves(p.child)
+    return []
+
+
+@dataclass
+class BsdfProgram:
+    root: object
+    kept: list[dict] = field(default_factory=list)
+    pruned: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def leaves(self) -> list[Leaf]:
+        return plan_leaves(self.root)
+
+    def inputs(self) -> list[Input]:
+        """Every IR input the program reads at run time (lobe parameters, mix and tint amounts)."""
+        ins, stack = [], [self.root]
+        while stack:
+            p = stack.pop()
+            if isinstance(p, Mix):
+                ins.append(p.amount)
+                stack += [p.fg, p.bg]
+            elif isinstance(p, Multiply):
+                ins.append(p.tint)
+                stack.append(p.child)
+            elif isinstance(p, Layer):
+                stack += [p.top, p.base]
+            elif isinstance(p, Add):
+                stack += [p.a, p.b]
+        return ins
+
+
+class _Builder:
+    def __init__(self, ev: GraphEvaluator):
+        self.ev = ev
+        self.g = ev.graph
+        self.prog = BsdfProgram(None)
+
+    def const(self, inp: Input):
+        if not self.ev.is_constant(inp):
+            return None
+        v = self.ev.value(inp, {})
+        return v if isinstance(v, torch.Tensor) else None
+
+    def prune(self, node_index: int, reason: str, throughput: float) -> Zero:
+        n = self.g[node_index]
+        self.prog.pruned.append({"closure": n.category, "node": n.path, "reason": reason})
+        return Zero(throughput)
+
+    def surface(self, inp: Input):
+        if isinstance(inp, Const):
+            return Zero(1.0)
+        n = self.g[inp.node]
+        if n.category == "surface":
+            edf = n.inputs.get("edf")
+            if isinstance(edf, Ref) and self._emits(edf):
+                self.prog.notes.append(f"emission ({self.g[edf.node].path}) is not a reflectance: dropped")
+            op = n.inputs.get("opacity")
+            if op is not None:
+                c = self.const(op)
+                if c is None or bool((c < 1).any()):
+                    self.prog.notes.append("opacity/cutout is not modelled by a reflectance: ignored")
+            return self.bsdf(n.inputs["bsdf"], need_tp=False)
+        if n.category == "mix":
+            return self._mix(n, self.surface(n.inputs["fg"]), self.surface(n.inputs["bg"]), n.inputs["mix"])
+        if n.category == "add":
+            return Add(self.surface(n.inputs["in1"]), self.surface(n.inputs["in2"]))
+        if n.category == "multiply":
+            return Multiply(self.surface(n.inputs["in1"]), n.inputs["in2"])
+        raise UnsupportedNodeError(f"{self.ev.source}: surface shader node '{n.path}' ({n.nodedef}) is not "
+                                   f"supported as a reflectance; use a BSDF-based shader.")
+
+    def drop(self, subtree, reason: str):
+        """Record every lobe of a subtree that a combinator removes."""
+        for leaf in plan_leaves(subtree):
+            self.prog.pruned.append({"closure": leaf.category, "node": leaf.path, "reason": reason})
+
+    def _emits(self, ref: Ref) -> bool:
+        """Whether an EDF subtree can emit anything (an EDF whose colour is not folded to 0)."""
+        stack, seen = [ref.node], set()
+        while stack:
+            i = stack.pop()
+            if i in seen:
+                continue
+            seen.add(i)
+            node = self.g[i]
+            if node.category in EDFS and "color" in node.inputs:
+                c = self.const(node.inputs["color"])
+                if c is None or bool((c != 0).any()):
+                    return True
+            stack += [v.node for v in node.inputs.values() if isinstance(v, Ref) and self.g[v.node].type == "EDF"]
+        return False
+
+    def _mix(self, n, fg, bg, amount):
+        c = self.const(amount)
+        if c is not None and bool((c <= 0).all()):
+            self.drop(fg, f"mix amount of '{n.path}' folds to 0")
+            return bg
+        if c is not None and bool((c == 1).all()):
+            self.drop(bg, f"mix amount of '{n.path}' folds to 1")
+            return fg
+        if isinstance(fg, Zero) and isinstance(bg, Zero) and fg.throughput == bg.throughput:
+            return fg
+        return Mix(fg, bg, amount)
+
+    def bsdf(self, inp: Input, need_tp: bool):
+        if isinstance(inp, Const):
+            return Zero(1.0)  # an unconnected BSDF input is MaterialX's BSDF(0, 1)
+        i = inp.node
+        n = self.g[i]
+        cat = n.category
+        if n.type == "VDF":
+            return Zero(1.0)  # volumes act only on transmission in MaterialX's hardware shading
+        if cat in LOBES:
+            return self._lobe(i)
+        if cat == "layer":
+            top = self.bsdf(n.inputs["top"], True)
+            base = self.bsdf(n.inputs["base"], need_tp)
+            if isinstance(top, Zero):
+                if top.throughput == 1.0:
+                    return base
+                if top.throughput == 0.0:
+                    self.drop(base, f"below the opaque top of layer '{n.path}'")
+                    return Zero(0.0)
+            if isinstance(base, Zero) and (not need_tp or base.throughput == 1.0):
+                return top
+            return Layer(top, base)
+        if cat == "mix":
+            return self._mix(n, self.bsdf(n.inputs["fg"], need_tp), self.bsdf(n.inputs["bg"], need_tp), n.inputs["mix"])
+        if cat == "add":
+            a, b = self.bsdf(n.inputs["in1"], need_tp), self.bsdf(n.inputs["in2"], need_tp)
+            for x, y in ((a, b), (b, a)):
+                if isinstance(x, Zero) and (x.throughput == 1.0 or not need_tp):
+                    return y
+            return Add(a, b)
+        if cat == "multiply":
+            child = self.bsdf(n.inputs["in1"], need_tp)
+            if isinstance(child, Zero):
+                return child
+            c = self.const(n.inputs["in2"])
+            if c is not None and bool((c >= 1).all()):
+                return child
+            if c is not None and bool((c <= 0).all()) and not need_tp:
+                self.drop(child, f"tint of '{n.path}' folds to 0")
+                return Zero(0.0)
+            return Multiply(child, n.inputs["in2"])
+        raise UnsupportedNodeError(f"{self.ev.source}: BSDF node '{n.path}' ({n.nodedef}) is not supported by "
+                                   f"the reflectance reference.")
+
+    def _lobe(self, i: int):
+        n = self.g[i]
+        cat = n.category
+        zero_tp = ZERO_WEIGHT_THROUGHPUT.get(cat, 0.0)
+        w = self.const(n.inputs["weight"])
+        if w is not None and bool((w < 1e-8).all()):
+            return self.prune(i, "weight folds to 0", zero_tp)
+        if cat in ("dielectric_bsdf", "generalized_schlick_bsdf"):
+            mode = self.ev.value(n.inputs["scatter_mode"], {})
+            if mode == "T":
+                return self.prune(i, "transmission only (scatter_mode T): contributes nothing to reflection, "
+                                      "as in MaterialX's hardware shading", 1.0)
+            if mode == "RT":
+                self.prog.notes.append(f"{n.path}: transmitted part of scatter_mode RT dropped (reflection only)")
+        if cat == "translucent_bsdf":
+            nrm = n.inputs["normal"]
+            c = self.const(nrm)
+            if c is not None and bool(torch.allclose(c, torch.tensor([[0.0, 0.0, 1.0]], dtype=c.dtype))):
+                return self.prune(i, "translucent: lit from the back side only; no reflection with the "
+                                     "geometric normal", 0.0)
+        if cat in APPROXIMATED:
+            self.prog.notes.append(f"{n.path}: {APPROXIMATED[cat]}")
+        return Leaf(i, cat, n.path)
+
+
+def build_program(ev: GraphEvaluator, root: Input) -> BsdfProgram:
+    """Fold, prune and simplify the closure tree feeding the material's surface shader."""
+    b = _Builder(ev)
+    b.prog.root = b.surface(root)
+    b.prog.kept = [{"closure": leaf.category, "node": leaf.path} for leaf in b.prog.leaves()]
+    kept_paths = {leaf.path for leaf in b.prog.leaves()}
+    b.prog.notes = [note for note in b.prog.notes
+                    if not any(note.startswith(p + ":") for p in _lobe_paths(b) - kept_paths)]
+    return b.prog
+
+
+def _lobe_paths(b: "_Builder") -> set[str]:
+    return {b.g[i].path for i in range(len(b.g.nodes)) if b.g[i].category in LOBES}

@@ -1,0 +1,80 @@
+"""Compile a MaterialX material into a folded, pruned BSDF program plus its spatial sub-graph."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import MaterialX as mx
+import torch
+
+from .bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
+from .evaluate import GraphEvaluator
+from .expand import expand_material
+from .ir import Const, IRGraph, Ref
+from .ops import OPS
+from .sources import FRAME_AXES, SPATIAL
+from .texture import check_texture
+
+NATIVE = set(OPS) | CLOSURE_NODES | SPATIAL | set(FRAME_AXES)
+
+
+@dataclass
+class CompiledMaterial:
+    """Everything the reference needs: IR, folded constants, BSDF program, spatial nodes."""
+
+    name: str
+    source: str
+    graph: IRGraph
+    evaluator: GraphEvaluator
+    program: BsdfProgram
+    spatial_nodes: list[int]
+
+    def describe(self) -> dict:
+        """Lobes kept/pruned, approximations, spatial inputs and textures (JSON-friendly)."""
+        g = self.graph
+        textures, spatial_inputs = [], []
+        for i in self.spatial_nodes:
+            n = g[i]
+            if n.category == "image":
+                f = n.inputs.get("file")
+                textures.append({"node": n.path, "file": f.value if isinstance(f, Const) else None,
+                                 "colorspace": n.attrs.get("colorspace", "")})
+            elif n.category in SPATIAL:
+                spatial_inputs.append({"node": n.path, "kind": n.category})
+        varying = []
+        for leaf in self.program.leaves():
+            for name, inp in g[leaf.node].inputs.items():
+                if isinstance(inp, Ref) and self.evaluator.spatial[inp.node]:
+                    varying.append(f"{leaf.path}.{name}")
+        for inp in self.program.inputs():
+            if isinstance(inp, Ref) and self.evaluator.spatial[inp.node]:
+                varying.append(g[inp.node].path)
+        return {
+            "material": self.name,
+            "source": self.source,
+            "lobes_kept": list(self.program.kept),
+            "lobes_pruned": list(self.program.pruned),
+            "approximations": list(self.program.notes),
+            "spatial_inputs": spatial_inputs,
+            "textures": textures,
+            "varying_parameters": varying,
+            "ir_nodes": len(g.nodes),
+        }
+
+
+def compile_material(document: mx.Document, material: str | None = None, device="cpu") -> CompiledMaterial:
+    """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries)."""
+    graph, root, source = expand_material(document, material, NATIVE)
+    ev = GraphEvaluator(graph, source, device=device)
+    program = build_program(ev, root)
+    needed = list(program.inputs())
+    for leaf in program.leaves():
+        needed += list(graph[leaf.node].inputs.values())
+    spatial_nodes = ev.spatial_closure(needed)
+    for i in spatial_nodes:
+        n = graph[i]
+        f = n.inputs.get("file")
+        if n.category == "image" and isinstance(f, Const) and f.value:
+            check_texture(f.value, n.path, source)
+    name = material or next(n.getName() for n in document.getMaterialNodes())
+    return CompiledMaterial(name, source, graph, ev, program, spatial_nodes)

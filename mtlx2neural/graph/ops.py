@@ -1,0 +1,227 @@
+"""Torch operators for MaterialX stdlib nodes (maths, logic, channel ops, geometry).
+
+Each operator takes the node's resolved inputs as a dict of values and returns
+its output (or a dict of outputs for multi-output nodes). Numeric values are
+float32 tensors shaped ``[B, C]`` where ``B`` is 1 for constants or the batch
+size, and ``C`` the MaterialX type's channel count; strings stay ``str``. Tensors
+broadcast over ``B``, and a 1-channel value broadcasts over channels, which is
+what MaterialX's "FA" (float second argument) variants need.
+
+Semantics follow MaterialX's GLSL implementations. Every division, sqrt, log
+and normalize is guarded so that no NaN or Inf leaves an operator.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+
+EPS = 1e-8  # guards for divisions/normalize; matches the role of M_FLOAT_EPS in MaterialX
+OPS: dict[str, Callable] = {}
+
+
+def op(*categories: str):
+    def register(fn):
+        for c in categories:
+            OPS[c] = fn
+        return fn
+    return register
+
+
+def safe_div(a, b):
+    """a / b with b pushed away from 0 (sign kept), as a shader would guard it."""
+    b = torch.where(b.abs() < EPS, torch.where(b < 0, -EPS, EPS) * torch.ones_like(b), b)
+    return a / b
+
+
+def normalize(v):
+    """Unit vector along the last axis; zero vectors map to zero."""
+    n = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+    return v / n.clamp_min(EPS)
+
+
+def dot(a, b):
+    return (a * b).sum(-1, keepdim=True)
+
+
+# --- arithmetic ---------------------------------------------------------------
+op("add")(lambda a, n: a["in1"] + a["in2"])
+op("subtract")(lambda a, n: a["in1"] - a["in2"])
+op("multiply")(lambda a, n: a["in1"] * a["in2"])
+op("divide")(lambda a, n: safe_div(a["in1"], a["in2"]))
+op("modulo")(lambda a, n: a["in1"] - safe_div(a["in1"], a["in2"]).floor() * a["in2"])
+op("absval")(lambda a, n: a["in"].abs())
+op("sign")(lambda a, n: torch.sign(a["in"]))
+op("floor")(lambda a, n: a["in"].floor())
+op("ceil")(lambda a, n: a["in"].ceil())
+op("round")(lambda a, n: a["in"].round())
+op("invert")(lambda a, n: a["amount"] - a["in"])
+op("min")(lambda a, n: torch.minimum(a["in1"], a["in2"]))
+op("max")(lambda a, n: torch.maximum(a["in1"], a["in2"]))
+op("clamp")(lambda a, n: torch.minimum(torch.maximum(a["in"], a["low"]), a["high"]))
+op("mix")(lambda a, n: a["bg"] + (a["fg"] - a["bg"]) * a["mix"])
+op("sqrt")(lambda a, n: a["in"].clamp_min(0.0).sqrt())
+op("exp")(lambda a, n: a["in"].clamp(max=80.0).exp())
+op("ln")(lambda a, n: a["in"].clamp_min(EPS).log())
+op("sin")(lambda a, n: a["in"].sin())
+op("cos")(lambda a, n: a["in"].cos())
+op("tan")(lambda a, n: a["in"].tan())
+op("asin")(lambda a, n: a["in"].clamp(-1, 1).asin())
+op("acos")(lambda a, n: a["in"].clamp(-1, 1).acos())
+op("atan2")(lambda a, n: torch.atan2(a["iny"], a["inx"]))
+
+
+@op("power")
+def _power(a, n):
+    # GLSL pow(x, y) is undefined for x < 0; MaterialX graphs only feed x >= 0. Clamp like a GPU would.
+    base = a["in1"].clamp_min(0.0)
+    return torch.where(base > 0, base.clamp_min(1e-30).pow(a["in2"]), torch.zeros_like(base * a["in2"]))
+
+
+@op("safepower")
+def _safepower(a, n):
+    x = a["in1"]
+    return torch.sign(x) * x.abs().clamp_min(1e-30).pow(a["in2"]) * (x != 0)
+
+
+@op("smoothstep")
+def _smoothstep(a, n):
+    t = safe_div(a["in"] - a["low"], a["high"] - a["low"]).clamp(0, 1)
+    return t * t * (3 - 2 * t)
+
+
+@op("remap")
+def _remap(a, n):
+    t = safe_div(a["in"] - a["inlow"], a["inhigh"] - a["inlow"])
+    return a["outlow"] + t * (a["outhigh"] - a["outlow"])
+
+
+# --- vectors --------------------------------------------------------------------
+op("normalize")(lambda a, n: normalize(a["in"]))
+op("magnitude")(lambda a, n: torch.linalg.vector_norm(a["in"], dim=-1, keepdim=True))
+op("distance")(lambda a, n: torch.linalg.vector_norm(a["in1"] - a["in2"], dim=-1, keepdim=True))
+op("dotproduct")(lambda a, n: dot(a["in1"], a["in2"]))
+op("crossproduct")(lambda a, n: torch.linalg.cross(*torch.broadcast_tensors(a["in1"], a["in2"]), dim=-1))
+op("luminance")(lambda a, n: torch.cat([dot(a["in"][:, :3], a["lumacoeffs"])] * 3
+                                       + ([a["in"][:, 3:4]] if a["in"].shape[-1] == 4 else []), -1))
+
+
+@op("rotate3d")
+def _rotate3d(a, n):
+    # Rodrigues rotation of `in` about `axis` by `amount` degrees.
+    v, k = torch.broadcast_tensors(a["in"], normalize(a["axis"]))
+    ang = a["amount"] * (math.pi / 180.0)
+    c, s = ang.cos(), ang.sin()
+    return v * c + torch.linalg.cross(k, v, dim=-1) * s + k * dot(k, v) * (1 - c)
+
+
+@op("rotate2d")
+def _rotate2d(a, n):
+    ang = a["amount"] * (math.pi / 180.0)
+    c, s = ang.cos(), ang.sin()
+    x, y = a["in"][:, :1], a["in"][:, 1:2]
+    return torch.cat([c * x - s * y, s * x + c * y], -1)
+
+
+# --- channels ---------------------------------------------------------------------
+op("combine2", "combine3", "combine4")(
+    lambda a, n: torch.cat(torch.broadcast_tensors(*[a[k] for k in ("in1", "in2", "in3", "in4") if k in a]), -1))
+op("convert")(lambda a, n: _convert(a["in"], n.type))
+op("constant", "dot")(lambda a, n: a["value"] if "value" in a else a["in"])
+
+
+@op("extract")
+def _extract(a, n):
+    idx = int(a["index"].reshape(-1)[0].item())
+    return a["in"][:, idx:idx + 1]
+
+
+@op("separate2", "separate3", "separate4")
+def _separate(a, n):
+    return {name: a["in"][:, i:i + 1] for i, name in enumerate(n.outputs)}
+
+
+def _convert(x, mx_type: str):
+    from .ir import CHANNELS
+    c = CHANNELS[mx_type]
+    if x.shape[-1] == c:
+        return x
+    if x.shape[-1] == 1:
+        return x.expand(x.shape[0], c)
+    if x.shape[-1] > c:
+        return x[:, :c]
+    pad = torch.ones(x.shape[0], c - x.shape[-1], dtype=x.dtype, device=x.device)
+    return torch.cat([x, pad], -1)
+
+
+# --- logic ------------------------------------------------------------------------
+op("ifgreater")(lambda a, n: torch.where(a["value1"] > a["value2"], a["in1"], a["in2"]))
+op("ifgreatereq")(lambda a, n: torch.where(a["value1"] >= a["value2"], a["in1"], a["in2"]))
+op("ifequal")(lambda a, n: torch.where(a["value1"] == a["value2"], a["in1"], a["in2"]))
+op("and")(lambda a, n: ((a["in1"] != 0) & (a["in2"] != 0)).float())
+op("or")(lambda a, n: ((a["in1"] != 0) | (a["in2"] != 0)).float())
+op("not")(lambda a, n: (a["in"] == 0).float())
+
+
+@op("switch")
+def _switch(a, n):
+    which = a["which"].floor().clamp(0, 9)
+    out = a["in1"]
+    for i in range(2, 11):
+        key = f"in{i}"
+        if key in a and a[key] is not None:
+            out = torch.where(which == i - 1, a[key], out)
+    return out
+
+
+# --- pbrlib parameter helpers (MaterialX genglsl semantics) -----------------------
+@op("artistic_ior")
+def _artistic_ior(a, n):
+    """Gulbrandsen's artist-friendly conductor Fresnel: (reflectivity, edge_color) -> (ior, extinction)."""
+    r = a["reflectivity"].clamp(0.0, 0.99)
+    rs = r.sqrt()
+    n_min = (1 - r) / (1 + r)
+    n_max = (1 + rs) / (1 - rs)
+    ior = n_max + (n_min - n_max) * a["edge_color"]
+    k2 = (((ior + 1) ** 2) * r - (ior - 1) ** 2) / (1 - r)
+    return {"ior": ior, "extinction": k2.clamp_min(0).sqrt()}
+
+
+@op("roughness_anisotropy")
+def _roughness_anisotropy(a, n):
+    r2 = (a["roughness"] ** 2).clamp(1.1920929e-07, 1.0)
+    aniso = a["anisotropy"]
+    aspect = (1 - aniso.clamp(0, 0.98)).sqrt()
+    ax = torch.where(aniso > 0, (r2 / aspect).clamp(max=1.0), r2)
+    ay = torch.where(aniso > 0, r2 * aspect, r2)
+    return torch.cat(torch.broadcast_tensors(ax, ay), -1)
+
+
+@op("roughness_dual")
+def _roughness_dual(a, n):
+    r = a["roughness"]
+    ry = torch.where(r[:, 1:2] < 0, r[:, :1], r[:, 1:2])
+    return torch.cat([r[:, :1], ry], -1).pow(2).clamp(1.1920929e-07, 1.0)
+
+
+@op("glossiness_anisotropy")
+def _glossiness_anisotropy(a, n):
+    return _roughness_anisotropy({"roughness": 1 - a["glossiness"], "anisotropy": a["anisotropy"]}, n)
+
+
+@op("normalmap")
+def _normalmap(a, n):
+    """Tangent-space normal map decode, MaterialX 1.39 semantics (float or vector2 scale)."""
+    v = a["in"]
+    zero = (v * v).sum(-1, keepdim=True) == 0
+    v = torch.where(zero, torch.tensor([0.0, 0.0, 1.0], dtype=v.dtype, device=v.device), v * 2 - 1)
+    scale = a["scale"]
+    sx, sy = (scale[:, :1], scale[:, 1:2]) if scale.shape[-1] == 2 else (scale, scale)
+    out = a["tangent"] * v[:, :1] * sx + a["bitangent"] * v[:, 1:2] * sy + a["normal"] * v[:, 2:3]
+    return normalize(out)
+
+
+op("transformnormal", "transformvector")(lambda a, n: a["in"])  # local shading frame: spaces coincide
+op("transformpoint")(lambda a, n: a["in"])

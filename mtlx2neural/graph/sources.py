@@ -1,0 +1,45 @@
+"""Operators whose value varies over the surface: texture lookups and geometric inputs.
+
+They are evaluated per shading point from ``uv``. In the local shading frame
+the geometric normal, tangent and bitangent are the constant axes z, x and y,
+so those are folded as constants; position, texture coordinates, vertex colours
+and primvars are spatial. Any node that depends on one of these is part of the
+spatial sub-graph.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .texture import sample_image
+
+SPATIAL = {"texcoord", "position", "geomcolor", "geompropvalue", "image"}
+FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
+UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
+
+
+def eval_source(node, args: dict, uv: torch.Tensor):
+    """Value of spatial source ``node`` for texture coordinates ``uv`` [N,2]."""
+    n = uv.shape[0]
+    cat = node.category
+    if cat == "texcoord":
+        return uv
+    if cat == "position":
+        return torch.cat([uv, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
+    if cat == "geomcolor":
+        from .ir import CHANNELS
+        return torch.ones(n, CHANNELS[node.type], dtype=uv.dtype, device=uv.device)
+    if cat == "geompropvalue":
+        if node.type == "vector2" and args.get("geomprop") in UV_PRIMVARS:
+            return uv
+        return args["default"].expand(n, -1)
+    if cat == "image":
+        from .ir import CHANNELS
+        path = args["file"]
+        default = args["default"]
+        if not path:
+            return default.expand(n, -1)
+        srgb = node.attrs.get("colorspace", "") in ("srgb_texture", "sRGB", "srgb")
+        return sample_image(path, args["texcoord"].expand(n, -1), args.get("uaddressmode", "periodic"),
+                            args.get("vaddressmode", "periodic"), CHANNELS[node.type], default, srgb)
+    raise KeyError(cat)

@@ -1,0 +1,78 @@
+"""Shared machinery of the GGX lobes (dielectric, conductor, generalized_schlick).
+
+Evaluation follows MaterialX's reflection branch: forward-facing normal, NdotV
+and NdotL clamped to [M_FLOAT_EPS, 1], anisotropic D, isotropic height-correlated
+G2 with the average alpha, and Turquin energy compensation from the analytic
+albedo fit. Sampling uses the GGX visible-normal distribution of the lobe's own
+anisotropic alpha, so ``pdf`` is exact for ``sample`` (it is not the BRDF).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..microfacet import (average_alpha, ggx_energy_compensation, ggx_ndf, sample_vndf, smith_g2,
+                          vndf_reflection_pdf)
+from ..vec import FLOAT_EPS, dot, forward_facing, from_frame, normalize, reflect, tangent_frame, to_frame
+from .base import Lobe
+
+
+class MicrofacetLobe(Lobe):
+    def _setup(self, wi):
+        """(V, frame, NdotV, alpha, avg_alpha) with MaterialX's clamps."""
+        n = self.p["normal"]
+        v = wi
+        if self.p.get("retroreflective") is not None and bool((self.p["retroreflective"] > 0).any()):
+            v = torch.where(self.p["retroreflective"] > 0, reflect(-wi, n), wi)
+        n = forward_facing(n.expand_as(v), v)
+        frame = tangent_frame(n, self.p["tangent"].expand_as(v))
+        n_dot_v = dot(n, v).clamp(FLOAT_EPS, 1.0)
+        alpha = self.p["roughness"].clamp(FLOAT_EPS, 1.0)
+        return v, frame, n_dot_v, alpha, average_alpha(alpha)
+
+    def fresnel(self, cos_theta):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _throughput(self, n_dot_v, avg_alpha, f):  # default: nothing passes to a base layer
+        return torch.zeros_like(n_dot_v)
+
+    def _scale(self):
+        return self.weight
+
+    def eval(self, wi, wo):
+        v, frame, n_dot_v, alpha, avg_alpha = self._setup(wi)
+        n = frame[2]
+        h = normalize(wo + v)
+        n_dot_l = dot(n, wo).clamp(FLOAT_EPS, 1.0)
+        v_dot_h = dot(v, h).clamp(FLOAT_EPS, 1.0)
+        f = self.fresnel(v_dot_h)
+        d = ggx_ndf(to_frame(h, frame), alpha)
+        g = smith_g2(n_dot_l, n_dot_v, avg_alpha)
+        comp = ggx_energy_compensation(n_dot_v, avg_alpha, f)
+        response = d * f * g * comp * self._scale() / (4.0 * n_dot_v)
+        throughput = self._throughput(n_dot_v, avg_alpha, f).expand_as(response)
+        return self._weight_mask(response, throughput)
+
+    def throughput(self, wi):
+        v, frame, n_dot_v, alpha, avg_alpha = self._setup(wi)
+        tp = self._throughput(n_dot_v, avg_alpha, None).expand(wi.shape[0], 3)
+        off = self.weight < FLOAT_EPS
+        return torch.where(off, torch.full_like(tp, self.zero_weight_throughput), tp)
+
+    def sample(self, wi, u):
+        v, frame, n_dot_v, alpha, _ = self._setup(wi)
+        v_local = to_frame(v, frame)
+        v_local = torch.cat([v_local[..., :2], v_local[..., 2:3].clamp_min(FLOAT_EPS)], -1)
+        h = sample_vndf(v_local, alpha, u)
+        wo_local = 2.0 * dot(v_local, h) * h - v_local
+        return normalize(from_frame(wo_local, frame))
+
+    def pdf(self, wi, wo):
+        v, frame, n_dot_v, alpha, _ = self._setup(wi)
+        h = normalize(wo + v)
+        h_local = to_frame(h, frame)
+        v_local = to_frame(v, frame)
+        v_local = torch.cat([v_local[..., :2], v_local[..., 2:3].clamp_min(FLOAT_EPS)], -1)
+        pdf = vndf_reflection_pdf(v_local, h_local, alpha)
+        ok = (h_local[..., 2:3] > 0) & (dot(v, h) > 0)
+        return torch.where(ok, pdf, torch.zeros_like(pdf))[..., 0]

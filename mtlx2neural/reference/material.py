@@ -1,0 +1,152 @@
+"""The batched torch reference BRDF of one compiled material (``m2n.load_reference``).
+
+Conventions (DESIGN.md): local shading frame with z the geometric normal and x
+the tangent; ``wi`` points to the viewer, ``wo`` to the light, both away from
+the surface. ``eval`` returns f(wi, wo) * max(0, wo.z) in linear RGB and is 0
+when either direction is at or below the horizon. Reflection only.
+
+Sampling picks one live lobe with probability proportional to the luminance of
+its estimated energy times the factors the combinators above it apply (layer
+throughput, mix amount, tint), then samples that lobe. ``pdf`` is the resulting
+one-sample mixture density over the whole sphere (a sampled direction may fall
+below the horizon: its weight is then 0), and ``weight = eval / pdf``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..graph.bsdf_program import Add, Layer, Leaf, Mix, Multiply, Zero
+from ..graph.compile import CompiledMaterial
+from .closures import LOBE_CLASSES
+from .tree import AddNode, LayerNode, LobeNode, MixNode, MultiplyNode, ZeroNode
+from .vec import INV_PI, cosine_sample, luminance
+
+DEFAULT_UV = (0.5, 0.5)
+
+
+def _finite(x: torch.Tensor) -> torch.Tensor:
+    return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+class ReferenceMaterial:
+    """eval / sample / pdf / albedo of a compiled MaterialX material on any torch device."""
+
+    def __init__(self, compiled: CompiledMaterial):
+        self.compiled = compiled
+        self.device = compiled.evaluator.device
+        self.dtype = compiled.evaluator.dtype
+
+    # -- building the closure tree for a batch ------------------------------------------
+    def _tree(self, n: int, uv):
+        ev = self.compiled.evaluator
+        env = {}
+        if self.compiled.spatial_nodes:
+            if uv is None:
+                uv = torch.tensor([DEFAULT_UV], dtype=self.dtype, device=self.device).expand(n, 2)
+            env = ev.run(self.compiled.spatial_nodes, uv.to(self.device, self.dtype))
+        graph = self.compiled.graph
+
+        def build(p):
+            if isinstance(p, Leaf):
+                params = {k: ev.value(v, env) for k, v in graph[p.node].inputs.items()}
+                return LobeNode(LOBE_CLASSES[p.category](params))
+            if isinstance(p, Zero):
+                return ZeroNode(p.throughput)
+            if isinstance(p, Layer):
+                return LayerNode(build(p.top), build(p.base))
+            if isinstance(p, Mix):
+                return MixNode(build(p.fg), build(p.bg), ev.value(p.amount, env))
+            if isinstance(p, Add):
+                return AddNode(build(p.a), build(p.b))
+            if isinstance(p, Multiply):
+                return MultiplyNode(build(p.child), ev.value(p.tint, env))
+            raise TypeError(p)
+
+        return build(self.compiled.program.root)
+
+    def _prep(self, *dirs):
+        return [d.to(self.device, self.dtype) for d in dirs]
+
+    # -- public API ----------------------------------------------------------------------
+    def eval(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None) -> torch.Tensor:
+        """f(wi, wo) * max(0, wo.z): [N,3] linear RGB; 0 when wi or wo is at or below the horizon."""
+        wi, wo = self._prep(wi, wo)
+        response, _ = self._tree(wi.shape[0], uv).eval(wi, wo)
+        above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
+        return torch.where(above, _finite(response), torch.zeros_like(response))
+
+    def _selection(self, tree, wi):
+        leaves = tree.leaves(wi, torch.ones_like(wi))
+        if not leaves:
+            return [], None
+        w = torch.stack([luminance((coef * lobe.energy(wi)).clamp_min(0.0)) for lobe, coef in leaves], -1)
+        w = _finite(w)
+        total = w.sum(-1, keepdim=True)
+        probs = torch.where(total > 0, w / total.clamp_min(1e-30), torch.full_like(w, 1.0 / len(leaves)))
+        return [lobe for lobe, _ in leaves], probs
+
+    @staticmethod
+    def _mixture_pdf(lobes, probs, wi, wo):
+        if not lobes:
+            return wo[:, 2].clamp_min(0.0) * INV_PI
+        pdfs = torch.stack([_finite(lobe.pdf(wi, wo)) for lobe in lobes], -1)
+        return (pdfs * probs).sum(-1)
+
+    def pdf(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None) -> torch.Tensor:
+        """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi is at or below the horizon."""
+        wi, wo = self._prep(wi, wo)
+        tree = self._tree(wi.shape[0], uv)
+        lobes, probs = self._selection(tree, wi)
+        pdf = self._mixture_pdf(lobes, probs, wi, wo)
+        return torch.where(wi[:, 2] > 0, pdf, torch.zeros_like(pdf))
+
+    def sample(self, wi: torch.Tensor, u: torch.Tensor, uv: torch.Tensor | None = None):
+        """Importance-sample ``wo`` from ``u`` [N,2] (or [N,3]: the third number picks the lobe).
+
+        Returns (wo [N,3], weight [N,3] = eval/pdf, pdf [N]); weight and pdf are 0 for
+        failed samples and when wi is at or below the horizon.
+        """
+        wi, u = self._prep(wi, u)
+        n = wi.shape[0]
+        tree = self._tree(n, uv)
+        lobes, probs = self._selection(tree, wi)
+        if not lobes:
+            wo = cosine_sample(u[:, :2])
+        else:
+            cdf = probs.cumsum(-1)
+            pick_u = u[:, 2] if u.shape[1] > 2 else u[:, 0]
+            k = torch.searchsorted(cdf, pick_u[:, None].clamp(max=1 - 1e-7)).clamp(max=len(lobes) - 1)[:, 0]
+            uu = u[:, :2].clone()
+            if u.shape[1] == 2:  # reuse the first number: rescale it within the chosen lobe's interval
+                lo = torch.where(k > 0, cdf.gather(1, (k - 1).clamp_min(0)[:, None])[:, 0], torch.zeros_like(u[:, 0]))
+                pk = probs.gather(1, k[:, None])[:, 0]
+                uu[:, 0] = ((u[:, 0] - lo) / pk.clamp_min(1e-12)).clamp(0.0, 1.0 - 1e-7)
+            wo = torch.zeros_like(wi)
+            for j, lobe in enumerate(lobes):
+                sel = k == j
+                if bool(sel.any()):
+                    wo = torch.where(sel[:, None], lobe.sample(wi, uu), wo)
+        wo = _finite(wo)
+        pdf = self._mixture_pdf(lobes, probs, wi, wo)
+        response, _ = tree.eval(wi, wo)
+        ok = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0) & (pdf[:, None] > 0)
+        weight = torch.where(ok, _finite(response) / pdf.clamp_min(1e-30)[:, None], torch.zeros_like(response))
+        pdf = torch.where(wi[:, 2] > 0, pdf, torch.zeros_like(pdf))
+        return wo, _finite(weight), pdf
+
+    def albedo(self, wi: torch.Tensor, uv: torch.Tensor | None = None, samples: int = 256,
+               seed: int = 0) -> torch.Tensor:
+        """Directional albedo [N,3]: Monte Carlo mean of sample() weights over ``samples`` Sobol points."""
+        (wi,) = self._prep(wi)
+        n = wi.shape[0]
+        sobol = torch.quasirandom.SobolEngine(3, scramble=True, seed=seed).draw(samples).to(self.device, self.dtype)
+        wi_rep = wi.repeat_interleave(samples, 0)
+        u = sobol.repeat(n, 1)
+        uv_rep = None if uv is None else uv.to(self.device, self.dtype).repeat_interleave(samples, 0)
+        _, weight, _ = self.sample(wi_rep, u, uv_rep)
+        return weight.view(n, samples, 3).mean(1)
+
+    def describe(self) -> dict:
+        """Lobes kept and pruned (with reasons), approximations, spatial inputs, textures."""
+        return self.compiled.describe()

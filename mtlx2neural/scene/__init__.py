@@ -1,0 +1,17 @@
+"""Scene stage: find the materials a scene's renderable geometry uses, as MaterialX documents.
+
+Input is a ``.mtlx`` file or a USD stage. USD materials are either UsdShade
+networks (MaterialX nodedef ids, or the UsdPreviewSurface family mapped onto
+MaterialX's own nodedefs for it) or references to ``.mtlx`` files, which are
+read directly because usd-core has no usdMtlx plugin. Each material is handed
+on as a self-contained MaterialX document without the standard libraries.
+
+Modules: ``loader`` (entry points), ``sources`` (result types, choosing by
+name), ``mtlx_file``, ``usd_stage``, ``usd_to_mtlx``, ``usd_values``,
+``usd_preview``, ``mtlx_refs``, ``binding``, ``mxlib``.
+"""
+
+from .loader import find_material, load_asset
+from .sources import MaterialSource, SceneMaterials
+
+__all__ = ["MaterialSource", "SceneMaterials", "find_material", "load_asset"]

@@ -1,0 +1,75 @@
+"""Entry points of the scene stage: dispatch on the file type, select, convert."""
+
+from __future__ import annotations
+
+import os
+
+import MaterialX as mx
+
+from ..errors import InputError
+from . import mtlx_file, usd_stage
+from .sources import Candidate, MaterialSource, SceneMaterials, choose
+
+MTLX_EXTENSIONS = (".mtlx",)
+
+
+def _candidates(path) -> tuple[str, list[Candidate]]:
+    asset = os.path.abspath(os.fspath(path))
+    ext = os.path.splitext(asset)[1].lower()
+    if ext in MTLX_EXTENSIONS:
+        return asset, _mtlx_candidates(asset)
+    if ext in usd_stage.USD_EXTENSIONS:
+        return asset, usd_stage.candidates(asset)
+    supported = ", ".join(MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS)
+    raise InputError(
+        f"{asset}: unsupported file type {ext or '(no extension)'!r}. "
+        f"Give a MaterialX or USD file ({supported})."
+    )
+
+
+def _mtlx_candidates(asset: str) -> list[Candidate]:
+    doc = mtlx_file.read_document(asset)
+    return [
+        Candidate(key=name, aliases=(name,), reason=None, load=_mtlx_loader(asset, doc, name))
+        for name in mtlx_file.material_names(doc)
+    ]
+
+
+def _mtlx_loader(asset: str, doc: "mx.Document", name: str):
+    def load() -> MaterialSource:
+        own = mx.createDocument()
+        own.copyContentFrom(doc)
+        return MaterialSource(name=name, document=own, material=name, source_file=asset, bound_prims=[])
+
+    return load
+
+
+def load_asset(path) -> SceneMaterials:
+    """Find and convert every material that the asset's renderable geometry uses.
+
+    ``path`` is a ``.mtlx`` file (every ``surfacematerial`` is a material) or a
+    USD file (``.usd``/``.usda``/``.usdc``/``.usdz``), whose Materials are
+    selected only when bound to visible gprims of purpose ``default`` or
+    ``render``; the others are listed in ``skipped`` with the reason. Each
+    selected material is converted to its own MaterialX document. Nothing is
+    written to disk. Raises InputError for missing, malformed or unsupported
+    input.
+    """
+    asset, cands = _candidates(path)
+    materials = [c.load() for c in cands if c.reason is None]
+    skipped = [(c.key, c.reason) for c in cands if c.reason is not None]
+    return SceneMaterials(asset=asset, materials=materials, skipped=skipped)
+
+
+def find_material(path, material: str | None = None) -> MaterialSource:
+    """Return one material of the asset at ``path`` as a MaterialX document.
+
+    ``material`` may be a full USD prim path (``/World/Looks/Brass``), a prim
+    or surfacematerial name (``Brass``), or None for the only material that
+    renderable geometry uses. A material named explicitly is returned even
+    when no renderable geometry binds it. Raises InputError (listing the
+    choices) when the name is unknown or ambiguous, or when ``material`` is
+    None and the asset does not have exactly one selected material.
+    """
+    asset, cands = _candidates(path)
+    return choose(asset, cands, material).load()

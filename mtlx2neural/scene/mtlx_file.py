@@ -1,0 +1,141 @@
+"""Reading ``.mtlx`` files: XIncludes, absolute texture paths, validation.
+
+Every ``surfacematerial`` node in the file is a material. The document handed
+on holds only the user's content (the standard libraries are never imported
+into it), with every ``filename`` value made absolute so that it no longer
+depends on the file's location or on ``fileprefix`` attributes.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+
+import MaterialX as mx
+
+from ..errors import InputError
+from . import mxlib
+
+MATERIAL_CATEGORY = "surfacematerial"
+
+
+def _abspath(path) -> str:
+    return os.path.abspath(os.fspath(path))
+
+
+@functools.lru_cache(maxsize=64)
+def _read_cached(path: str, mtime_ns: int) -> "mx.Document":
+    return _read_uncached(path)
+
+
+def read_document(path) -> "mx.Document":
+    """Read, clean and validate the ``.mtlx`` file at ``path``.
+
+    Returns a new document (a private copy; callers may modify it) whose
+    ``filename`` inputs are absolute paths (``<UDIM>``/``<UVTILE>`` tokens kept)
+    and that contains no standard-library elements. Raises InputError when the
+    file is missing, is not well-formed XML, has an unresolvable XInclude, or
+    fails ``validate()`` against the standard libraries.
+    """
+    path = _abspath(path)
+    if not os.path.isfile(path):
+        raise InputError(f"{path}: MaterialX file not found. Check the path.")
+    cached = _read_cached(path, os.stat(path).st_mtime_ns)
+    doc = mx.createDocument()
+    doc.copyContentFrom(cached)
+    for elem in doc.traverseTree():
+        # XIncluded content would otherwise be written back out as xi:include.
+        elem.setSourceUri("")
+    doc.setSourceUri(path)
+    return doc
+
+
+def _read_uncached(path: str) -> "mx.Document":
+    doc = mx.createDocument()
+    search = mx.FileSearchPath(os.path.dirname(path))
+    search.append(mx.FilePath(os.path.dirname(mxlib.library_dir())))
+    try:
+        mx.readFromXmlFile(doc, path, search)
+    except mx.ExceptionFileMissing as exc:
+        raise InputError(
+            f"{path}: a file it includes (xi:include) could not be found: {exc}. "
+            "Fix the include path or restore the missing file."
+        ) from exc
+    except mx.Exception as exc:
+        raise InputError(
+            f"{path}: not a readable MaterialX document: {exc}. "
+            "Check that the file is well-formed MaterialX XML."
+        ) from exc
+    except Exception as exc:  # MaterialX raises plain exceptions for some parse errors
+        raise InputError(
+            f"{path}: not a readable MaterialX document: {exc}. "
+            "Check that the file is well-formed MaterialX XML."
+        ) from exc
+    _drop_library_elements(doc)
+    absolutize_filenames(doc, os.path.dirname(path), search)
+    mxlib.validate(doc, path)
+    return doc
+
+
+def _drop_library_elements(doc: "mx.Document") -> None:
+    """Remove top-level elements that an XInclude pulled in from MaterialX's own libraries."""
+    for child in list(doc.getChildren()):
+        if mxlib.is_library_element(child):
+            doc.removeChild(child.getName())
+
+
+def absolutize_filenames(
+    doc: "mx.Document", default_dir: str, search: "mx.FileSearchPath | None" = None
+) -> None:
+    """Make every ``filename``-typed value in ``doc`` an absolute, normalised path.
+
+    ``fileprefix`` attributes on ancestors are applied first (they are then
+    removed, since the values no longer need them). Relative paths are taken
+    relative to the directory of the file that defined the element (its
+    source URI, which differs from ``default_dir`` for XIncluded content;
+    a relative source URI is looked up on ``search``, the path the file was
+    read with).
+    Empty values stay empty; ``<UDIM>`` and ``<UVTILE>`` tokens are kept.
+    One leniency: when the prefixed path does not exist but the value alone
+    does (files written for usdMtlx, which ignored ``fileprefix``, repeat the
+    prefix in the value), the existing file wins.
+    """
+    resolved: list[tuple["mx.ValueElement", str]] = []
+    for elem in doc.traverseTree():
+        if not isinstance(elem, mx.ValueElement) or elem.getType() != "filename":
+            continue
+        if not elem.hasValueString() or not elem.getValueString():
+            continue
+        base = _source_dir(elem.getActiveSourceUri(), default_dir, search)
+        value = os.path.normpath(os.path.join(base, elem.getResolvedValueString()))
+        raw = os.path.normpath(os.path.join(base, elem.getValueString()))
+        if raw != value and _missing(value) and not _missing(raw):
+            # Files written for usdMtlx (which ignored fileprefix) repeat the
+            # prefix in the value; keep the path that names an existing file.
+            value = raw
+        resolved.append((elem, value))
+    for elem, value in resolved:
+        elem.setValueString(value)
+    for elem in [doc, *doc.traverseTree()]:
+        if elem.hasFilePrefix():
+            elem.removeAttribute(mx.Element.FILE_PREFIX_ATTRIBUTE)
+
+
+def _missing(path: str) -> bool:
+    if "<UDIM>" in path or "<UVTILE>" in path:
+        return False  # patterns are checked by the texture stage
+    return not os.path.exists(path)
+
+
+def _source_dir(uri: str, default_dir: str, search: "mx.FileSearchPath | None") -> str:
+    if not uri:
+        return default_dir
+    if not os.path.isabs(uri):
+        found = search.find(mx.FilePath(uri)).asString() if search is not None else ""
+        uri = found if found and os.path.isabs(found) else os.path.join(default_dir, uri)
+    return os.path.dirname(os.path.normpath(uri))
+
+
+def material_names(doc: "mx.Document") -> list[str]:
+    """Names of the ``surfacematerial`` nodes at the top level of ``doc``, in document order."""
+    return [n.getName() for n in doc.getNodes() if n.getCategory() == MATERIAL_CATEGORY]

@@ -1,0 +1,80 @@
+"""The MaterialX standard data libraries, loaded once, and document validation.
+
+Documents handed to later stages hold only user content; the libraries are
+attached (never copied) to scratch copies when something needs to look up a
+nodedef or validate.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+
+import MaterialX as mx
+
+from ..errors import InputError
+
+
+def library_dir() -> str:
+    """Absolute path of the ``libraries`` folder shipped with the MaterialX package."""
+    return os.path.realpath(os.path.join(os.path.dirname(mx.__file__), "libraries"))
+
+
+@functools.lru_cache(maxsize=1)
+def standard_library() -> "mx.Document":
+    """The MaterialX standard data libraries (stdlib, pbrlib, bxdf, ...), loaded once.
+
+    Callers must treat the returned document as read-only.
+    """
+    lib = mx.createDocument()
+    search = mx.FileSearchPath(os.path.dirname(library_dir()))
+    mx.loadLibraries(["libraries"], search, lib)
+    if not lib.getNodeDefs():  # pragma: no cover - broken MaterialX install
+        raise RuntimeError(f"no MaterialX nodedefs found under {library_dir()}")
+    return lib
+
+
+def nodedef(name: str) -> "mx.NodeDef | None":
+    """The standard-library nodedef called ``name`` (e.g. ``ND_image_color3``), or None."""
+    return standard_library().getNodeDef(name)
+
+
+def output_types(nd: "mx.NodeDef") -> dict[str, str]:
+    """Map each output name of ``nd`` (including inherited ones) to its MaterialX type."""
+    return {o.getName(): o.getType() for o in nd.getActiveOutputs()}
+
+
+def node_type(nd: "mx.NodeDef") -> str:
+    """The ``type`` attribute a node instance of ``nd`` carries (``multioutput`` for several outputs)."""
+    outs = nd.getActiveOutputs()
+    if len(outs) == 1:
+        return outs[0].getType()
+    return "multioutput"
+
+
+def is_library_element(elem: "mx.Element") -> bool:
+    """True when ``elem`` was read from a file inside MaterialX's own library folder."""
+    uri = elem.getSourceUri()
+    if not uri:
+        return False
+    path = os.path.realpath(uri)
+    return path.startswith(library_dir() + os.sep)
+
+
+def validate(doc: "mx.Document", what: str) -> None:
+    """Validate ``doc`` against the standard libraries without modifying it.
+
+    ``what`` names the file (and material) for the message. Raises InputError
+    listing MaterialX's own complaints when the document is invalid.
+    """
+    scratch = mx.createDocument()
+    scratch.copyContentFrom(doc)
+    scratch.importLibrary(standard_library())
+    ok, message = scratch.validate()
+    if not ok:
+        details = "\n".join("  " + line for line in message.strip().splitlines()[:20])
+        raise InputError(
+            f"{what}: the MaterialX document is not valid:\n{details}\n"
+            "Fix the listed elements (for example with MaterialX Graph Editor or "
+            "`python -m MaterialX.validate`) and try again."
+        )

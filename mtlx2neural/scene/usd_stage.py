@@ -1,0 +1,131 @@
+"""USD stages: open safely, list every Material, decide which are needed, convert them.
+
+Materials come from two places: UsdShade networks on the stage (converted by
+``usd_to_mtlx``) and ``.mtlx`` files the stage references, which usd-core
+cannot compose (read by ``mtlx_file``; see ``mtlx_refs``). A Material is
+selected when renderable geometry binds it (see ``binding``).
+
+The stage is opened read-only in spirit: the only edits go to its in-memory
+session layer (placeholder Material prims for ``.mtlx`` references) and are
+never saved.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+
+from pxr import Pcp, Tf, Usd, UsdShade
+
+from ..errors import InputError
+from . import binding, mtlx_file, mxlib
+from .mtlx_refs import MtlxReference, add_placeholders, find_mtlx_references
+from .sources import Candidate, MaterialSource
+from .usd_to_mtlx import convert_material, defining_file
+
+log = logging.getLogger(__name__)
+
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def open_stage(path: str) -> Usd.Stage:
+    """Open the USD file at ``path``; InputError when it is missing or cannot be parsed."""
+    if not os.path.isfile(path):
+        raise InputError(f"{path}: USD file not found. Check the path.")
+    try:
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise InputError(f"{path}: not a readable USD file: {_tf_message(exc)}. Fix the file and try again.") from exc
+    if stage is None:
+        raise InputError(f"{path}: not a readable USD file. Fix the file and try again.")
+    for err in stage.GetCompositionErrors():
+        if isinstance(err, Pcp.ErrorInvalidAssetPath) and ".mtlx" in str(err):
+            continue  # handled by mtlx_refs
+        log.warning("%s: composition error: %s", path, err)
+    return stage
+
+
+def _tf_message(exc: Exception) -> str:
+    messages = re.findall(r" : '(.*?)'\s*$", str(exc), re.M | re.S)
+    return "; ".join(m.strip() for m in messages) or str(exc).strip()
+
+
+def candidates(path: str) -> list[Candidate]:
+    """Every Material on the USD stage at ``path``, each with its skip reason and a loader.
+
+    Order: stage traversal order, then materials only reachable through bindings.
+    """
+    stage = open_stage(path)
+    refs = {r.stage_path: r for r in find_mtlx_references(stage)}
+    add_placeholders(stage, list(refs.values()))
+    bindings = binding.collect_bindings(stage)
+
+    paths: list[str] = []
+    predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+    for prim in stage.Traverse(predicate):
+        if prim.IsA(UsdShade.Material):
+            paths.append(str(prim.GetPath()))
+    seen = set(paths)
+    for extra in [*refs, *bindings.uses]:
+        if extra not in seen:
+            paths.append(extra)
+            seen.add(extra)
+
+    out = []
+    for mat_path in paths:
+        ref = refs.get(mat_path)
+        aliases = [mat_path.rsplit("/", 1)[-1]]
+        if ref is not None:
+            aliases.append(ref.material)
+        use = bindings.uses.get(mat_path)
+        bound = list(use.renderable) if use else []
+        out.append(
+            Candidate(
+                key=mat_path,
+                aliases=tuple(dict.fromkeys(aliases)),
+                reason=binding.skip_reason(bindings, mat_path),
+                load=_loader(stage, mat_path, ref, bound),
+            )
+        )
+    return out
+
+
+def _loader(stage: Usd.Stage, mat_path: str, ref: MtlxReference | None, bound: list[str]):
+    def load() -> MaterialSource:
+        if ref is not None:
+            return _from_mtlx_reference(ref, bound)
+        return _from_network(stage, mat_path, bound)
+
+    return load
+
+
+def _from_mtlx_reference(ref: MtlxReference, bound: list[str]) -> MaterialSource:
+    doc = mtlx_file.read_document(ref.mtlx_path)
+    return MaterialSource(
+        name=ref.stage_path,
+        document=doc,
+        material=ref.material,
+        source_file=ref.mtlx_path,
+        bound_prims=bound,
+    )
+
+
+def _from_network(stage: Usd.Stage, mat_path: str, bound: list[str]) -> MaterialSource:
+    prim = stage.GetPrimAtPath(mat_path)
+    if not prim or not prim.IsA(UsdShade.Material):
+        root = stage.GetRootLayer().realPath
+        raise InputError(
+            f"{root}: <{mat_path}> is bound as a material but is not a Material prim. "
+            "Fix the material:binding target."
+        )
+    source_file = os.path.abspath(defining_file(prim))
+    doc, node_name = convert_material(UsdShade.Material(prim), source_file)
+    mxlib.validate(doc, f"{source_file}: <{mat_path}> (converted to MaterialX)")
+    return MaterialSource(
+        name=mat_path,
+        document=doc,
+        material=node_name,
+        source_file=source_file,
+        bound_prims=bound,
+    )
