@@ -13,17 +13,21 @@ import torch
 
 from .vec import PI, FLOAT_EPS
 
-# Rational fit coefficients for GGX directional albedo (scale/bias terms A, B),
-# columns: numerator A, numerator B, denominator A, denominator B.
-_R0 = (0.1003, 0.9345, 1.0, 1.0)
-_RX = (-0.6303, -2.323, -1.765, 0.2281)
-_RY = (9.748, 2.229, 8.263, 15.94)
-_RXY = (-2.038, -3.748, 11.53, -55.83)
-_RX2 = (29.34, 1.424, 28.96, 13.08)
-_RY2 = (-8.245, -0.7684, -7.507, 41.26)
-_RX2Y = (-26.44, 1.436, -36.11, 54.9)
-_RXY2 = (19.99, 0.2913, 15.86, 300.2)
-_RX2Y2 = (-5.448, 0.6286, 33.37, -285.1)
+# Rational fit of GGX directional albedo, E = F0 * A + F90 * B, with
+# A = num_A / den_A and B = num_B / den_B; each is a polynomial in x = NdotV and
+# y = alpha with these 9 monomials: 1, x, y, xy, x^2, y^2, x^2 y, x y^2, x^2 y^2.
+# Columns: num_A, num_B, den_A, den_B.
+_ALBEDO_FIT = (
+    (0.1003, 0.9345, 1.0, 1.0),
+    (-0.6303, -2.323, -1.765, 0.2281),
+    (9.748, 2.229, 8.263, 15.94),
+    (-2.038, -3.748, 11.53, -55.83),
+    (29.34, 1.424, 28.96, 13.08),
+    (-8.245, -0.7684, -7.507, 41.26),
+    (-26.44, 1.436, -36.11, 54.9),
+    (19.99, 0.2913, 15.86, 300.2),
+    (-5.448, 0.6286, 33.37, -285.1),
+)
 
 
 def ggx_ndf(h_local: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
@@ -49,15 +53,13 @@ def smith_g2(n_dot_l: torch.Tensor, n_dot_v: torch.Tensor, alpha: torch.Tensor) 
 
 
 def ggx_dir_albedo_ab(n_dot_v: torch.Tensor, alpha: torch.Tensor):
-    """(A, B) such that GGX directional albedo = F0*A + F90*B (MaterialX's analytic fit)."""
-    x, y = n_dot_v, alpha
+    """(A, B) [N,1] such that GGX directional albedo = F0*A + F90*B (MaterialX's analytic fit)."""
+    x, y = torch.broadcast_tensors(n_dot_v, alpha)
     x2, y2 = x * x, y * y
-    terms = (1.0, x, y, x * y, x2, y2, x2 * y, x * y2, x2 * y2)
-    coeffs = (_R0, _RX, _RY, _RXY, _RX2, _RY2, _RX2Y, _RXY2, _RX2Y2)
-    r = [sum(c[k] * t for c, t in zip(coeffs, terms)) for k in range(4)]
-    a = (r[0] / r[2]).clamp(0.0, 1.0)
-    b = (r[1] / r[3]).clamp(0.0, 1.0)
-    return a, b
+    mono = torch.cat([torch.ones_like(x), x, y, x * y, x2, y2, x2 * y, x * y2, x2 * y2], -1)
+    r = mono @ torch.tensor(_ALBEDO_FIT, dtype=mono.dtype, device=mono.device)
+    ab = (r[..., 0:2] / r[..., 2:4]).clamp(0.0, 1.0)
+    return ab[..., 0:1], ab[..., 1:2]
 
 
 def ggx_dir_albedo(n_dot_v, alpha, f0, f90):

@@ -52,12 +52,22 @@ def tangent_frame(n: torch.Tensor, x: torch.Tensor):
     return xt, cross(n, xt), n
 
 
+def is_geometric_frame(n: torch.Tensor, x: torch.Tensor) -> bool:
+    """True when ``n`` and ``x`` are the constant local axes z and x (no normal/tangent map)."""
+    return (n.shape[0] == 1 and x.shape[0] == 1 and n[0].tolist() == [0.0, 0.0, 1.0]
+            and x[0].tolist() == [1.0, 0.0, 0.0])
+
+
 def to_frame(v, frame):
+    if frame is None:  # the geometric frame: local coordinates already
+        return v
     x, y, n = frame
     return torch.cat([dot(v, x), dot(v, y), dot(v, n)], -1)
 
 
 def from_frame(v, frame):
+    if frame is None:
+        return v
     x, y, n = frame
     return v[..., 0:1] * x + v[..., 1:2] * y + v[..., 2:3] * n
 

@@ -65,7 +65,7 @@ def collect_bindings(stage: Usd.Stage, purpose: str = UsdShade.Tokens.full) -> B
     prims = [p for p, _ in pairs]
     materials, _ = UsdShade.MaterialBindingAPI.ComputeBoundMaterials(prims, purpose)
     state: dict[str, str] = {}
-    for (prim, gprim), material in zip(pairs, materials):
+    for (prim, gprim), material in zip(pairs, materials, strict=True):
         if not material or not material.GetPrim().IsValid():
             continue
         key = str(gprim.GetPath())

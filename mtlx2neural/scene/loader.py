@@ -22,8 +22,7 @@ def _candidates(path) -> tuple[str, list[Candidate]]:
         return asset, usd_stage.candidates(asset)
     supported = ", ".join(MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS)
     raise InputError(
-        f"{asset}: unsupported file type {ext or '(no extension)'!r}. "
-        f"Give a MaterialX or USD file ({supported})."
+        f"{asset}: unsupported file type {ext or '(no extension)'!r}. Give a MaterialX or USD file ({supported})."
     )
 
 

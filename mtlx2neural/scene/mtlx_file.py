@@ -63,13 +63,11 @@ def _read_uncached(path: str) -> "mx.Document":
         ) from exc
     except mx.Exception as exc:
         raise InputError(
-            f"{path}: not a readable MaterialX document: {exc}. "
-            "Check that the file is well-formed MaterialX XML."
+            f"{path}: not a readable MaterialX document: {exc}. Check that the file is well-formed MaterialX XML."
         ) from exc
     except Exception as exc:  # MaterialX raises plain exceptions for some parse errors
         raise InputError(
-            f"{path}: not a readable MaterialX document: {exc}. "
-            "Check that the file is well-formed MaterialX XML."
+            f"{path}: not a readable MaterialX document: {exc}. Check that the file is well-formed MaterialX XML."
         ) from exc
     _drop_library_elements(doc)
     absolutize_filenames(doc, os.path.dirname(path), search)
@@ -84,9 +82,7 @@ def _drop_library_elements(doc: "mx.Document") -> None:
             doc.removeChild(child.getName())
 
 
-def absolutize_filenames(
-    doc: "mx.Document", default_dir: str, search: "mx.FileSearchPath | None" = None
-) -> None:
+def absolutize_filenames(doc: "mx.Document", default_dir: str, search: "mx.FileSearchPath | None" = None) -> None:
     """Make every ``filename``-typed value in ``doc`` an absolute, normalised path.
 
     ``fileprefix`` attributes on ancestors are applied first (they are then

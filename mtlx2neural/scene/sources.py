@@ -88,6 +88,4 @@ def choose(asset: str, candidates: Sequence[Candidate], requested: str | None) -
             "Pass the full prim path instead."
         )
     listing = "\n".join(f"  {c.key}" + ("" if c.reason is None else f"  ({c.reason})") for c in candidates)
-    raise InputError(
-        f"{asset}: no material named {wanted!r}. Available materials:\n{listing or '  (none)'}"
-    )
+    raise InputError(f"{asset}: no material named {wanted!r}. Available materials:\n{listing or '  (none)'}")

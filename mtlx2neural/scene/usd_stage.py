@@ -116,8 +116,7 @@ def _from_network(stage: Usd.Stage, mat_path: str, bound: list[str]) -> Material
     if not prim or not prim.IsA(UsdShade.Material):
         root = stage.GetRootLayer().realPath
         raise InputError(
-            f"{root}: <{mat_path}> is bound as a material but is not a Material prim. "
-            "Fix the material:binding target."
+            f"{root}: <{mat_path}> is bound as a material but is not a Material prim. Fix the material:binding target."
         )
     source_file = os.path.abspath(defining_file(prim))
     doc, node_name = convert_material(UsdShade.Material(prim), source_file)

@@ -33,7 +33,12 @@ from pxr import Sdf, Usd, UsdShade
 
 from ..errors import InputError
 from . import mxlib, usd_preview
-from .usd_values import ValueConversionError, authored_value, resolve_asset, to_value_string
+from .usd_values import (
+    ValueConversionError,
+    authored_value,
+    resolve_asset,
+    to_value_string,
+)
 
 MTLX_CONTEXT = "mtlx"
 
@@ -67,6 +72,7 @@ class _Converter:
         self.source_file = source_file
         self.doc = mx.createDocument()
         self.doc.setColorSpace("lin_rec709")
+        self.doc.setSourceUri(source_file)  # so later stages' messages name the file
         self.nodes: dict[Sdf.Path, mx.Node] = {}
         self.nodedefs: dict[str, mx.NodeDef] = {}
         self.converts: dict[tuple[str, str, str], mx.Node] = {}

@@ -88,9 +88,7 @@ def to_value_string(value, mx_type: str, enum: str = "", enumvalues: str = "") -
     if mx_type in _ARITY:
         flat = _flatten(value)
         if len(flat) != _ARITY[mx_type]:
-            raise ValueConversionError(
-                f"expected {_ARITY[mx_type]} component(s) for {mx_type}, got {len(flat)}"
-            )
+            raise ValueConversionError(f"expected {_ARITY[mx_type]} component(s) for {mx_type}, got {len(flat)}")
         return ", ".join(_fmt_float(x) for x in flat)
     raise ValueConversionError(f"values of MaterialX type {mx_type!r} are not supported")
 

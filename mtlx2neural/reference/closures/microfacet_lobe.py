@@ -13,19 +13,35 @@ import torch
 
 from ..microfacet import (average_alpha, ggx_energy_compensation, ggx_ndf, sample_vndf, smith_g2,
                           vndf_reflection_pdf)
-from ..vec import FLOAT_EPS, dot, forward_facing, from_frame, normalize, reflect, tangent_frame, to_frame
+from ..vec import (FLOAT_EPS, dot, forward_facing, from_frame, is_geometric_frame, normalize, reflect,
+                   tangent_frame, to_frame)
 from .base import Lobe
 
 
 class MicrofacetLobe(Lobe):
+    def __init__(self, params):
+        super().__init__(params)
+        retro = params.get("retroreflective")
+        self.retro = retro is not None and bool((retro > 0).any())
+        # Fast path: no normal/tangent map, so the lobe frame is the local frame itself.
+        self.geometric = not self.retro and is_geometric_frame(params["normal"], params["tangent"])
+
+    def _normal(self, v):
+        """Forward-facing shading normal and the (X, Y, N) frame (None: the local frame)."""
+        if self.geometric:
+            # wi.z <= 0 is masked by the material; flip like MaterialX so the maths stays finite.
+            n = torch.zeros_like(v)
+            n[:, 2] = torch.where(v[:, 2] < 0, -1.0, 1.0)
+            return n, (None if bool((v[:, 2] >= 0).all()) else tangent_frame(n, self.p["tangent"].expand_as(v)))
+        n = forward_facing(self.p["normal"].expand_as(v), v)
+        return n, tangent_frame(n, self.p["tangent"].expand_as(v))
+
     def _setup(self, wi):
         """(V, frame, NdotV, alpha, avg_alpha) with MaterialX's clamps."""
-        n = self.p["normal"]
         v = wi
-        if self.p.get("retroreflective") is not None and bool((self.p["retroreflective"] > 0).any()):
-            v = torch.where(self.p["retroreflective"] > 0, reflect(-wi, n), wi)
-        n = forward_facing(n.expand_as(v), v)
-        frame = tangent_frame(n, self.p["tangent"].expand_as(v))
+        if self.retro:
+            v = torch.where(self.p["retroreflective"] > 0, reflect(-wi, self.p["normal"]), wi)
+        n, frame = self._normal(v)
         n_dot_v = dot(n, v).clamp(FLOAT_EPS, 1.0)
         alpha = self.p["roughness"].clamp(FLOAT_EPS, 1.0)
         return v, frame, n_dot_v, alpha, average_alpha(alpha)
@@ -41,9 +57,11 @@ class MicrofacetLobe(Lobe):
 
     def eval(self, wi, wo):
         v, frame, n_dot_v, alpha, avg_alpha = self._setup(wi)
-        n = frame[2]
         h = normalize(wo + v)
-        n_dot_l = dot(n, wo).clamp(FLOAT_EPS, 1.0)
+        if frame is None:
+            n_dot_l = wo[:, 2:3].clamp(FLOAT_EPS, 1.0)
+        else:
+            n_dot_l = dot(frame[2], wo).clamp(FLOAT_EPS, 1.0)
         v_dot_h = dot(v, h).clamp(FLOAT_EPS, 1.0)
         f = self.fresnel(v_dot_h)
         d = ggx_ndf(to_frame(h, frame), alpha)
