@@ -1,0 +1,30 @@
+"""Shared test fixtures: paths to the third-party assets in ../shared (skip when absent)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+MTLX_RES = SHARED / "assets" / "materialx" / "resources"
+USD_ASSETS = SHARED / "assets" / "usd" / "test_assets"
+
+
+def shared_path(*parts) -> Path:
+    """A path under ../shared/assets, or skip the test when ../shared is absent."""
+    p = SHARED.joinpath("assets", *parts)
+    if not p.exists():
+        pytest.skip(f"../shared asset not available: {p}")
+    return p
+
+
+def random_dirs(n: int, seed: int, upper: bool = True) -> torch.Tensor:
+    """``n`` seeded unit vectors, uniform on the (upper) sphere."""
+    g = torch.Generator().manual_seed(seed)
+    v = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    v = v / v.norm(dim=1, keepdim=True)
+    if upper:
+        v[:, 2] = v[:, 2].abs()
+    return v.float()
