@@ -113,14 +113,22 @@ class Expander:
             if ng is None:
                 raise InputError(f"{self.source}: input '{inst.getNamePath()}' connects to missing "
                                  f"nodegraph '{inst.getNodeGraphString()}'.")
-            scope_ng = self._graph_scopes.setdefault(ng.getNamePath(), _Scope(ng, ng.getNamePath()))
-            return self.graph_output(scope_ng, inst.getOutputString())
+            return self.graph_output(self._document_graph(ng), inst.getOutputString())
         if inst.hasValueString() and inst.getValueString() != "":
             colorspace = inst.getActiveColorSpace() if mx_type == "filename" else ""
             return Const(_const_value(inst, mx_type, self.base_dir), mx_type, colorspace)
         return self._default(ndin) if ndin is not None else Const(None, mx_type)
 
     # -- graphs and nodes ----------------------------------------------------
+    def _document_graph(self, ng: mx.NodeGraph) -> _Scope:
+        """Scope of a user nodegraph; its own inputs form its interface (resolved at document level)."""
+        key = ng.getNamePath()
+        if key not in self._graph_scopes:
+            doc_scope = _Scope(self.doc, "")
+            interface = {i.getName(): self.resolve_input(doc_scope, i, None) for i in ng.getInputs()}
+            self._graph_scopes[key] = _Scope(ng, key, interface)
+        return self._graph_scopes[key]
+
     def graph_output(self, scope: _Scope, output: str) -> Input:
         ng = scope.element
         outputs = ng.getOutputs()
