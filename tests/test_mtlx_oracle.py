@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-mx = pytest.importorskip("MaterialX")
+from mtlx2neural.evaluate import mtlx_oracle
+from mtlx2neural.evaluate.mtlx_oracle import mtlx_slang_eval, oracle_available
 
-from mtlx2neural.evaluate import mtlx_oracle  # noqa: E402
-from mtlx2neural.evaluate.mtlx_oracle import mtlx_slang_eval, oracle_available  # noqa: E402
+mx = pytest.importorskip("MaterialX")
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO.parent / "shared" / "assets" / "materialx" / "resources" / "Materials" / "Examples"
@@ -162,8 +162,20 @@ def _ggx_dielectric_reference(wi, wo, alpha, ior, tint):
             [-5.448, 0.6286, 33.37, -285.1],
         ]
     )
-    terms = np.stack([np.ones_like(x), x, y * np.ones_like(x), x * y, x * x, y * y * np.ones_like(x),
-                      x * x * y, x * y * y, x * x * y * y], axis=1)
+    terms = np.stack(
+        [
+            np.ones_like(x),
+            x,
+            y * np.ones_like(x),
+            x * y,
+            x * x,
+            y * y * np.ones_like(x),
+            x * x * y,
+            x * y * y,
+            x * x * y * y,
+        ],
+        axis=1,
+    )
     r = terms @ coef
     ab = np.clip(r[:, :2] / r[:, 2:], 0.0, 1.0)
     e_ss = ab[:, 0] + ab[:, 1]

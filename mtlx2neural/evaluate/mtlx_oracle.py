@@ -40,10 +40,13 @@ import os
 import re
 import threading
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from mtlx2neural.errors import Mtlx2NeuralError
 
 __all__ = [
     "OracleError",
@@ -63,8 +66,8 @@ _ADDRESS_CONSTANT, _ADDRESS_CLAMP, _ADDRESS_PERIODIC, _ADDRESS_MIRROR = 0, 1, 2,
 _FILTER_CLOSEST, _FILTER_LINEAR = 0, 1
 
 
-class OracleError(RuntimeError):
-    """MaterialX generation or Slang compilation of the oracle shader failed."""
+class OracleError(Mtlx2NeuralError):
+    """The oracle cannot run here, or MaterialX generation or Slang compilation of its shader failed."""
 
 
 class OracleUnsupported(OracleError):
@@ -73,8 +76,12 @@ class OracleUnsupported(OracleError):
 
 _lock = threading.RLock()
 _stdlib = None  # cached mx.Document with the standard data libraries
-_sources: dict[tuple[str, str, str], "_OracleSource"] = {}  # keyed by (XML hash, base dir, material)
-_kernels: dict[tuple[str, str | None], "_Kernel"] = {}  # keyed by (patched source hash, cache_dir)
+_sources: dict[tuple[str, str, str], _OracleSource] = {}  # keyed by (XML hash, base dir, material)
+# Compiled kernels keyed by (patched source hash, cache_dir), oldest first.  Kernels of textured
+# materials hold their texels (float32 RGBA, 64 MiB for a 2048^2 image); the oldest kernels are
+# dropped when the texels of all cached kernels exceed _MAX_CACHED_TEXEL_BYTES.
+_kernels: OrderedDict[tuple[str, str | None], _Kernel] = OrderedDict()
+_MAX_CACHED_TEXEL_BYTES = 1 << 30
 _devices: dict[str | None, object] = {}
 _available: tuple[bool, str] | None = None
 
@@ -168,12 +175,25 @@ def _generate_pixel_shader(document, material: str):
 class _Texture:
     uniform: str
     path: str | None  # resolved file, or None when it cannot be read (the default is used)
-    texels: np.ndarray  # [H, W, 4] float32, top row first
+    width: int
+    height: int
     uaddress: int
     vaddress: int
     filter: int
     default: tuple[float, float, float, float]
     offset: int = 0
+
+    def texels(self) -> np.ndarray:
+        """[height, width, 4] float32 RGBA, top row first (read now; not kept in memory)."""
+        if self.path is not None:
+            pix = _read_image(Path(self.path))
+            if pix is not None and pix.shape[:2] == (self.height, self.width):
+                return pix
+            warnings.warn(
+                f"MaterialX oracle: image {self.path} changed or became unreadable; using its default",
+                stacklevel=2,
+            )
+        return np.broadcast_to(np.asarray(self.default, dtype=np.float32), (self.height, self.width, 4))
 
 
 def _value_rgba(value) -> tuple[float, float, float, float]:
@@ -194,11 +214,30 @@ def _int_uniform(uniforms: dict, name: str, fallback: int) -> int:
     return int(data) if isinstance(data, (int, np.integer)) and not isinstance(data, bool) else fallback
 
 
-def _read_image(path: Path) -> np.ndarray | None:
+def _oiio():
     try:
         import OpenImageIO as oiio
     except ImportError as exc:  # pragma: no cover - OpenImageIO is a project dependency
-        raise OracleUnsupported(f"reading image {path} needs OpenImageIO: {exc}") from exc
+        raise OracleUnsupported(f"reading image textures needs OpenImageIO: {exc}") from exc
+    return oiio
+
+
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) of an image file, reading only its header; None if unreadable."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()  # clear the pending error message
+        return None
+    try:
+        spec = inp.spec()
+        return int(spec.width), int(spec.height)
+    finally:
+        inp.close()
+
+
+def _read_image(path: Path) -> np.ndarray | None:
+    oiio = _oiio()
     buf = oiio.ImageBuf(str(path))
     if buf.has_error:
         return None
@@ -218,6 +257,8 @@ def _read_image(path: Path) -> np.ndarray | None:
 
 
 def _make_texture(uniform: str, uniforms: dict, base_dir: Path) -> _Texture:
+    # Sampling properties come from the uniforms next to "<root>_file", as MaterialX's renderers
+    # find them (ImageSamplingProperties); absent ones mean periodic addressing and linear filtering.
     root = uniform.rsplit("_", 1)[0] if "_" in uniform else uniform
     _, file_value = uniforms.get(uniform, (None, None))
     default = _value_rgba(uniforms.get(root + "_default", (None, None))[1])
@@ -228,27 +269,20 @@ def _make_texture(uniform: str, uniforms: dict, base_dir: Path) -> _Texture:
     vmode = vmode if vmode in (0, 1, 2, 3) else _ADDRESS_PERIODIC
     filt = _FILTER_CLOSEST if filt == _FILTER_CLOSEST else _FILTER_LINEAR  # cubic -> linear
     name = file_value.getValueString() if file_value is not None else ""
-    texels = None
-    resolved = None
     if name:
         if "<UDIM>" in name or "<UVTILE>" in name:
             raise OracleUnsupported(f"image {name!r} uses UDIM/UV tiles, which the oracle does not support")
         p = Path(name)
         candidates = [p] if p.is_absolute() else [base_dir / p, Path.cwd() / p]
         for cand in candidates:
-            if cand.is_file():
-                texels = _read_image(cand)
-                if texels is not None:
-                    resolved = str(cand.resolve())
-                    break
-        if texels is None:
-            warnings.warn(
-                f"MaterialX oracle: image {name!r} ({uniform}) cannot be read; using the node's default value",
-                stacklevel=3,
-            )
-    if texels is None:
-        texels = np.asarray(default, dtype=np.float32).reshape(1, 1, 4)
-    return _Texture(uniform, resolved, texels, umode, vmode, filt, default)
+            size = _image_size(cand) if cand.is_file() else None
+            if size is not None:
+                return _Texture(uniform, str(cand.resolve()), size[0], size[1], umode, vmode, filt, default)
+        warnings.warn(
+            f"MaterialX oracle: image {name!r} ({uniform}) cannot be read; using the node's default value",
+            stacklevel=2,
+        )
+    return _Texture(uniform, None, 1, 1, umode, vmode, filt, default)
 
 
 _TEXTURE_SLANG = """
@@ -327,7 +361,7 @@ int2 textureSize(SamplerTexture2D tex, int mipLevel) { return int2(tex.width, te
 
 def _patch_textures(src: str) -> str:
     """Replace the generated SamplerTexture2D struct and its sampling helpers with ours."""
-    m = re.search(r"^struct\s+SamplerTexture2D\s*$", src, flags=re.M)
+    m = re.search(r"^struct\s+SamplerTexture2D\s*$", src, flags=re.MULTILINE)
     if m is None:
         raise OracleError("generated pixel shader has no SamplerTexture2D struct")
     close_idx = _matching_brace(src, src.index("{", m.end()))
@@ -360,7 +394,7 @@ def _matching_brace(src: str, open_idx: int) -> int:
 
 
 def _replace_function(src: str, signature_regex: str, new_def: str, *, required: bool = True) -> str:
-    m = re.search(signature_regex, src, flags=re.M)
+    m = re.search(signature_regex, src, flags=re.MULTILINE)
     if m is None:
         if required:
             raise OracleError(f"generated shader has no function matching {signature_regex!r}")
@@ -434,7 +468,7 @@ _UNIFORM_LINE = re.compile(
 
 
 def _patch_uniforms(src: str, uniforms: dict, base_dir: Path) -> tuple[str, list[_Texture]]:
-    m = re.search(r"^cbuffer\s+\w+\s*$", src, flags=re.M)
+    m = re.search(r"^cbuffer\s+\w+\s*$", src, flags=re.MULTILINE)
     if m is None:
         raise OracleError("generated pixel shader has no uniform cbuffer")
     open_idx = src.index("{", m.end())
@@ -458,7 +492,7 @@ def _patch_uniforms(src: str, uniforms: dict, base_dir: Path) -> tuple[str, list
                 raise OracleUnsupported(f"texture array uniform {name!r} is not supported")
             tex = _make_texture(name, uniforms, base_dir)
             tex.offset = offset
-            h, w = tex.texels.shape[:2]
+            h, w = tex.height, tex.width
             offset += h * w
             textures.append(tex)
             stamp = ""
@@ -483,6 +517,8 @@ def _patch_uniforms(src: str, uniforms: dict, base_dir: Path) -> tuple[str, list
             continue
         mx_type, value = uniforms.get(name, ("", None))
         out.append(f"static {typ} {name} = {_static_initializer(typ, mx_type, value)};")
+    if "u_viewPosition" not in declared:  # e.g. unlit shaders; the kernel still sets it
+        out.append("static float3 u_viewPosition;")
     if "u_refractionTwoSided" not in declared:
         out.append("static bool u_refractionTwoSided = false;")
     out.append("static float3 mxo_lightDirection = float3(0.0, 0.0, 1.0);")
@@ -500,7 +536,7 @@ _VD_FIELD = re.compile(r"^\s*(?P<type>\w+)\s+(?P<name>\w+)\s*(?::\s*\w+)?\s*;")
 
 
 def _vertex_fields(src: str) -> list[tuple[str, str]]:
-    m = re.search(r"^struct\s+VertexData\s*$", src, flags=re.M)
+    m = re.search(r"^struct\s+VertexData\s*$", src, flags=re.MULTILINE)
     if m is None:
         raise OracleError("generated pixel shader has no VertexData struct")
     open_idx = src.index("{", m.end())
@@ -518,7 +554,7 @@ def _vertex_value(typ: str, name: str) -> str | None:
     vm = _VEC_RE.match(typ)
     n = int(vm.group(2)) if vm else 1
     low = name.lower()
-    if low.startswith("sv_") or low.startswith("position"):
+    if low.startswith(("sv_", "position")):
         return None
     if low.startswith("bitangent"):
         v = [0.0, 1.0, 0.0]
@@ -542,11 +578,13 @@ def _patch_source(src: str, uniforms: dict, base_dir: Path) -> tuple[str, list[_
     src = _patch_textures(src)
     src, textures = _patch_uniforms(src, uniforms, base_dir)
 
-    # One directional light; direction and intensity come from per-thread globals.
+    # One directional light; direction and intensity come from per-thread globals.  (Shaders
+    # without lighting, such as surface_unlit, have neither function and reflect nothing.)
     src = _replace_function(
         src,
         r"^int\s+numActiveLightSources\s*\(\s*\)",
         "int numActiveLightSources()\n{\n    return 1;\n}",
+        required=False,  # unlit shaders have no light loop
     )
     src = _replace_function(
         src,
@@ -556,14 +594,16 @@ def _patch_source(src: str, uniforms: dict, base_dir: Path) -> tuple[str, list[_
         "    result.direction = mxo_lightDirection;\n"
         "    result.intensity = float3(mxo_lightIntensity);\n"
         "}",
+        required=False,
     )
+
+    # Slang rejects global constants without `static` (MaterialX emits some, e.g. for blackbody).
+    src = re.sub(r"^const\s+(?=\w)", "static const ", src, flags=re.MULTILINE)
 
     # Screen-space derivatives are zero, as on a flat plane; the subsurface approximation divides
     # two of them to get the curvature, which is zero on a plane.
     src = re.sub(r"\bfloat\s+curvature\s*=\s*[^;]*fwidth[^;]*;", "float curvature = 0.0;", src)
-    src = re.sub(
-        r"\b(fwidth|ddx|ddy|dFdx|dFdy|ddx_fine|ddy_fine|ddx_coarse|ddy_coarse)\s*\(", "mxo_zero(", src
-    )
+    src = re.sub(r"\b(fwidth|ddx|ddy|dFdx|dFdy|ddx_fine|ddy_fine|ddx_coarse|ddy_coarse)\s*\(", "mxo_zero(", src)
 
     # The fragment entry point becomes an ordinary function.
     fm = re.search(
@@ -716,6 +756,7 @@ class _Kernel:
     device: object
     kernel: object
     texels: object  # slangpy buffer with every texture's RGBA texels
+    texel_bytes: int
     source_hash: str
 
 
@@ -727,19 +768,14 @@ def _compile(osrc: _OracleSource, cache_dir=None) -> _Kernel:
     with _lock:
         k = _kernels.get(key)
         if k is not None:
+            _kernels.move_to_end(key)
             return k
         dev = _device(cache_dir)
         if cache_dir is not None:
             Path(cache_dir).mkdir(parents=True, exist_ok=True)
             Path(cache_dir, f"mxo_{digest[:16]}.slang").write_text(osrc.source)
-        try:
-            mod = dev.load_module_from_source(f"mxo_{digest[:16]}", osrc.source)
-            prog = dev.link_program([mod], [mod.entry_point(_ENTRY)])
-            kernel = dev.create_compute_kernel(prog)
-        except Exception as exc:
-            raise OracleError(f"Slang compilation of the oracle shader failed: {exc}") from exc
         if osrc.textures:
-            texels = np.concatenate([t.texels.reshape(-1, 4) for t in osrc.textures])
+            texels = np.concatenate([t.texels().reshape(-1, 4) for t in osrc.textures])
         else:
             texels = np.zeros((1, 4), dtype=np.float32)
         tbuf = dev.create_buffer(
@@ -747,8 +783,29 @@ def _compile(osrc: _OracleSource, cache_dir=None) -> _Kernel:
             struct_size=16,
             data=np.ascontiguousarray(texels, dtype=np.float32).reshape(-1),
         )
-        k = _Kernel(dev, kernel, tbuf, digest)
+        try:
+            mod = dev.load_module_from_source(f"mxo_{digest[:16]}", osrc.source)
+            prog = dev.link_program([mod], [mod.entry_point(_ENTRY)])
+            kernel = dev.create_compute_kernel(prog)
+            # The CPU back end compiles on first dispatch: do it now, with no work, so that
+            # compilation errors surface here.
+            dummy = dev.create_buffer(
+                element_count=8,
+                struct_size=4,
+                usage=spy.BufferUsage.shader_resource | spy.BufferUsage.unordered_access,
+            )
+            kernel.dispatch(
+                thread_count=[1, 1, 1],
+                vars={"mxo_wi": dummy, "mxo_wo": dummy, "mxo_out": dummy, "mxo_texels": tbuf, "mxo_count": 0},
+            )
+        except Exception as exc:
+            raise OracleError(f"Slang compilation of the oracle shader failed: {exc}") from exc
+        k = _Kernel(dev, kernel, tbuf, int(texels.nbytes), digest)
         _kernels[key] = k
+        total = sum(v.texel_bytes for v in _kernels.values())
+        while total > _MAX_CACHED_TEXEL_BYTES and len(_kernels) > 1:
+            _, old = _kernels.popitem(last=False)
+            total -= old.texel_bytes
         return k
 
 
