@@ -70,6 +70,7 @@ def _read_uncached(path: str) -> "mx.Document":
             f"{path}: not a readable MaterialX document: {exc}. Check that the file is well-formed MaterialX XML."
         ) from exc
     _drop_library_elements(doc)
+    wrap_shader_outputs(doc)
     absolutize_filenames(doc, os.path.dirname(path), search)
     mxlib.validate(doc, path)
     return doc
@@ -80,6 +81,37 @@ def _drop_library_elements(doc: "mx.Document") -> None:
     for child in list(doc.getChildren()):
         if mxlib.is_library_element(child):
             doc.removeChild(child.getName())
+
+
+def wrap_shader_outputs(doc: "mx.Document") -> list[str]:
+    """Give every free-standing surface shader a material, as MaterialX's renderers do.
+
+    Test and library files often hold nodegraphs whose ``surfaceshader`` outputs
+    no ``surfacematerial`` uses (MaterialX's own test suite renders each such
+    output). Each gets a ``surfacematerial`` named ``<nodegraph>_<output>``.
+    Returns the names added.
+    """
+    used = set()
+    for mat in doc.getNodes():
+        if mat.getCategory() == MATERIAL_CATEGORY:
+            inp = mat.getInput("surfaceshader")
+            if inp is not None and inp.getNodeGraphString():
+                used.add((inp.getNodeGraphString(), inp.getOutputString()))
+    added = []
+    for ng in doc.getNodeGraphs():
+        if ng.hasNodeDefString():
+            continue  # a definition, not a network
+        outs = [o for o in ng.getOutputs() if o.getType() == "surfaceshader"]
+        for out in outs:
+            if (ng.getName(), out.getName()) in used or (ng.getName(), "") in used:
+                continue
+            name = doc.createValidChildName(f"{ng.getName()}_{out.getName()}")
+            mat = doc.addNode(MATERIAL_CATEGORY, name, "material")
+            shader_in = mat.addInput("surfaceshader", "surfaceshader")
+            shader_in.setNodeGraphString(ng.getName())
+            shader_in.setOutputString(out.getName())
+            added.append(name)
+    return added
 
 
 def absolutize_filenames(doc: "mx.Document", default_dir: str, search: "mx.FileSearchPath | None" = None) -> None:
