@@ -28,7 +28,7 @@ LOBES = {"oren_nayar_diffuse_bsdf", "burley_diffuse_bsdf", "dielectric_bsdf", "c
 ZERO_WEIGHT_THROUGHPUT = {"dielectric_bsdf": 1.0, "generalized_schlick_bsdf": 1.0, "sheen_bsdf": 1.0}
 EDFS = {"uniform_edf", "conical_edf", "measured_edf", "generalized_schlick_edf"}
 VDFS = {"anisotropic_vdf", "absorption_vdf"}
-CLOSURE_NODES = LOBES | EDFS | VDFS | {"layer", "surface"}
+CLOSURE_NODES = LOBES | EDFS | VDFS | {"layer", "surface", "surface_unlit"}
 APPROXIMATED = {"subsurface_bsdf": "subsurface scattering is replaced by MaterialX's hardware wrapped-diffusion "
                                    "approximation for a flat surface"}
 
@@ -138,12 +138,18 @@ class _Builder:
             edf = n.inputs.get("edf")
             if isinstance(edf, Ref) and self._emits(edf):
                 self.prog.notes.append(f"emission ({self.g[edf.node].path}) is not a reflectance: dropped")
+            bsdf = self.bsdf(n.inputs["bsdf"], need_tp=False)
             op = n.inputs.get("opacity")
-            if op is not None:
-                c = self.const(op)
-                if c is None or bool((c < 1).any()):
-                    self.prog.notes.append("opacity/cutout is not modelled by a reflectance: ignored")
-            return self.bsdf(n.inputs["bsdf"], need_tp=False)
+            c = None if op is None else self.const(op)
+            if op is not None and (c is None or bool((c < 1).any())):
+                # MaterialX's hardware shading scales the reflected colour by opacity (coverage).
+                self.prog.notes.append(f"opacity of '{n.path}' scales the reflectance (coverage), as in "
+                                       f"MaterialX's hardware shading; transmission through the cutout is not modelled")
+                return Multiply(bsdf, op) if not isinstance(bsdf, Zero) else bsdf
+            return bsdf
+        if n.category == "surface_unlit":
+            self.prog.notes.append(f"'{n.path}' is an unlit surface: emission only, no reflectance")
+            return Zero(1.0)
         if n.category == "mix":
             return self._mix(n, self.surface(n.inputs["fg"]), self.surface(n.inputs["bg"]), n.inputs["mix"])
         if n.category == "add":

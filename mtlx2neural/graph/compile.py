@@ -64,9 +64,10 @@ class CompiledMaterial:
 
 def compile_material(document: mx.Document, material: str | None = None, device="cpu") -> CompiledMaterial:
     """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries)."""
-    graph, root, source = expand_material(document, material, NATIVE)
+    graph, root, source, notes = expand_material(document, material, NATIVE)
     ev = GraphEvaluator(graph, source, device=device)
     program = build_program(ev, root)
+    program.notes += notes
     needed = list(program.inputs())
     for leaf in program.leaves():
         needed += list(graph[leaf.node].inputs.values())

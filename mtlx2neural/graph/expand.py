@@ -21,6 +21,10 @@ from ..errors import InputError, UnsupportedNodeError
 from .ir import Const, Input, IRGraph, IRNode, Ref
 from .library import nodegraph_implementation, with_libraries
 
+# Inputs that only feed emission, which a reflectance model drops: an
+# unsupported node there becomes "unconnected" (with a note) instead of an error.
+EMISSION_ONLY = {"surface": {"edf"}, "surface_unlit": None}  # None: every input
+
 # geomprop category -> IR category for geometric inputs.
 _GEOMPROPS = {"normal", "tangent", "bitangent", "position", "texcoord", "geomcolor"}
 
@@ -66,6 +70,7 @@ class Expander:
         self._geom: dict[tuple, int] = {}
         self._stack: list[str] = []
         self._graph_scopes: dict[str, _Scope] = {}
+        self.notes: list[str] = []
 
     # -- inputs ---------------------------------------------------------------
     def _default(self, ndin: mx.Input) -> Input:
@@ -108,6 +113,13 @@ class Expander:
             return bound
         if inst.getNodeName():
             return self.node_output(scope, inst.getNodeName(), inst.getOutputString())
+        if inst.getOutputString() and not inst.getNodeGraphString():
+            # A connection to an <output> element of the enclosing graph (or document).
+            out = scope.element.getOutput(inst.getOutputString())
+            if out is None:
+                raise InputError(f"{self.source}: input '{inst.getNamePath()}' connects to missing output "
+                                 f"'{inst.getOutputString()}'.")
+            return self.resolve_input(scope, out, None)
         if inst.getNodeGraphString():
             ng = self.doc.getNodeGraph(inst.getNodeGraphString())
             if ng is None:
@@ -166,9 +178,17 @@ class Expander:
         self._stack.append(path)
         try:
             inputs = {}
-            for ndin in nodedef.getActiveInputs():
-                inputs[ndin.getName()] = self.resolve_input(scope, node.getInput(ndin.getName()), ndin)
             category = node.getCategory()
+            lenient = EMISSION_ONLY.get(category, set()) if category in EMISSION_ONLY else set()
+            for ndin in nodedef.getActiveInputs():
+                name = ndin.getName()
+                try:
+                    inputs[name] = self.resolve_input(scope, node.getInput(name), ndin)
+                except UnsupportedNodeError as exc:
+                    if lenient is not None and name not in lenient:
+                        raise
+                    inputs[name] = Const(None, ndin.getType())
+                    self.notes.append(f"emission input '{path}.{name}' dropped: {exc}")
             if category in self.native:
                 attrs = {}
                 file_in = inputs.get("file")
@@ -206,11 +226,11 @@ def find_material_node(document: mx.Document, material: str | None) -> mx.Node:
                      f"Available: {', '.join(m.getName() for m in mats) or 'none'}.")
 
 
-def expand_material(document: mx.Document, material: str | None, native: set[str]) -> tuple[IRGraph, Input, str]:
+def expand_material(document: mx.Document, material: str | None, native: set[str]):
     """Expand ``material`` into an IR graph.
 
-    Returns the graph, the IR input feeding the material's ``surfaceshader``
-    and the source label used in messages.
+    Returns the graph, the IR input feeding the material's ``surfaceshader``,
+    the source label used in messages, and notes on dropped emission inputs.
     """
     exp = Expander(document, native)
     node = find_material_node(exp.doc, material)
@@ -223,4 +243,4 @@ def expand_material(document: mx.Document, material: str | None, native: set[str
                          f"Connect a surface shader (e.g. standard_surface) to its 'surfaceshader' input.")
     scope = _Scope(exp.doc, "")
     root = exp.resolve_input(scope, shader_in, None)
-    return exp.graph, root, exp.source
+    return exp.graph, root, exp.source, exp.notes

@@ -29,6 +29,20 @@ def _finite(x: torch.Tensor) -> torch.Tensor:
     return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
 
 
+_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0)}
+
+
+def _default_frame(params: dict) -> dict:
+    """A zero-length normal or tangent (authored as 0,0,0) means the geometric axis."""
+    for key, axis in _AXES.items():
+        v = params.get(key)
+        if isinstance(v, torch.Tensor):
+            zero = (v * v).sum(-1, keepdim=True) < 1e-12
+            if bool(zero.any()):
+                params[key] = torch.where(zero, torch.tensor(axis, dtype=v.dtype, device=v.device), v)
+    return params
+
+
 class ReferenceMaterial:
     """eval / sample / pdf / albedo of a compiled MaterialX material on any torch device."""
 
@@ -50,7 +64,7 @@ class ReferenceMaterial:
         def build(p):
             if isinstance(p, Leaf):
                 params = {k: ev.value(v, env) for k, v in graph[p.node].inputs.items()}
-                return LobeNode(LOBE_CLASSES[p.category](params))
+                return LobeNode(LOBE_CLASSES[p.category](_default_frame(params)))
             if isinstance(p, Zero):
                 return ZeroNode(p.throughput)
             if isinstance(p, Layer):

@@ -29,10 +29,9 @@ class MicrofacetLobe(Lobe):
     def _normal(self, v):
         """Forward-facing shading normal and the (X, Y, N) frame (None: the local frame)."""
         if self.geometric:
-            # wi.z <= 0 is masked by the material; flip like MaterialX so the maths stays finite.
-            n = torch.zeros_like(v)
-            n[:, 2] = torch.where(v[:, 2] < 0, -1.0, 1.0)
-            return n, (None if bool((v[:, 2] >= 0).all()) else tangent_frame(n, self.p["tangent"].expand_as(v)))
+            # The normal is +z. MaterialX would flip it for wi.z < 0, but the material
+            # returns 0 there anyway; the clamped cosines keep the maths finite.
+            return self.p["normal"], None
         n = forward_facing(self.p["normal"].expand_as(v), v)
         return n, tangent_frame(n, self.p["tangent"].expand_as(v))
 
