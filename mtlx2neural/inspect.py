@@ -7,6 +7,7 @@ textures. Materials the scene skips are listed with the reason.
 
 from __future__ import annotations
 
+from .errors import InputError
 from .graph import compile_material
 from .scene import load_asset
 
@@ -24,6 +25,12 @@ def inspect_asset(path, material: str | None = None) -> dict:
         info["source"] = src.source_file
         info["bound_prims"] = list(src.bound_prims)
         report["materials"].append(info)
+    if material and not report["materials"] and not any(
+            material in (name, name.rsplit("/", 1)[-1]) for name, _ in scene.skipped):
+        listing = "\n".join([f"  {src.name}" for src in scene.materials]
+                            + [f"  {name}  ({reason})" for name, reason in scene.skipped])
+        raise InputError(f"{scene.asset}: no material named {material!r}. "
+                         f"Available materials:\n{listing or '  (none)'}")
     return report
 
 

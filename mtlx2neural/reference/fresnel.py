@@ -192,9 +192,11 @@ def fresnel_airy(cos_theta, fd: FresnelData):
 
 
 def compute_fresnel(cos_theta, fd: FresnelData, thin_film: bool):
-    """MaterialX mx_compute_fresnel: per-sample thin film where thickness > 0."""
+    """MaterialX mx_compute_fresnel: per-sample thin film where thickness > 0.
+
+    Returns [N,3], or [N,1] for a dielectric without thin film (it is grey)."""
     if fd.model == DIELECTRIC:
-        base = fresnel_dielectric(cos_theta, fd.ior).expand(*cos_theta.shape[:-1], 3)
+        base = fresnel_dielectric(cos_theta, fd.ior)  # grey: stays [N,1] until a colour multiplies it
     elif fd.model == CONDUCTOR:
         base = fresnel_conductor(cos_theta, fd.ior, fd.extinction)
     else:

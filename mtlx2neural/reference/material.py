@@ -88,7 +88,8 @@ class ReferenceMaterial:
         wi, wo = self._prep(wi, wo)
         response, _ = self._tree(wi.shape[0], uv).eval(wi, wo)
         above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
-        return torch.where(above, _finite(response), torch.zeros_like(response))
+        response = torch.where(above, _finite(response), 0.0)
+        return response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response
 
     def _selection(self, tree, wi):
         leaves = tree.leaves(wi, torch.ones_like(wi))
@@ -144,6 +145,7 @@ class ReferenceMaterial:
         wo = _finite(wo)
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
         response, _ = tree.eval(wi, wo)
+        response = response.expand(n, 3)
         ok = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0) & (pdf[:, None] > 0)
         weight = torch.where(ok, _finite(response) / pdf.clamp_min(1e-30)[:, None], torch.zeros_like(response))
         pdf = torch.where(wi[:, 2] > 0, pdf, torch.zeros_like(pdf))

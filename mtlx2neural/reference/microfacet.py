@@ -53,25 +53,38 @@ def smith_g2(n_dot_l: torch.Tensor, n_dot_v: torch.Tensor, alpha: torch.Tensor) 
 
 
 def ggx_dir_albedo_ab(n_dot_v: torch.Tensor, alpha: torch.Tensor):
-    """(A, B) [N,1] such that GGX directional albedo = F0*A + F90*B (MaterialX's analytic fit)."""
-    x, y = torch.broadcast_tensors(n_dot_v, alpha)
-    x2, y2 = x * x, y * y
-    mono = torch.cat([torch.ones_like(x), x, y, x * y, x2, y2, x2 * y, x * y2, x2 * y2], -1)
-    r = mono @ torch.tensor(_ALBEDO_FIT, dtype=mono.dtype, device=mono.device)
-    ab = (r[..., 0:2] / r[..., 2:4]).clamp(0.0, 1.0)
-    return ab[..., 0:1], ab[..., 1:2]
+    """(A, B) [N,1] such that GGX directional albedo = F0*A + F90*B (MaterialX's analytic fit).
+
+    Each rational term is evaluated as p0(y) + x (p1(y) + x p2(y)) with x = NdotV,
+    y = alpha; alpha is usually a per-material constant, so the p_k(y) are cheap.
+    """
+    y = alpha
+    y2 = y * y
+    cols = []
+    for k in range(4):
+        c = [row[k] for row in _ALBEDO_FIT]
+        p0 = c[0] + c[2] * y + c[5] * y2
+        p1 = c[1] + c[3] * y + c[7] * y2
+        p2 = c[4] + c[6] * y + c[8] * y2
+        cols.append(p0 + n_dot_v * (p1 + n_dot_v * p2))
+    a = (cols[0] / cols[2]).clamp(0.0, 1.0)
+    b = (cols[1] / cols[3]).clamp(0.0, 1.0)
+    return a, b
 
 
-def ggx_dir_albedo(n_dot_v, alpha, f0, f90):
-    a, b = ggx_dir_albedo_ab(n_dot_v, alpha)
+def ggx_dir_albedo(n_dot_v, alpha, f0, f90, ab=None):
+    a, b = ab if ab is not None else ggx_dir_albedo_ab(n_dot_v, alpha)
     return f0 * a + f90 * b
 
 
-def ggx_energy_compensation(n_dot_v, alpha, fss):
-    """Turquin-style multiple-scattering compensation factor 1 + F (1 - Ess) / Ess."""
-    a, b = ggx_dir_albedo_ab(n_dot_v, alpha)
+def ggx_energy_compensation(n_dot_v, alpha, fss, ab=None):
+    """Turquin-style multiple-scattering compensation factor 1 + F (1 - Ess) / Ess.
+
+    ``ab``: (A, B) from :func:`ggx_dir_albedo_ab` when the caller already has them.
+    """
+    a, b = ab if ab is not None else ggx_dir_albedo_ab(n_dot_v, alpha)
     ess = (a + b).clamp_min(FLOAT_EPS)
-    return 1.0 + fss * (1.0 - ess) / ess
+    return 1.0 + fss * ((1.0 - ess) / ess)
 
 
 def average_alpha(alpha: torch.Tensor) -> torch.Tensor:

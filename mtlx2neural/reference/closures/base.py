@@ -38,7 +38,10 @@ class Lobe:
 
     def _weight_mask(self, response, throughput):
         """MaterialX returns early for weight < M_FLOAT_EPS: zero response, default throughput."""
-        off = self.weight < FLOAT_EPS
+        w = self.weight
+        if w.shape[0] == 1 and bool((w >= FLOAT_EPS).all()):
+            return response, throughput  # a constant, live weight: nothing to mask
+        off = w < FLOAT_EPS
         response = torch.where(off, torch.zeros_like(response), response)
         throughput = torch.where(off, torch.full_like(throughput, self.zero_weight_throughput), throughput)
         return response, throughput

@@ -9,7 +9,7 @@ Transmission (scatter_mode T) is not a reflectance and is pruned by the compiler
 from __future__ import annotations
 
 from ..fresnel import DIELECTRIC, FresnelData, compute_fresnel, ior_to_f0
-from ..microfacet import ggx_dir_albedo, ggx_energy_compensation
+from ..microfacet import ggx_dir_albedo
 from .microfacet_lobe import MicrofacetLobe
 
 
@@ -29,20 +29,13 @@ class DielectricLobe(MicrofacetLobe):
     def _scale(self):
         return self.weight * self.p["tint"].clamp_min(0.0)
 
-    def _dir_albedo(self, n_dot_v, avg_alpha):
-        # MaterialX uses the plain dielectric F0 here, even with a thin film.
-        return ggx_dir_albedo(n_dot_v, avg_alpha, ior_to_f0(self.p["ior"]), 1.0)
-
-    def _throughput(self, n_dot_v, avg_alpha, f):
-        """1 - E(NdotV) comp(F) weight. MaterialX feeds the compensation the Fresnel value of
-        the light's half vector, F(VdotH), so throughput depends on wo; ``f=None`` uses
-        F(NdotV) instead (only for choosing lobes when sampling)."""
-        if f is None:
-            f = self.fresnel(n_dot_v)
-        comp = ggx_energy_compensation(n_dot_v, avg_alpha, f)
-        return 1.0 - self._dir_albedo(n_dot_v, avg_alpha) * comp * self.weight
+    def _throughput(self, ab, comp):
+        """1 - E(NdotV) comp weight, E the analytic GGX albedo for the plain dielectric F0
+        (MaterialX uses it even with a thin film)."""
+        e = ior_to_f0(self.p["ior"]) * ab[0] + ab[1]
+        return 1.0 - e * comp * self.weight
 
     def energy(self, wi):
         v, frame, n_dot_v, alpha, avg_alpha = self._setup(wi)
-        e = self._dir_albedo(n_dot_v, avg_alpha) * self._scale()
+        e = ggx_dir_albedo(n_dot_v, avg_alpha, ior_to_f0(self.p["ior"]), 1.0) * self._scale()
         return e.expand(wi.shape[0], 3)

@@ -51,8 +51,9 @@ class OrenNayarLobe(CosineSampledLobe):
         if comp is not None and bool((comp > 0).any()):
             diffuse = torch.where(comp > 0, self._compensated(n_dot_v, n_dot_l, s, r, color),
                                   self._qualitative(n_dot_v, n_dot_l, s, r) * color)
-        else:
-            diffuse = self._qualitative(n_dot_v, n_dot_l, s, r) * color
+        else:  # grey shape times colour: keep the scalar part [N,1] as long as possible
+            diffuse = (self._qualitative(n_dot_v, n_dot_l, s, r) * n_dot_l) * color
+            return self._weight_mask(diffuse * (self.weight * INV_PI), torch.zeros_like(diffuse))
         response = diffuse * self.weight * n_dot_l * INV_PI
         return self._weight_mask(response, torch.zeros_like(response))
 

@@ -8,7 +8,7 @@ a grey value, as MaterialX computes it.
 from __future__ import annotations
 
 from ..fresnel import SCHLICK, FresnelData, compute_fresnel
-from ..microfacet import ggx_dir_albedo, ggx_energy_compensation
+from ..microfacet import ggx_dir_albedo
 from .microfacet_lobe import MicrofacetLobe
 
 
@@ -27,15 +27,12 @@ class GeneralizedSchlickLobe(MicrofacetLobe):
     def fresnel(self, cos_theta):
         return compute_fresnel(cos_theta, self.fd, self.thin_film)
 
-    def _dir_albedo(self, n_dot_v, avg_alpha):
-        return ggx_dir_albedo(n_dot_v, avg_alpha, self.fd.f0, self.fd.f90)
-
-    def _throughput(self, n_dot_v, avg_alpha, f):
-        if f is None:
-            f = self.fresnel(n_dot_v)
-        e = self._dir_albedo(n_dot_v, avg_alpha) * ggx_energy_compensation(n_dot_v, avg_alpha, f)
+    def _throughput(self, ab, comp):
+        """1 - mean_rgb(E comp) weight with E = color0 A + color90 B (grey, as MaterialX)."""
+        e = (self.fd.f0 * ab[0] + self.fd.f90 * ab[1]) * comp
         return 1.0 - e.mean(-1, keepdim=True) * self.weight
 
     def energy(self, wi):
         v, frame, n_dot_v, alpha, avg_alpha = self._setup(wi)
-        return (self._dir_albedo(n_dot_v, avg_alpha) * self.weight).expand(wi.shape[0], 3)
+        e = ggx_dir_albedo(n_dot_v, avg_alpha, self.fd.f0, self.fd.f90)
+        return (e * self.weight).expand(wi.shape[0], 3)

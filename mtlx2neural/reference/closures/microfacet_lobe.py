@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import torch
 
-from ..microfacet import (average_alpha, ggx_energy_compensation, ggx_ndf, sample_vndf, smith_g2,
-                          vndf_reflection_pdf)
+from ..microfacet import (average_alpha, ggx_dir_albedo_ab, ggx_energy_compensation, ggx_ndf, sample_vndf,
+                          smith_g2, vndf_reflection_pdf)
 from ..vec import (FLOAT_EPS, dot, forward_facing, from_frame, is_geometric_frame, normalize, reflect,
                    tangent_frame, to_frame)
 from .base import Lobe
@@ -48,8 +48,10 @@ class MicrofacetLobe(Lobe):
     def fresnel(self, cos_theta):  # pragma: no cover - interface
         raise NotImplementedError
 
-    def _throughput(self, n_dot_v, avg_alpha, f):  # default: nothing passes to a base layer
-        return torch.zeros_like(n_dot_v)
+    def _throughput(self, ab, comp):
+        """Throughput from the albedo-fit terms ``ab`` (A, B) at NdotV and the energy
+        compensation ``comp``; default: nothing passes to a base layer."""
+        return torch.zeros_like(ab[0])
 
     def _scale(self):
         return self.weight
@@ -65,14 +67,21 @@ class MicrofacetLobe(Lobe):
         f = self.fresnel(v_dot_h)
         d = ggx_ndf(to_frame(h, frame), alpha)
         g = smith_g2(n_dot_l, n_dot_v, avg_alpha)
-        comp = ggx_energy_compensation(n_dot_v, avg_alpha, f)
-        response = d * f * g * comp * self._scale() / (4.0 * n_dot_v)
-        throughput = self._throughput(n_dot_v, avg_alpha, f).expand_as(response)
+        ab = ggx_dir_albedo_ab(n_dot_v, avg_alpha)
+        # MaterialX feeds the compensation F(VdotH) of the light's half vector, so a
+        # layer's throughput depends on wo too.
+        comp = ggx_energy_compensation(n_dot_v, avg_alpha, f, ab)
+        # Scalar factors first, so that only the last products are RGB.
+        response = (d * g / (4.0 * n_dot_v)) * (f * comp) * self._scale()
+        throughput = self._throughput(ab, comp).expand_as(response)
         return self._weight_mask(response, throughput)
 
     def throughput(self, wi):
+        """Throughput without a light: the compensation uses F(NdotV) (for choosing lobes)."""
         v, frame, n_dot_v, alpha, avg_alpha = self._setup(wi)
-        tp = self._throughput(n_dot_v, avg_alpha, None).expand(wi.shape[0], 3)
+        ab = ggx_dir_albedo_ab(n_dot_v, avg_alpha)
+        comp = ggx_energy_compensation(n_dot_v, avg_alpha, self.fresnel(n_dot_v), ab)
+        tp = self._throughput(ab, comp).expand(wi.shape[0], 3)
         off = self.weight < FLOAT_EPS
         return torch.where(off, torch.full_like(tp, self.zero_weight_throughput), tp)
 
