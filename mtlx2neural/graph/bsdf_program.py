@@ -267,6 +267,13 @@ def build_program(ev: GraphEvaluator, root: Input) -> BsdfProgram:
     b.prog.root = b.surface(root)
     b.prog.kept = [{"closure": leaf.category, "node": leaf.path} for leaf in b.prog.leaves()]
     kept_paths = {leaf.path for leaf in b.prog.leaves()}
+    # A lobe shared by several branches is kept if any branch keeps it; report each prune once.
+    seen, pruned = set(), []
+    for entry in b.prog.pruned:
+        if entry["node"] not in kept_paths and entry["node"] not in seen:
+            seen.add(entry["node"])
+            pruned.append(entry)
+    b.prog.pruned = pruned
     b.prog.notes = [note for note in b.prog.notes
                     if not any(note.startswith(p + ":") for p in _lobe_paths(b) - kept_paths)]
     return b.prog
