@@ -2,6 +2,7 @@
 
 For every material in ``Examples/StandardSurface``, ``Examples/UsdPreviewSurface``
 and ``TestSuite/pbrlib`` of ../shared, ``eval`` must match the oracle
+(textured ones at uv (0.5, 0.5), the texel the oracle shades)
 (:mod:`mtlx2neural.evaluate.mtlx_oracle`) on 4096 seeded direction pairs, a
 quarter of them grazing (z in [1e-4, 0.02]).
 
@@ -90,17 +91,25 @@ def test_eval_matches_materialx_generated_slang(path: Path, material: str):
         if "texture file" in str(exc):
             pytest.skip(f"textured material with a missing texture: {exc}")
         raise
-    if compiled.describe()["textures"]:
-        pytest.skip("textured material: compared by the textures stage's tests")
     if known:
         pytest.skip(f"not compared: {known[1]}")
     rng = np.random.default_rng(0)
     wi, wo = _directions(rng, 4096), _directions(rng, 4096)[rng.permutation(4096)]
+    # The oracle shades the texel at uv (0.5, 0.5); textured materials are compared there.
+    uv = torch.full((len(wi), 2), 0.5)
     ours = ReferenceMaterial(compiled).eval(torch.tensor(wi, dtype=torch.float32),
-                                            torch.tensor(wo, dtype=torch.float32)).double().numpy()
+                                            torch.tensor(wo, dtype=torch.float32), uv).double().numpy()
     ref = mtlx_slang_eval(src.document, src.material, wi, wo)
     bound = np.maximum(1e-5, 1e-3 * np.abs(ref))
     bad = np.abs(ours - ref) > bound
+    if compiled.describe()["textures"]:
+        # Textured materials are beyond the acceptance bar (non-textured ones must match
+        # everywhere). Known gap: where a normal map tilts the shading normal so that wi
+        # lies just below its horizon (|N.wi| ~ 1e-5, e.g. the chess knights at wi.z = 0.003),
+        # ours and MaterialX's differ by up to 1.5%. Allow 0.1% of values to miss the bound
+        # but stay within 2%.
+        assert bad.mean() <= 1e-3 and np.all(np.abs(ours - ref) <= np.maximum(1e-5, 0.02 * np.abs(ref)))
+        return
     if bad.any():
         i = np.unravel_index(np.argmax(np.abs(ours - ref) / bound), ref.shape)
         pytest.fail(f"{bad.mean():.2%} of values off; worst: ours {ours[i]:.6g} vs MaterialX {ref[i]:.6g} "

@@ -138,6 +138,11 @@ def _generate_pixel_shader(document, material: str):
     node = _find_material(doc, material)
 
     gen = mxslang.SlangShaderGenerator.create()
+    # Colour management as MaterialX's viewers set it up: texture colour spaces
+    # (srgb_texture, ...) are converted to the document's working space.
+    cms = mxgen.DefaultColorManagementSystem.create(gen.getTarget())
+    cms.loadLibrary(doc)
+    gen.setColorManagementSystem(cms)
     ctx = mxgen.GenContext(gen)
     ctx.registerSourceCodeSearchPath(mx.FileSearchPath(str(_library_root())))
     opts = ctx.getOptions()

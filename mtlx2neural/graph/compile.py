@@ -32,13 +32,20 @@ class CompiledMaterial:
     def describe(self) -> dict:
         """Lobes kept/pruned, approximations, spatial inputs and textures (JSON-friendly)."""
         g = self.graph
-        textures, spatial_inputs = [], []
+        textures, spatial_inputs, notes = [], [], []
         for i in self.spatial_nodes:
             n = g[i]
             if n.category == "image":
                 f = n.inputs.get("file")
+                cs, working = n.attrs.get("colorspace", ""), n.attrs.get("working_space", "")
+                converted = cs in ("srgb_texture", "sRGB", "srgb") and working == "lin_rec709"
                 textures.append({"node": n.path, "file": f.value if isinstance(f, Const) else None,
-                                 "colorspace": n.attrs.get("colorspace", "")})
+                                 "colorspace": cs, "working_space": working,
+                                 "converted": converted})
+                if cs and not converted and cs not in ("raw", "lin_rec709") and cs != working:
+                    notes.append(f"texture '{f.value if isinstance(f, Const) else n.path}' is {cs}: not converted "
+                                 f"to the working space '{working or 'undeclared'}' (full OCIO conversion comes "
+                                 f"with the textures stage; MaterialX converts only when a working space is declared)")
             elif n.category in SPATIAL:
                 spatial_inputs.append({"node": n.path, "kind": n.category})
         varying = []
@@ -54,7 +61,7 @@ class CompiledMaterial:
             "source": self.source,
             "lobes_kept": list(self.program.kept),
             "lobes_pruned": list(self.program.pruned),
-            "approximations": list(self.program.notes),
+            "approximations": list(self.program.notes) + notes,
             "spatial_inputs": spatial_inputs,
             "textures": textures,
             "varying_parameters": varying,

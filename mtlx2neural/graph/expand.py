@@ -71,6 +71,9 @@ class Expander:
         self._stack: list[str] = []
         self._graph_scopes: dict[str, _Scope] = {}
         self.notes: list[str] = []
+        # The working colour space; as in MaterialX's generators, texture colour spaces are
+        # converted only when the document declares one.
+        self.working_space = document.getColorSpace()
 
     # -- inputs ---------------------------------------------------------------
     def _default(self, ndin: mx.Input) -> Input:
@@ -194,6 +197,7 @@ class Expander:
                 file_in = inputs.get("file")
                 if isinstance(file_in, Const) and file_in.type == "filename":
                     attrs["colorspace"] = file_in.colorspace
+                    attrs["working_space"] = self.working_space
                 idx = self.graph.add(IRNode(
                     category, nodedef.getName(), inputs,
                     {o.getName(): o.getType() for o in nodedef.getActiveOutputs()}, path, attrs))

@@ -39,7 +39,8 @@ def eval_source(node, args: dict, uv: torch.Tensor):
         default = args["default"]
         if not path:
             return default.expand(n, -1)
-        srgb = node.attrs.get("colorspace", "") in ("srgb_texture", "sRGB", "srgb")
+        srgb = (node.attrs.get("colorspace", "") in ("srgb_texture", "sRGB", "srgb")
+                and node.attrs.get("working_space", "") == "lin_rec709")
         return sample_image(path, args["texcoord"].expand(n, -1), args.get("uaddressmode", "periodic"),
                             args.get("vaddressmode", "periodic"), CHANNELS[node.type], default, srgb)
     raise KeyError(cat)

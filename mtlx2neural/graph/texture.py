@@ -25,7 +25,7 @@ def _load(path: str) -> torch.Tensor:
     if inp is None:
         raise InputError(f"cannot read texture '{path}': {oiio.geterror()}")
     try:
-        pixels = inp.read_image(0, 0, 0, -1, "float")
+        pixels = inp.read_image(0, 0, 0, inp.spec().nchannels, "float")
     finally:
         inp.close()
     if pixels is None:
