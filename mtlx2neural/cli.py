@@ -30,8 +30,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] not in SUBCOMMANDS and not argv[0].startswith("-"):
-        print("mtlx2neural: training and export are not available yet in this version; "
-              "run 'mtlx2neural inspect ASSET' to see what would be converted.", file=sys.stderr)
+        print(f"mtlx2neural: cannot convert '{argv[0]}': training and export are not available yet in this "
+              f"version. Run 'mtlx2neural inspect {argv[0]}' to see what would be converted.", file=sys.stderr)
         return 1
     args = _parser().parse_args(argv)
     try:
