@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,12 @@ import torch
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 MTLX_RES = SHARED / "assets" / "materialx" / "resources"
 USD_ASSETS = SHARED / "assets" / "usd" / "test_assets"
+
+
+if (SHARED / "assets" / "materialx").exists():
+    # MaterialX's test files name some textures relative to the MaterialX repository
+    # root, which MaterialX's own test runner puts on MATERIALX_SEARCH_PATH.
+    os.environ.setdefault("MATERIALX_SEARCH_PATH", str(SHARED / "assets" / "materialx"))
 
 
 def shared_path(*parts) -> Path:

@@ -24,7 +24,7 @@ def _abspath(path) -> str:
 
 
 @functools.lru_cache(maxsize=64)
-def _read_cached(path: str, mtime_ns: int) -> "mx.Document":
+def _read_cached(path: str, mtime_ns: int, search_env: str) -> "mx.Document":
     return _read_uncached(path)
 
 
@@ -40,7 +40,7 @@ def read_document(path) -> "mx.Document":
     path = _abspath(path)
     if not os.path.isfile(path):
         raise InputError(f"{path}: MaterialX file not found. Check the path.")
-    cached = _read_cached(path, os.stat(path).st_mtime_ns)
+    cached = _read_cached(path, os.stat(path).st_mtime_ns, os.environ.get("MATERIALX_SEARCH_PATH", ""))
     doc = mx.createDocument()
     doc.copyContentFrom(cached)
     for elem in doc.traverseTree():
@@ -124,7 +124,8 @@ def absolutize_filenames(doc: "mx.Document", default_dir: str, search: "mx.FileS
     a relative source URI is looked up on ``search``, the path the file was
     read with).
     Empty values stay empty; ``<UDIM>`` and ``<UVTILE>`` tokens are kept.
-    One leniency: when the prefixed path does not exist but the value alone
+    A relative path that does not exist beside its document is looked up on
+    ``MATERIALX_SEARCH_PATH``. One leniency: when the prefixed path does not exist but the value alone
     does (files written for usdMtlx, which ignored ``fileprefix``, repeat the
     prefix in the value), the existing file wins.
     """
@@ -141,12 +142,23 @@ def absolutize_filenames(doc: "mx.Document", default_dir: str, search: "mx.FileS
             # Files written for usdMtlx (which ignored fileprefix) repeat the
             # prefix in the value; keep the path that names an existing file.
             value = raw
+        if _missing(value):
+            value = _on_search_path(elem.getResolvedValueString()) or value
         resolved.append((elem, value))
     for elem, value in resolved:
         elem.setValueString(value)
     for elem in [doc, *doc.traverseTree()]:
         if elem.hasFilePrefix():
             elem.removeAttribute(mx.Element.FILE_PREFIX_ATTRIBUTE)
+
+
+def _on_search_path(relative: str) -> str | None:
+    """``relative`` found under a folder of ``MATERIALX_SEARCH_PATH`` (MaterialX's own
+    environment search path, as its viewers and test runners resolve textures), or None."""
+    if os.path.isabs(relative):
+        return None
+    found = mx.getEnvironmentPath().find(mx.FilePath(relative)).asString()
+    return os.path.normpath(found) if os.path.isabs(found) and not _missing(found) else None
 
 
 def _missing(path: str) -> bool:
