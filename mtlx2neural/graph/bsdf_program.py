@@ -56,6 +56,7 @@ class Mix:
     fg: object
     bg: object
     amount: Input
+    key: str = ""  # parameter name of the amount: "<node path>.mix"
 
 
 @dataclass
@@ -68,6 +69,7 @@ class Add:
 class Multiply:
     child: object
     tint: Input
+    key: str = ""  # parameter name of the tint: "<node path>.in2" (or ".opacity")
 
 
 def plan_leaves(p) -> list[Leaf]:
@@ -96,15 +98,19 @@ class BsdfProgram:
         return plan_leaves(self.root)
 
     def inputs(self) -> list[Input]:
-        """Every IR input the program reads at run time (lobe parameters, mix and tint amounts)."""
+        """The IR inputs of the combinators (mix and tint amounts)."""
+        return [inp for _, inp in self.amounts()]
+
+    def amounts(self) -> list[tuple[str, Input]]:
+        """(parameter name, IR input) of every mix amount and tint, in tree order."""
         ins, stack = [], [self.root]
         while stack:
             p = stack.pop()
             if isinstance(p, Mix):
-                ins.append(p.amount)
+                ins.append((p.key, p.amount))
                 stack += [p.fg, p.bg]
             elif isinstance(p, Multiply):
-                ins.append(p.tint)
+                ins.append((p.key, p.tint))
                 stack.append(p.child)
             elif isinstance(p, Layer):
                 stack += [p.top, p.base]
@@ -145,7 +151,7 @@ class _Builder:
                 # MaterialX's hardware shading scales the reflected colour by opacity (coverage).
                 self.prog.notes.append(f"opacity of '{n.path}' scales the reflectance (coverage), as in "
                                        f"MaterialX's hardware shading; transmission through the cutout is not modelled")
-                return Multiply(bsdf, op) if not isinstance(bsdf, Zero) else bsdf
+                return Multiply(bsdf, op, f"{n.path}.opacity") if not isinstance(bsdf, Zero) else bsdf
             return bsdf
         if n.category == "surface_unlit":
             self.prog.notes.append(f"'{n.path}' is an unlit surface: emission only, no reflectance")
@@ -155,7 +161,7 @@ class _Builder:
         if n.category == "add":
             return Add(self.surface(n.inputs["in1"]), self.surface(n.inputs["in2"]))
         if n.category == "multiply":
-            return Multiply(self.surface(n.inputs["in1"]), n.inputs["in2"])
+            return Multiply(self.surface(n.inputs["in1"]), n.inputs["in2"], f"{n.path}.in2")
         raise UnsupportedNodeError(f"{self.ev.source}: surface shader node '{n.path}' ({n.nodedef}) is not "
                                    f"supported as a reflectance; use a BSDF-based shader.")
 
@@ -190,7 +196,7 @@ class _Builder:
             return fg
         if isinstance(fg, Zero) and isinstance(bg, Zero) and fg.throughput == bg.throughput:
             return fg
-        return Mix(fg, bg, amount)
+        return Mix(fg, bg, amount, f"{n.path}.mix")
 
     def bsdf(self, inp: Input, need_tp: bool):
         if isinstance(inp, Const):
@@ -232,7 +238,7 @@ class _Builder:
             if c is not None and bool((c <= 0).all()) and not need_tp:
                 self.drop(child, f"tint of '{n.path}' folds to 0")
                 return Zero(0.0)
-            return Multiply(child, n.inputs["in2"])
+            return Multiply(child, n.inputs["in2"], f"{n.path}.in2")
         raise UnsupportedNodeError(f"{self.ev.source}: BSDF node '{n.path}' ({n.nodedef}) is not supported by "
                                    f"the reflectance reference.")
 

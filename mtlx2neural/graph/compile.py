@@ -29,6 +29,28 @@ class CompiledMaterial:
     program: BsdfProgram
     spatial_nodes: list[int]
 
+    def parameters(self) -> list[tuple[str, Input, str]]:
+        """Every run-time parameter of the BSDF program: (name, IR input, MaterialX type).
+
+        Names are "<lobe node path>.<input>" for lobe parameters and
+        "<combinator node path>.<mix|in2|opacity>" for mix amounts and tints; the
+        reference accepts the same names as overrides (``params=``).
+        """
+        out = []
+        for leaf in self.program.leaves():
+            nd_inputs = self.graph[leaf.node].inputs
+            for name, inp in nd_inputs.items():
+                mx_type = inp.type if isinstance(inp, Const) else self.graph.output_type(inp)
+                out.append((f"{leaf.path}.{name}", inp, mx_type))
+        for key, inp in self.program.amounts():
+            mx_type = inp.type if isinstance(inp, Const) else self.graph.output_type(inp)
+            out.append((key, inp, mx_type))
+        return out
+
+    def varying_parameters(self) -> list[tuple[str, Input, str]]:
+        """The parameters that depend on the spatial sub-graph (texture coordinates, images...)."""
+        return [(k, i, t) for k, i, t in self.parameters() if isinstance(i, Ref) and self.evaluator.spatial[i.node]]
+
     def describe(self) -> dict:
         """Lobes kept/pruned, approximations, spatial inputs and textures (JSON-friendly)."""
         g = self.graph
@@ -48,14 +70,7 @@ class CompiledMaterial:
                                  f"with the textures stage; MaterialX converts only when a working space is declared)")
             elif n.category in SPATIAL:
                 spatial_inputs.append({"node": n.path, "kind": n.category})
-        varying = []
-        for leaf in self.program.leaves():
-            for name, inp in g[leaf.node].inputs.items():
-                if isinstance(inp, Ref) and self.evaluator.spatial[inp.node]:
-                    varying.append(f"{leaf.path}.{name}")
-        for inp in self.program.inputs():
-            if isinstance(inp, Ref) and self.evaluator.spatial[inp.node]:
-                varying.append(g[inp.node].path)
+        varying = [k for k, _, _ in self.varying_parameters()]
         return {
             "material": self.name,
             "source": self.source,

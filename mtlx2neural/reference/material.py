@@ -52,41 +52,55 @@ class ReferenceMaterial:
         self.dtype = compiled.evaluator.dtype
 
     # -- building the closure tree for a batch ------------------------------------------
-    def _tree(self, n: int, uv):
+    def _tree(self, n: int, uv, params: dict | None = None):
         ev = self.compiled.evaluator
         env = {}
-        if self.compiled.spatial_nodes:
+        params = params or {}
+        if self.compiled.spatial_nodes and not self._covers(params):
             if uv is None:
                 uv = torch.tensor([DEFAULT_UV], dtype=self.dtype, device=self.device).expand(n, 2)
             env = ev.run(self.compiled.spatial_nodes, uv.to(self.device, self.dtype))
         graph = self.compiled.graph
 
+        def value(key, inp):
+            v = params.get(key)
+            return v.to(self.device, self.dtype) if v is not None else ev.value(inp, env)
+
         def build(p):
             if isinstance(p, Leaf):
-                params = {k: ev.value(v, env) for k, v in graph[p.node].inputs.items()}
-                return LobeNode(LOBE_CLASSES[p.category](_default_frame(params)))
+                lobe_params = {k: value(f"{p.path}.{k}", v) for k, v in graph[p.node].inputs.items()}
+                return LobeNode(LOBE_CLASSES[p.category](_default_frame(lobe_params)))
             if isinstance(p, Zero):
                 return ZeroNode(p.throughput)
             if isinstance(p, Layer):
                 return LayerNode(build(p.top), build(p.base))
             if isinstance(p, Mix):
-                return MixNode(build(p.fg), build(p.bg), ev.value(p.amount, env))
+                return MixNode(build(p.fg), build(p.bg), value(p.key, p.amount))
             if isinstance(p, Add):
                 return AddNode(build(p.a), build(p.b))
             if isinstance(p, Multiply):
-                return MultiplyNode(build(p.child), ev.value(p.tint, env))
+                return MultiplyNode(build(p.child), value(p.key, p.tint))
             raise TypeError(p)
 
         return build(self.compiled.program.root)
+
+    def _covers(self, params: dict) -> bool:
+        """Whether ``params`` overrides every spatially varying parameter (no graph evaluation needed)."""
+        return bool(params) and all(k in params for k, _, _ in self.compiled.varying_parameters())
 
     def _prep(self, *dirs):
         return [d.to(self.device, self.dtype) for d in dirs]
 
     # -- public API ----------------------------------------------------------------------
-    def eval(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None) -> torch.Tensor:
-        """f(wi, wo) * max(0, wo.z): [N,3] linear RGB; 0 when wi or wo is at or below the horizon."""
+    def eval(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None,
+             params: dict | None = None) -> torch.Tensor:
+        """f(wi, wo) * max(0, wo.z): [N,3] linear RGB; 0 when wi or wo is at or below the horizon.
+
+        ``params`` optionally overrides parameters by name (see
+        ``CompiledMaterial.parameters()``), e.g. prefiltered values from a parameter pyramid.
+        """
         wi, wo = self._prep(wi, wo)
-        response, _ = self._tree(wi.shape[0], uv).eval(wi, wo)
+        response, _ = self._tree(wi.shape[0], uv, params).eval(wi, wo)
         above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
         response = torch.where(above, _finite(response), 0.0)
         return response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response
@@ -108,15 +122,17 @@ class ReferenceMaterial:
         pdfs = torch.stack([_finite(lobe.pdf(wi, wo)) for lobe in lobes], -1)
         return (pdfs * probs).sum(-1)
 
-    def pdf(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None) -> torch.Tensor:
+    def pdf(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None,
+            params: dict | None = None) -> torch.Tensor:
         """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi is at or below the horizon."""
         wi, wo = self._prep(wi, wo)
-        tree = self._tree(wi.shape[0], uv)
+        tree = self._tree(wi.shape[0], uv, params)
         lobes, probs = self._selection(tree, wi)
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
         return torch.where(wi[:, 2] > 0, pdf, torch.zeros_like(pdf))
 
-    def sample(self, wi: torch.Tensor, u: torch.Tensor, uv: torch.Tensor | None = None):
+    def sample(self, wi: torch.Tensor, u: torch.Tensor, uv: torch.Tensor | None = None,
+               params: dict | None = None):
         """Importance-sample ``wo`` from ``u`` [N,2] (or [N,3]: the third number picks the lobe).
 
         Returns (wo [N,3], weight [N,3] = eval/pdf, pdf [N]); weight and pdf are 0 for
@@ -124,7 +140,7 @@ class ReferenceMaterial:
         """
         wi, u = self._prep(wi, u)
         n = wi.shape[0]
-        tree = self._tree(n, uv)
+        tree = self._tree(n, uv, params)
         lobes, probs = self._selection(tree, wi)
         if not lobes:
             wo = cosine_sample(u[:, :2])
