@@ -1,0 +1,1 @@
+"""textures stage: texture input, colour, parameter maps, LEAN pyramid, footprint sampling."""

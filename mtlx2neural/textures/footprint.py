@@ -1,0 +1,65 @@
+"""Footprint-filtered training targets: the reference BRDF averaged over a pixel's footprint.
+
+A query is (uv, MIP level k, wi, wo). Its target is the mean of the reference
+``eval`` over points drawn from an isotropic Gaussian around ``uv`` whose
+standard deviation is half a level-k texel (``2^k`` level-0 texels wide), with
+the level-0 (unfiltered) parameters at each point. The number of points grows
+with the filter area (4^k), capped at ``max_samples``.
+
+Levels are drawn from a truncated exponential distribution that favours fine
+levels: P(k) proportional to exp(-rate * k).
+
+Everything is batched: queries are grouped by level, and each level's points
+are evaluated in one call.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .parameter_stack import ParameterStack
+
+
+def sample_levels(n: int, num_levels: int, rate: float = 1.0, generator: torch.Generator | None = None,
+                  device="cpu") -> torch.Tensor:
+    """``n`` MIP levels in [0, num_levels) with P(k) ~ exp(-rate k) (int64)."""
+    k = torch.arange(num_levels, dtype=torch.float64)
+    p = torch.exp(-rate * k)
+    return torch.multinomial((p / p.sum()).float(), n, replacement=True, generator=generator).to(device)
+
+
+def samples_for_level(level: int, max_samples: int) -> int:
+    """Points averaged at ``level``: proportional to the filter area 4^k, at least 1, capped."""
+    return int(min(max_samples, 4 ** level))
+
+
+def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
+                      level: torch.Tensor, max_samples: int = 64,
+                      generator: torch.Generator | None = None) -> torch.Tensor:
+    """Footprint-averaged reference values [N,3] (f * cos, linear RGB) for each query.
+
+    ``reference`` is a :class:`~mtlx2neural.reference.ReferenceMaterial` of the same
+    compiled material as ``stack``; ``level`` [N] holds integer MIP levels.
+    """
+    n = wi.shape[0]
+    h, w = stack.resolution
+    out = torch.zeros(n, 3, dtype=wi.dtype, device=wi.device)
+    for k in torch.unique(level).tolist():
+        idx = torch.nonzero(level == k)[:, 0]
+        s = samples_for_level(int(k), max_samples)
+        m = idx.shape[0]
+        # Gaussian offsets in uv: sigma = half a level-k texel, per axis.
+        sigma = torch.tensor([0.5 * 2 ** k / w, 0.5 * 2 ** k / h], dtype=uv.dtype, device=uv.device)
+        offsets = torch.randn(m, s, 2, generator=generator, dtype=uv.dtype).to(uv.device) * sigma
+        pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
+        params = stack.sample(pts, 0)
+        vals = reference.eval(wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0), params=params)
+        out[idx] = vals.view(m, s, 3).mean(1)
+    return out
+
+
+def footprint_sigma_texels(level: int) -> float:
+    """Standard deviation of the level-``level`` footprint, in level-0 texels."""
+    return 0.5 * math.pow(2.0, level)
