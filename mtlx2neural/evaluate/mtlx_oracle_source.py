@@ -111,6 +111,11 @@ def _generate_pixel_shader(document, material: str):
     gen = mxslang.SlangShaderGenerator.create()
     # Colour management as MaterialX's viewers set it up: texture colour spaces
     # (srgb_texture, ...) are converted to the document's working space.
+    if not doc.getColorSpace():
+        # MaterialX's generators convert texture colour spaces only into a declared working
+        # space; the specification's default working space is lin_rec709, which the
+        # reference uses, so declare it here.
+        doc.setColorSpace("lin_rec709")
     cms = mxgen.DefaultColorManagementSystem.create(gen.getTarget())
     cms.loadLibrary(doc)
     gen.setColorManagementSystem(cms)

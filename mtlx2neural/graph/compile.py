@@ -12,7 +12,7 @@ from .evaluate import GraphEvaluator
 from .expand import expand_material
 from .ir import Const, IRGraph, Ref
 from .ops import OPS
-from .sources import FRAME_AXES, SPATIAL
+from .sources import FRAME_AXES, SPATIAL, needs_conversion, texture_colorspaces
 from .texture import check_texture
 
 NATIVE = set(OPS) | CLOSURE_NODES | SPATIAL | set(FRAME_AXES)
@@ -54,20 +54,15 @@ class CompiledMaterial:
     def describe(self) -> dict:
         """Lobes kept/pruned, approximations, spatial inputs and textures (JSON-friendly)."""
         g = self.graph
-        textures, spatial_inputs, notes = [], [], []
+        textures, spatial_inputs, notes = [], [], []  # notes: reserved for texture-level remarks
         for i in self.spatial_nodes:
             n = g[i]
             if n.category == "image":
                 f = n.inputs.get("file")
-                cs, working = n.attrs.get("colorspace", ""), n.attrs.get("working_space", "")
-                converted = cs in ("srgb_texture", "sRGB", "srgb") and working == "lin_rec709"
+                cs, working = texture_colorspaces(n)
                 textures.append({"node": n.path, "file": f.value if isinstance(f, Const) else None,
-                                 "colorspace": cs, "working_space": working,
-                                 "converted": converted})
-                if cs and not converted and cs not in ("raw", "lin_rec709") and cs != working:
-                    notes.append(f"texture '{f.value if isinstance(f, Const) else n.path}' is {cs}: not converted "
-                                 f"to the working space '{working or 'undeclared'}' (full OCIO conversion comes "
-                                 f"with the textures stage; MaterialX converts only when a working space is declared)")
+                                 "colorspace": cs or "raw", "working_space": working,
+                                 "converted": needs_conversion(cs, working)})
             elif n.category in SPATIAL:
                 spatial_inputs.append({"node": n.path, "kind": n.category})
         varying = [k for k, _, _ in self.varying_parameters()]

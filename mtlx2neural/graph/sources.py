@@ -18,6 +18,18 @@ FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent"
 UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
 
 
+def texture_colorspaces(node) -> tuple[str, str]:
+    """(file colour space, working space) of an image node; the working space
+    defaults to lin_rec709, MaterialX's default, when the document declares none."""
+    return node.attrs.get("colorspace", ""), node.attrs.get("working_space", "") or "lin_rec709"
+
+
+def needs_conversion(src: str, dst: str) -> bool:
+    from ..textures.colour import canonical_colorspace, is_data
+
+    return bool(src) and not is_data(src) and canonical_colorspace(src) != canonical_colorspace(dst)
+
+
 def eval_source(node, args: dict, uv: torch.Tensor):
     """Value of spatial source ``node`` for texture coordinates ``uv`` [N,2]."""
     n = uv.shape[0]
@@ -39,8 +51,11 @@ def eval_source(node, args: dict, uv: torch.Tensor):
         default = args["default"]
         if not path:
             return default.expand(n, -1)
-        srgb = (node.attrs.get("colorspace", "") in ("srgb_texture", "sRGB", "srgb")
-                and node.attrs.get("working_space", "") == "lin_rec709")
-        return sample_image(path, args["texcoord"].expand(n, -1), args.get("uaddressmode", "periodic"),
-                            args.get("vaddressmode", "periodic"), CHANNELS[node.type], default, srgb)
+        out = sample_image(path, args["texcoord"].expand(n, -1), args.get("uaddressmode", "periodic"),
+                           args.get("vaddressmode", "periodic"), CHANNELS[node.type], default, False)
+        src, dst = texture_colorspaces(node)
+        if out.shape[-1] >= 3 and needs_conversion(src, dst):
+            from ..textures.colour import convert_torch
+            out = torch.cat([convert_torch(out[:, :3], src, dst), out[:, 3:]], -1)
+        return out
     raise KeyError(cat)

@@ -6,7 +6,9 @@ Reading (:func:`read_image`)
     ``maketx`` / ``ImageBufAlgo.make_texture``). Pixels come back as float32
     ``[H, W, C]`` with the file's channel count. Integer formats are normalised
     by OpenImageIO to ``[0, 1]`` (value / 255 for 8-bit, value / 65535 for
-    16-bit); float formats are returned unchanged. Row 0 is the *top* scanline
+    16-bit); float formats are returned unchanged. Alpha is not applied: files
+    with straight alpha (PNG, TGA, ...) come back straight, files with
+    premultiplied alpha (EXR, most TIFF) as stored. Row 0 is the *top* scanline
     of the image, as stored in the file. No colour conversion happens here:
     :attr:`ImageData.colorspace` reports the file's own ``oiio:ColorSpace``
     metadata (which OpenImageIO also infers for some formats, e.g. 8-bit PNG and
@@ -189,7 +191,11 @@ def _open(path: str, node: str | None):
     import OpenImageIO as oiio
 
     _check_file(path, node)
-    inp = oiio.ImageInput.open(path)
+    # Keep straight (unassociated) alpha as the file stores it: a texture's colour
+    # channels are data, not to be premultiplied (OIIO would for PNG, GIF, ...).
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(path, config)
     if inp is None:
         raise InputError(f"cannot read texture file '{path}'{_where(node)}: {oiio.geterror() or 'unknown format'}")
     return inp
