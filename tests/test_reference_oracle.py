@@ -40,7 +40,6 @@ NOT_COMPARED = {
     ("chiang_hair_surfaceshader.mtlx", "simple_hair_default"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("flake_surfaceshader.mtlx", "flake_surfaceshader"): (UnsupportedNodeError, "flake3d has no torch operator yet"),
     ("standard_surface_marble_solid.mtlx", "Marble_3D"): (UnsupportedNodeError, "fractal3d noise not supported yet"),
-    ("standard_surface_brick_procedural.mtlx", "M_BrickPattern"): (UnsupportedNodeError, "rgbtohsv not supported yet"),
     ("standard_surface_onyx_hextiled.mtlx", "M_OnyxHextiled"): (UnsupportedNodeError, "hextiledimage not supported"),
     ("surfacematerial_with_graph.mtlx", "M_EmptySurface"): (InputError, "the material has no surface shader"),
     ("mapped_surfaceshader.mtlx", "UnitMappedShaderMaterial"): (

@@ -225,3 +225,38 @@ def _normalmap(a, n):
 
 op("transformnormal", "transformvector")(lambda a, n: a["in"])  # local shading frame: spaces coincide
 op("transformpoint")(lambda a, n: a["in"])
+
+
+# --- colour models ---------------------------------------------------------------------
+@op("rgbtohsv")
+def _rgbtohsv(a, n):
+    """RGB -> HSV with hue in [0, 1) (Foley and van Dam, as MaterialX's stdlib)."""
+    x = a["in"]
+    rgb = x[:, :3]
+    r, g, b = rgb[:, 0:1], rgb[:, 1:2], rgb[:, 2:3]
+    mx_, _ = rgb.max(-1, keepdim=True)
+    mn, _ = rgb.min(-1, keepdim=True)
+    delta = mx_ - mn
+    s = torch.where(mx_ > 0, delta / mx_.clamp_min(EPS), torch.zeros_like(mx_))
+    d = delta.clamp_min(EPS)
+    h = torch.where(r >= mx_, (g - b) / d, torch.where(g >= mx_, 2.0 + (b - r) / d, 4.0 + (r - g) / d)) / 6.0
+    h = torch.where(h < 0, h + 1.0, h)
+    h = torch.where(delta > 0, h, torch.zeros_like(h))
+    return torch.cat([h, s, mx_, x[:, 3:]], -1)
+
+
+@op("hsvtorgb")
+def _hsvtorgb(a, n):
+    """HSV (hue in [0, 1)) -> RGB."""
+    x = a["in"]
+    h, s, v = x[:, 0:1], x[:, 1:2], x[:, 2:3]
+    h6 = 6.0 * (h - h.floor())
+    hi = h6.floor().clamp(0, 5)
+    f = h6 - hi
+    p, q, t = v * (1 - s), v * (1 - s * f), v * (1 - s * (1 - f))
+    table = [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)]
+    out = torch.cat(table[0], -1)
+    for i in range(1, 6):
+        out = torch.where(hi == i, torch.cat(table[i], -1), out)
+    out = torch.where(s < 0.0001, torch.cat([v, v, v], -1), out)
+    return torch.cat([out, x[:, 3:]], -1)
