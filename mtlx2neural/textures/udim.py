@@ -15,6 +15,11 @@ UDIM set spans the bounding box of its tiles ``[tu_min, tu_max + 1] x
 [tv_min, tv_max + 1]`` in uv units, which is the range MaterialX's hardware
 shader generators map onto ``[0, 1]`` (``getUdimScaleAndOffset`` with
 ``hwNormalizeUdimTexCoords``) before applying the sampler's address modes.
+(MaterialX's generated code computes ``uv * scale + offset`` with
+``offset = -min tile``, which is only right when the set starts at u = 0 or is
+one tile wide; this module uses the bounding box the function describes.)
+OSL / OpenImageIO instead apply the wrap modes inside each tile; both agree for
+uv inside the set's tiles.
 """
 
 from __future__ import annotations
