@@ -24,6 +24,8 @@ def _parser() -> argparse.ArgumentParser:
     ins.add_argument("asset", help=".mtlx file or USD stage (.usda/.usdc/.usd)")
     ins.add_argument("--material", help="only this material (prim path, prim name or MaterialX name)")
     ins.add_argument("--json", action="store_true", help="print JSON instead of text")
+    ins.add_argument("--allow-missing-textures", action="store_true",
+                     help="use an image node's declared default when its file is missing")
     return p
 
 
@@ -38,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "inspect":
             from .inspect import format_report, inspect_asset
 
-            report = inspect_asset(args.asset, args.material)
+            report = inspect_asset(args.asset, args.material, args.allow_missing_textures)
             print(json.dumps(report, indent=2) if args.json else format_report(report))
         return 0
     except Mtlx2NeuralError as exc:

@@ -12,7 +12,7 @@ from .graph import compile_material
 from .scene import load_asset
 
 
-def inspect_asset(path, material: str | None = None) -> dict:
+def inspect_asset(path, material: str | None = None, allow_missing_textures: bool = False) -> dict:
     """JSON-friendly report of ``path`` (a .mtlx file or USD stage)."""
     scene = load_asset(path)
     report = {"asset": str(scene.asset), "materials": [], "skipped": [
@@ -20,7 +20,8 @@ def inspect_asset(path, material: str | None = None) -> dict:
     for src in scene.materials:
         if material and material not in (src.name, src.name.rsplit("/", 1)[-1], src.material):
             continue
-        info = compile_material(src.document, src.material).describe()
+        info = compile_material(src.document, src.material,
+                                allow_missing_textures=allow_missing_textures).describe()
         info["material"] = src.name
         info["source"] = src.source_file
         info["bound_prims"] = list(src.bound_prims)

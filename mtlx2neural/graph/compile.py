@@ -13,7 +13,8 @@ from .expand import expand_material
 from .ir import Const, IRGraph, Ref
 from .ops import OPS
 from .sources import FRAME_AXES, SPATIAL, needs_conversion, texture_colorspaces
-from .texture import check_texture
+from ..errors import InputError
+from .sources import texture
 
 NATIVE = set(OPS) | CLOSURE_NODES | SPATIAL | set(FRAME_AXES)
 
@@ -79,8 +80,13 @@ class CompiledMaterial:
         }
 
 
-def compile_material(document: mx.Document, material: str | None = None, device="cpu") -> CompiledMaterial:
-    """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries)."""
+def compile_material(document: mx.Document, material: str | None = None, device="cpu",
+                     allow_missing_textures: bool = False) -> CompiledMaterial:
+    """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries).
+
+    A missing texture is an error naming the file and node, unless
+    ``allow_missing_textures``: then its image node returns its declared ``default``.
+    """
     graph, root, source, notes = expand_material(document, material, NATIVE)
     ev = GraphEvaluator(graph, source, device=device)
     program = build_program(ev, root)
@@ -93,6 +99,13 @@ def compile_material(document: mx.Document, material: str | None = None, device=
         n = graph[i]
         f = n.inputs.get("file")
         if n.category == "image" and isinstance(f, Const) and f.value:
-            check_texture(f.value, n.path, source)
+            try:
+                texture(f.value, n.path)  # reads (and caches) the file now: errors surface at load time
+            except InputError as exc:
+                if not allow_missing_textures:
+                    raise InputError(f"{source}: {exc} Pass --allow-missing-textures to use the node's "
+                                     f"declared default instead.") from exc
+                n.attrs["missing"] = "1"
+                program.notes.append(f"texture '{f.value}' of '{n.path}' is missing: its declared default is used")
     name = material or next(n.getName() for n in document.getMaterialNodes())
     return CompiledMaterial(name, source, graph, ev, program, spatial_nodes)

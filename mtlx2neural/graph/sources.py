@@ -11,11 +11,31 @@ from __future__ import annotations
 
 import torch
 
-from .texture import sample_image
+import functools
+
+from ..textures.image_io import Texture
 
 SPATIAL = {"texcoord", "position", "geomcolor", "geompropvalue", "image"}
 FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
 UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
+
+
+@functools.lru_cache(maxsize=256)
+def texture(path: str, node_path: str) -> Texture:
+    """The texture (file or UDIM set) read by image node ``node_path`` (pixels cached by image_io)."""
+    return Texture(path, node=node_path)
+
+
+def _fit_channels(x: torch.Tensor, channels: int) -> torch.Tensor:
+    """Adapt a texture's channel count to the node's type: grey broadcasts, missing channels read 1."""
+    c = x.shape[-1]
+    if c == channels:
+        return x
+    if c == 1:
+        return x.expand(x.shape[0], channels)
+    if c > channels:
+        return x[:, :channels]
+    return torch.cat([x, torch.ones(x.shape[0], channels - c, dtype=x.dtype, device=x.device)], -1)
 
 
 def texture_colorspaces(node) -> tuple[str, str]:
@@ -49,10 +69,14 @@ def eval_source(node, args: dict, uv: torch.Tensor):
         from .ir import CHANNELS
         path = args["file"]
         default = args["default"]
-        if not path:
+        if not path or node.attrs.get("missing"):
             return default.expand(n, -1)
-        out = sample_image(path, args["texcoord"].expand(n, -1), args.get("uaddressmode", "periodic"),
-                           args.get("vaddressmode", "periodic"), CHANNELS[node.type], default, False)
+        tex = texture(path, node.path)
+        raw = tex.sample(args["texcoord"].expand(n, -1), uaddress=args.get("uaddressmode", "periodic"),
+                         vaddress=args.get("vaddressmode", "periodic"),
+                         filtertype=args.get("filtertype", "linear") or "linear",
+                         default=_fit_channels(default, tex.channels))
+        out = _fit_channels(raw, CHANNELS[node.type])
         src, dst = texture_colorspaces(node)
         if out.shape[-1] >= 3 and needs_conversion(src, dst):
             from ..textures.colour import convert_torch
