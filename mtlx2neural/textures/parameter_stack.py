@@ -212,6 +212,8 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
             ch = Channel(k, v.shape[1], sem, filt, unit)
         ch.range = (float(v.min()), float(v.max()))
         channels.append(ch)
+    if not channels:  # a uniform material: nothing varies, constants only
+        return ParameterStack([], [torch.zeros(0, h, w)], constants, [], notes)
     level0 = torch.cat([texels[c.name] for c in channels], 1).T.reshape(-1, h, w).contiguous()
     levels = [level0]
     while levels[-1].shape[1] > 1 or levels[-1].shape[2] > 1:
