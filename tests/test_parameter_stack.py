@@ -75,8 +75,8 @@ def test_automatic_resolution_counts_tiling():
     from mtlx2neural.textures import parameter_stack as ps
 
     h, w, notes = ps._texture_resolution(m.compiled)
-    # 1024 texels repeated 4 times = 4096, capped at MAX_RES with a note.
-    assert (h, w) == (ps.MAX_RES, ps.MAX_RES) and any("capped" in n for n in notes)
+    # 1024 texels repeated 4 times = 4096 texels across UV space.
+    assert (h, w) == (4096, 4096) and not notes
 
 
 def test_uniform_material_has_no_varying_channels():

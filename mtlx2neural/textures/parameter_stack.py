@@ -32,7 +32,7 @@ from .lean import lobe_from_moments, moments
 
 MICROFACET = {"dielectric_bsdf", "conductor_bsdf", "generalized_schlick_bsdf"}
 DEFAULT_PROCEDURAL_RES = 256
-MAX_RES = 2048
+MAX_RES = 8192  # finest grid kept; denser texel densities are prefiltered down to it
 
 
 @dataclass
@@ -82,6 +82,7 @@ class ParameterStack:
         return self._decode(lv.reshape(lv.shape[0], -1).T)
 
     def _decode(self, flat: torch.Tensor) -> dict:
+        flat = flat.float()
         out = {}
         for name, sl in self.offsets().items():
             out[name] = flat[:, sl]
@@ -162,60 +163,105 @@ def _texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]
     return best[0], best[1], notes
 
 
+STORAGE_BUDGET_BYTES = 2 << 30  # level 0 above this is stored as float16 (pyramid ~ 4/3 of level 0)
+
+
+def _layout(compiled: CompiledMaterial):
+    """Channel plan: (varying parameters by name, LEAN lobe paths, [(name, width, mx type)])."""
+    varying = {k: (i, t) for k, i, t in compiled.varying_parameters()}
+    lean, plan = [], []
+    for leaf in compiled.program.leaves():
+        if leaf.category in MICROFACET and any(f"{leaf.path}.{p}" in varying for p in ("normal", "roughness", "tangent")):
+            lean.append(leaf.path)
+    lean_keys = {f"{lobe}.{p}" for lobe in lean for p in ("normal", "roughness", "tangent")}
+    for k, (inp, t) in varying.items():
+        if k not in lean_keys:
+            plan.append((k, CHANNELS.get(t, 1), t))
+    plan += [(f"{lobe}.#lean", 5, "lean") for lobe in lean]
+    return varying, lean, plan
+
+
 def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int] | None = None,
-                          chunk: int = 1 << 16) -> ParameterStack:
+                          chunk_rows: int | None = None, storage_dtype: torch.dtype | None = None) -> ParameterStack:
     """Evaluate the varying parameters on a texel grid and build the prefiltered pyramid.
 
-    ``resolution`` (H, W) overrides the automatic finest-texture grid.
+    ``resolution`` (H, W) overrides the automatic finest-texture grid. Level 0 is
+    filled in row chunks straight into its final tensor, so peak memory stays
+    near the pyramid's own size. ``storage_dtype`` defaults to float32, or
+    float16 when level 0 would exceed ``STORAGE_BUDGET_BYTES`` (lookups return float32).
     """
     ev = compiled.evaluator
-    varying = compiled.varying_parameters()
     h, w, notes = _texture_resolution(compiled) if resolution is None else (*resolution, [])
-    constants = {k: ev.value(i, {}) for k, i, _ in compiled.parameters() if k not in {v[0] for v in varying}}
-    # Texel centres, row 0 at the top (v = 1).
-    ys = 1.0 - (torch.arange(h, dtype=torch.float32) + 0.5) / h
-    xs = (torch.arange(w, dtype=torch.float32) + 0.5) / w
-    uv = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2)
-    nodes = ev.spatial_closure([i for _, i, _ in varying])
-    values: dict[str, list[torch.Tensor]] = {k: [] for k, _, _ in varying}
-    for s in range(0, uv.shape[0], chunk):
-        env = ev.run(nodes, uv[s:s + chunk])
-        for k, i, t in varying:
-            v = ev.value(i, env)
-            values[k].append(v.expand(min(chunk, uv.shape[0] - s), -1))
-    texels = {k: torch.cat(v, 0) for k, v in values.items()}
-
-    # LEAN: microfacet lobes whose normal or roughness varies keep slope moments instead.
-    lean_groups = []
-    leaf_cat = {leaf.path: leaf.category for leaf in compiled.program.leaves()}
-    for lobe, cat in leaf_cat.items():
-        if cat not in MICROFACET or not any(f"{lobe}.{p}" in texels for p in ("normal", "roughness", "tangent")):
-            continue
-        n = texels.pop(f"{lobe}.normal", None)
-        a = texels.pop(f"{lobe}.roughness", None)
-        texels.pop(f"{lobe}.tangent", None)
-        count = uv.shape[0]
-        n = constants.pop(f"{lobe}.normal").expand(count, 3) if n is None else n
-        a = constants.pop(f"{lobe}.roughness").expand(count, 2) if a is None else a
-        constants.pop(f"{lobe}.tangent", None)
-        n = torch.where((n * n).sum(-1, keepdim=True) < 1e-12, torch.tensor([0.0, 0.0, 1.0]), n)
-        texels[f"{lobe}.#lean"] = moments(n / n.norm(dim=-1, keepdim=True), a.clamp(1e-4, 1.0))
-        lean_groups.append(lobe)
-
-    channels = []
-    types = {k: t for k, _, t in varying}
-    for k, v in texels.items():
-        if k.endswith(".#lean"):
-            ch = Channel(k, 5, "lean_moments", "lean", "slope moments (sx, sy, Mxx, Myy, Mxy)")
-        else:
-            sem, filt, unit = _semantic(k, types[k])
-            ch = Channel(k, v.shape[1], sem, filt, unit)
-        ch.range = (float(v.min()), float(v.max()))
-        channels.append(ch)
-    if not channels:  # a uniform material: nothing varies, constants only
+    varying, lean, plan = _layout(compiled)
+    constants = {k: ev.value(i, {}) for k, i, _ in compiled.parameters() if k not in varying}
+    for lobe in lean:  # LEAN lobes take normal/roughness/tangent from the moments, never from constants
+        for p in ("normal", "roughness", "tangent"):
+            constants.pop(f"{lobe}.{p}", None)
+    if not plan:  # a uniform material: nothing varies, constants only
         return ParameterStack([], [torch.zeros(0, h, w)], constants, [], notes)
-    level0 = torch.cat([texels[c.name] for c in channels], 1).T.reshape(-1, h, w).contiguous()
+    total = sum(width for _, width, _ in plan)
+    if storage_dtype is None:
+        storage_dtype = torch.float16 if total * h * w * 4 > STORAGE_BUDGET_BYTES else torch.float32
+        if storage_dtype == torch.float16:
+            notes.append(f"{total} channels at {w}x{h} exceed {STORAGE_BUDGET_BYTES >> 30} GiB in float32: "
+                         f"stored as float16")
+    level0 = torch.empty(total, h, w, dtype=storage_dtype)
+    lo = torch.full((total,), float("inf"))
+    hi = torch.full((total,), float("-inf"))
+    nodes = ev.spatial_closure([inp for inp, _ in varying.values()])
+    xs = (torch.arange(w, dtype=torch.float32) + 0.5) / w
+    rows = chunk_rows or max(1, (1 << 16) // w)
+    z = torch.tensor([0.0, 0.0, 1.0])
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        ys = 1.0 - (torch.arange(r0, r1, dtype=torch.float32) + 0.5) / h  # row 0 at the top (v = 1)
+        uv = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2)
+        count = uv.shape[0]
+        env = ev.run(nodes, uv)
+
+        def get(key, default_width):
+            if key in varying:
+                return ev.value(varying[key][0], env).expand(count, -1)
+            c = ev.value(compiled_parameter(compiled, key), {})
+            return c.expand(count, default_width)
+
+        parts = []
+        for name, width, _ in plan:
+            if name.endswith(".#lean"):
+                lobe = name[: -len(".#lean")]
+                n = get(f"{lobe}.normal", 3)
+                a = get(f"{lobe}.roughness", 2)
+                n = torch.where((n * n).sum(-1, keepdim=True) < 1e-12, z, n)
+                parts.append(moments(n / n.norm(dim=-1, keepdim=True), a.clamp(1e-4, 1.0)))
+            else:
+                parts.append(get(name, width))
+        block = torch.cat(parts, 1)  # [count, C]
+        lo = torch.minimum(lo, block.min(0).values)
+        hi = torch.maximum(hi, block.max(0).values)
+        level0[:, r0:r1, :] = block.T.reshape(total, r1 - r0, w).to(storage_dtype)
+
+    channels, o = [], 0
+    for name, width, mx_type in plan:
+        if mx_type == "lean":
+            ch = Channel(name, 5, "lean_moments", "lean", "slope moments (sx, sy, Mxx, Myy, Mxy)")
+        else:
+            sem, filt, unit = _semantic(name, mx_type)
+            ch = Channel(name, width, sem, filt, unit)
+        ch.range = (float(lo[o:o + width].min()), float(hi[o:o + width].max()))
+        channels.append(ch)
+        o += width
     levels = [level0]
     while levels[-1].shape[1] > 1 or levels[-1].shape[2] > 1:
-        levels.append(F.avg_pool2d(levels[-1][None], 2, ceil_mode=True, count_include_pad=False)[0])
-    return ParameterStack(channels, levels, constants, lean_groups, notes)
+        prev = levels[-1]  # pooled channel by channel: a float32 copy of one channel at a time
+        levels.append(torch.cat([
+            F.avg_pool2d(prev[c:c + 1][None].float(), 2, ceil_mode=True, count_include_pad=False)[0].to(storage_dtype)
+            for c in range(prev.shape[0])], 0))
+    return ParameterStack(channels, levels, constants, lean, notes)
+
+
+def compiled_parameter(compiled: CompiledMaterial, key: str):
+    """The IR input of parameter ``key`` (see ``CompiledMaterial.parameters``)."""
+    for k, inp, _ in compiled.parameters():
+        if k == key:
+            return inp
+    raise KeyError(key)
