@@ -75,8 +75,11 @@ def test_automatic_resolution_counts_tiling():
     from mtlx2neural.textures import parameter_stack as ps
 
     h, w, notes = ps._texture_resolution(m.compiled)
-    # 1024 texels repeated 4 times = 4096 texels across UV space.
-    assert (h, w) == (4096, 4096) and not notes
+    spec = oiio.ImageInput.open(str(shared_path("materialx", "resources", "Images", "wood_color.jpg"))).spec()
+    # The texture repeats 4 times across UV space (uvtiling 4): 4x its texels, up to MAX_RES.
+    expected = min(4 * spec.width, ps.MAX_RES)
+    assert (h, w) == (expected, expected)
+    assert bool(notes) == (4 * spec.width > ps.MAX_RES)
 
 
 def test_uniform_material_has_no_varying_channels():
