@@ -12,9 +12,8 @@ from .evaluate import GraphEvaluator
 from .expand import expand_material
 from .ir import Const, IRGraph, Ref
 from .ops import OPS
-from .sources import FRAME_AXES, SPATIAL, needs_conversion, texture_colorspaces
+from .sources import FRAME_AXES, SPATIAL, UV_PRIMVARS, needs_conversion, texture, texture_colorspaces
 from ..errors import InputError
-from .sources import texture
 
 NATIVE = set(OPS) | CLOSURE_NODES | SPATIAL | set(FRAME_AXES)
 
@@ -55,7 +54,7 @@ class CompiledMaterial:
     def describe(self) -> dict:
         """Lobes kept/pruned, approximations, spatial inputs and textures (JSON-friendly)."""
         g = self.graph
-        textures, spatial_inputs, notes = [], [], []  # notes: reserved for texture-level remarks
+        textures, spatial_inputs, notes = [], [], []
         for i in self.spatial_nodes:
             n = g[i]
             if n.category == "image":
@@ -66,6 +65,14 @@ class CompiledMaterial:
                                  "converted": needs_conversion(cs, working)})
             elif n.category in SPATIAL:
                 spatial_inputs.append({"node": n.path, "kind": n.category})
+                idx = n.inputs.get("index")
+                if n.category == "texcoord" and isinstance(idx, Const) and idx.value and idx.value[0] != 0:
+                    notes.append(f"'{n.path}' reads UV set {int(idx.value[0])}: the material is baked over one "
+                                 f"UV set, so every set reads the same coordinates")
+                gp = n.inputs.get("geomprop")
+                if n.category == "geompropvalue" and isinstance(gp, Const) and gp.value not in UV_PRIMVARS:
+                    notes.append(f"'{n.path}' reads primvar '{gp.value}', which a baked material cannot vary: "
+                                 f"its default value is used")
         varying = [k for k, _, _ in self.varying_parameters()]
         return {
             "material": self.name,
