@@ -61,18 +61,27 @@ def _where(node: str | None) -> str:
 # --------------------------------------------------------------------------- reading
 
 
+# Storage of decoded pixels: integer files stay integers (a quarter of the memory of
+# float32 for 8-bit files); texels are converted when sampled.
+_STORAGE = {"uint8": (np.uint8, 1.0 / 255.0), "uint16": (np.uint16, 1.0 / 65535.0), "half": (np.float16, 1.0)}
+
+
 @dataclass(frozen=True, eq=False)
 class ImageData:
     """One decoded image (one MIP level of one subimage).
 
-    ``pixels`` is float32 ``[H, W, C]``, row 0 = top of the image. It may be
-    shared with the process-wide cache: treat it as read-only.
+    Pixels are kept in the file's own precision (``raw``: uint8, uint16, float16
+    or float32, ``[H, W, C]``, row 0 = top of the image) and read as float32
+    through ``pixels`` / ``tensor()``. ``raw`` may be shared with the
+    process-wide cache: treat it as read-only.
     """
 
     path: str
     """The file that was read."""
-    pixels: np.ndarray = field(repr=False)
-    """float32 ``[H, W, C]``; integer formats normalised to [0, 1]."""
+    raw: np.ndarray = field(repr=False)
+    """``[H, W, C]`` in storage precision; value = raw * ``scale``."""
+    scale: float
+    """1/255 for 8-bit, 1/65535 for 16-bit integer files, 1 otherwise."""
     colorspace: str | None
     """The file's ``oiio:ColorSpace`` metadata, or None when it has none."""
     channel_names: tuple[str, ...]
@@ -85,28 +94,40 @@ class ImageData:
     """How many MIP levels the file has (1 for an ordinary image)."""
 
     @property
+    def pixels(self) -> np.ndarray:
+        """float32 ``[H, W, C]``; integer formats normalised to [0, 1] (a new array for non-float storage)."""
+        if self.raw.dtype == np.float32:
+            return self.raw
+        return self.raw.astype(np.float32) * np.float32(self.scale) if self.scale != 1.0 else \
+            self.raw.astype(np.float32)
+
+    @property
     def height(self) -> int:
         """Rows, in texels."""
-        return int(self.pixels.shape[0])
+        return int(self.raw.shape[0])
 
     @property
     def width(self) -> int:
         """Columns, in texels."""
-        return int(self.pixels.shape[1])
+        return int(self.raw.shape[1])
 
     @property
     def channels(self) -> int:
         """Channel count, as stored in the file."""
-        return int(self.pixels.shape[2])
+        return int(self.raw.shape[2])
 
     @property
     def nbytes(self) -> int:
-        """Memory held by ``pixels``, in bytes."""
-        return int(self.pixels.nbytes)
+        """Memory held by the stored pixels, in bytes."""
+        return int(self.raw.nbytes)
 
     def tensor(self) -> torch.Tensor:
-        """``pixels`` as a CPU float32 torch tensor ``[H, W, C]`` (shares memory; do not modify)."""
+        """Pixels as a CPU float32 torch tensor ``[H, W, C]`` (do not modify)."""
         return torch.from_numpy(self.pixels)
+
+    def storage_tensor(self) -> torch.Tensor:
+        """``raw`` as a torch tensor (shares memory); multiply sampled texels by ``scale``."""
+        return torch.from_numpy(self.raw)
 
 
 class TextureCache:
@@ -237,14 +258,17 @@ def read_image(path, *, miplevel: int = 0, subimage: int = 0, node: str | None =
             raise InputError(f"texture file '{path}'{_where(node)} has {nmips} MIP level(s); "
                              f"level {miplevel} was requested.")
         spec = inp.spec()
-        pixels = inp.read_image(subimage, miplevel, 0, spec.nchannels, "float")
+        fmt = str(spec.format)
+        dtype, scale = _STORAGE.get(fmt, (np.float32, 1.0))
+        pixels = inp.read_image(subimage, miplevel, 0, spec.nchannels, fmt if fmt in _STORAGE else "float")
         if pixels is None:
             raise InputError(f"cannot decode texture file '{path}'{_where(node)}: {inp.geterror()}")
         cs = spec.getattribute("oiio:ColorSpace")
         data = ImageData(
             path=path,
-            pixels=np.ascontiguousarray(np.asarray(pixels, dtype=np.float32).reshape(
+            raw=np.ascontiguousarray(np.asarray(pixels, dtype=dtype).reshape(
                 spec.height, spec.width, spec.nchannels)),
+            scale=scale,
             colorspace=str(cs) if cs else None,
             channel_names=tuple(spec.channelnames),
             file_format=str(spec.format),
@@ -312,7 +336,7 @@ class Texture:
             raise ValueError(f"texture pixels must be [H, W, C], got shape {arr.shape}.")
         self = cls.__new__(cls)
         self.path, self.node, self.is_udim = name, None, False
-        self.images = {(0, 0): ImageData(name, np.ascontiguousarray(arr), colorspace,
+        self.images = {(0, 0): ImageData(name, np.ascontiguousarray(arr), 1.0, colorspace,
                                          tuple("RGBA"[: arr.shape[2]]) if arr.shape[2] <= 4 else (),
                                          "float", 0, 1)}
         self.channels = arr.shape[2]
@@ -333,8 +357,19 @@ class Texture:
     def _tiles_on(self, device: torch.device) -> dict[tuple[int, int], torch.Tensor]:
         tiles = self._device_tiles.get(device)
         if tiles is None:
-            tiles = {t: conform_channels(finite_texels(im.tensor()), self.channels).to(device)
-                     for t, im in self.images.items() if im is not None}
+            tiles = {}
+            for t, im in self.images.items():
+                if im is None:
+                    continue
+                if im.channels == self.channels and im.raw.dtype != np.float32:
+                    # Integer/half storage: converted per sampled texel (half may hold Inf/NaN).
+                    st = im.storage_tensor()
+                    tiles[t] = (finite_texels(st.float()) if st.dtype == torch.float16 and
+                                not bool(torch.isfinite(st).all()) else st, im.scale)
+                else:
+                    tiles[t] = (conform_channels(finite_texels(im.tensor()), self.channels), 1.0)
+                tiles[t] = (tiles[t][0].to(device), tiles[t][1])
+            self._device_tiles[device] = tiles
             self._device_tiles[device] = tiles
         return tiles
 
@@ -411,14 +446,16 @@ class Texture:
         vmode_tap = "clamp" if r.v1 - r.v0 > 1 else vaddress
         tiles = self._tiles_on(device)
         if not self.is_udim:
-            val = sample_image(tiles[(0, 0)], lu, lv, umode_tap, vmode_tap, filtertype, border=out)
+            img, scale = tiles[(0, 0)]
+            val = sample_image(img, lu, lv, umode_tap, vmode_tap, filtertype, border=out, scale=scale)
             return torch.where(valid[:, None], val, out)
         tu_i, tv_i = tu.long(), tv.long()
-        for (ku, kv), img in tiles.items():
+        for (ku, kv), (img, scale) in tiles.items():
             sel = valid & (tu_i == ku) & (tv_i == kv)
             idx = sel.nonzero().squeeze(1)
             if idx.numel():
-                out[idx] = sample_image(img, lu[idx], lv[idx], umode_tap, vmode_tap, filtertype, border=out[idx])
+                out[idx] = sample_image(img, lu[idx], lv[idx], umode_tap, vmode_tap, filtertype, border=out[idx],
+                                        scale=scale)
         return out
 
     def _default(self, default, n: int, device: torch.device) -> torch.Tensor:

@@ -69,8 +69,11 @@ def _taps(x: torch.Tensor, size: int, mode: str, filtertype: str):
 
 
 def sample_image(img: torch.Tensor, u: torch.Tensor, v: torch.Tensor, umode: str, vmode: str,
-                 filtertype: str, border: torch.Tensor | None = None) -> torch.Tensor:
-    """Filter ``img`` ``[H, W, C]`` (row 0 = top) at uv ``[N]`` (bottom-left origin) -> ``[N, C]``.
+                 filtertype: str, border: torch.Tensor | None = None, scale: float = 1.0) -> torch.Tensor:
+    """Filter ``img`` ``[H, W, C]`` (row 0 = top) at uv ``[N]`` (bottom-left origin) -> ``[N, C]`` float32.
+
+    ``img`` may be stored as integers or half floats: each gathered texel is
+    converted to float32 and multiplied by ``scale`` (1/255 for 8-bit data).
 
     Address modes apply per filter tap. Taps outside the image along a
     ``constant`` axis read ``border`` (``[N, C]``, zeros when None); the caller
@@ -84,12 +87,14 @@ def sample_image(img: torch.Tensor, u: torch.Tensor, v: torch.Tensor, umode: str
     for iy, my, wy in ty:
         for ix, mx, wx in tx:
             val = flat[iy * w + ix]
+            if val.dtype != torch.float32 and val.dtype != torch.float64:
+                val = val.float() * scale if scale != 1.0 else val.float()
             mask = my if mx is None else (mx if my is None else mx & my)
             if mask is not None:
                 fill = border if border is not None else torch.zeros_like(val)
                 val = torch.where(mask[:, None], val, fill)
             if wx is not None:
-                val = val * (wx * wy).to(img.dtype)[:, None]
+                val = val * (wx * wy).to(val.dtype)[:, None]
             out = val if out is None else out + val
     return out
 
