@@ -35,3 +35,13 @@ def random_dirs(n: int, seed: int, upper: bool = True) -> torch.Tensor:
     if upper:
         v[:, 2] = v[:, 2].abs()
     return v.float()
+
+
+def write_float_image(path, img) -> None:
+    """Write a float32 ``[H, W, C]`` array (row 0 = top) with OpenImageIO."""
+    import OpenImageIO as oiio
+
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], "float"))
+    out.write_image(img)
+    out.close()

@@ -6,7 +6,6 @@ import math
 
 import MaterialX as mx
 import numpy as np
-import OpenImageIO as oiio
 import torch
 
 from mtlx2neural.graph import compile_material
@@ -14,17 +13,14 @@ from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels, samples_for_level
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 
-from conftest import random_dirs
+from conftest import random_dirs, write_float_image
 
 
 def _stripes(path, res=32):
     """Vertical black/white stripes one texel wide: any footprint wider than a texel averages to grey."""
     img = np.zeros((res, res, 3), np.float32)
     img[:, ::2] = 1.0
-    out = oiio.ImageOutput.create(str(path))
-    out.open(str(path), oiio.ImageSpec(res, res, 3, "float"))
-    out.write_image(img)
-    out.close()
+    write_float_image(path, img)
 
 
 def _diffuse_textured(path):
@@ -51,12 +47,15 @@ def test_level_distribution_favours_fine_levels():
     assert samples_for_level(0, 64) == 1 and samples_for_level(2, 64) == 16 and samples_for_level(5, 64) == 64
 
 
-def test_coarse_footprint_averages_stripes(tmp_path):
+def _striped_material(tmp_path):
     path = tmp_path / "stripes.exr"
     _stripes(path)
     compiled = _diffuse_textured(path)
-    ref = ReferenceMaterial(compiled)
-    stack = build_parameter_stack(compiled, resolution=(32, 32))
+    return ReferenceMaterial(compiled), build_parameter_stack(compiled, resolution=(32, 32))
+
+
+def test_coarse_footprint_averages_stripes(tmp_path):
+    ref, stack = _striped_material(tmp_path)
     n = 4096
     g = torch.Generator().manual_seed(1)
     wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3)
@@ -77,11 +76,7 @@ def test_coarse_footprint_averages_stripes(tmp_path):
 
 
 def test_targets_are_finite_for_random_queries(tmp_path):
-    path = tmp_path / "stripes.exr"
-    _stripes(path)
-    compiled = _diffuse_textured(path)
-    ref = ReferenceMaterial(compiled)
-    stack = build_parameter_stack(compiled, resolution=(32, 32))
+    ref, stack = _striped_material(tmp_path)
     g = torch.Generator().manual_seed(2)
     n = 2000
     t = footprint_targets(ref, stack, random_dirs(n, 3), random_dirs(n, 4), torch.rand(n, 2, generator=g),

@@ -6,7 +6,6 @@ import math
 
 import MaterialX as mx
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 import torch
 
@@ -14,6 +13,8 @@ from mtlx2neural.graph import compile_material
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.textures.lean import lobe_from_moments, moments
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
+
+from conftest import write_float_image
 
 RES = 64
 
@@ -27,10 +28,7 @@ def _bumpy_normal_map(path, amplitude=0.15, freq=4):
     n = np.stack([-dhx, -dhy, np.ones_like(dhx)], -1)
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     img = (n * 0.5 + 0.5).astype(np.float32)
-    out = oiio.ImageOutput.create(str(path))
-    out.open(str(path), oiio.ImageSpec(RES, RES, 3, "float"))
-    out.write_image(img[::-1].copy())  # row 0 of the file is the top (v = 1); ours built with v up
-    out.close()
+    write_float_image(path, img[::-1].copy())  # row 0 of the file is the top (v = 1); ours built with v up
 
 
 def _material(path, alpha=0.15):

@@ -6,7 +6,6 @@ import math
 
 import MaterialX as mx
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 import torch
 
@@ -15,14 +14,7 @@ from mtlx2neural.graph import compile_material
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.textures.colour import convert
 
-from conftest import shared_path
-
-
-def _write(path, img):
-    out = oiio.ImageOutput.create(str(path))
-    out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], "float"))
-    out.write_image(img)
-    out.close()
+from conftest import shared_path, write_float_image
 
 
 @pytest.mark.parametrize("colorspace", ["srgb_texture", "acescg", "raw"])
@@ -30,7 +22,7 @@ def test_diffuse_colour_follows_texture_texels(tmp_path, colorspace):
     rng = np.random.default_rng(0)
     img = rng.uniform(0.05, 0.95, size=(8, 8, 3)).astype(np.float32)
     path = tmp_path / "albedo.exr"
-    _write(path, img)
+    write_float_image(path, img)
     doc = mx.createDocument()
     doc.setColorSpace("lin_rec709")
     tex = doc.addNode("image", "albedo", "color3")
