@@ -371,3 +371,14 @@ def test_console_script_entry_point(tmp_path):
                              timeout=300, check=False)
     assert refused.returncode == 1
     assert "not available" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def test_allow_missing_textures_uses_the_declared_default(capsys):
+    path = shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
+                       "standard_surface_brass_tiled.mtlx")
+    assert main(["inspect", str(path)]) == 2  # brass_color.jpg is missing: a clear error by default
+    assert "--allow-missing-textures" in capsys.readouterr().err
+    assert main(["inspect", str(path), "--allow-missing-textures", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    notes = " ".join(report["materials"][0]["approximations"])
+    assert "brass_color.jpg" in notes and "default" in notes
