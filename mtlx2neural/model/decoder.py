@@ -1,0 +1,59 @@
+"""The neural BRDF decoder with learned shading frames.
+
+A linear layer (no bias, no activation) maps the latent code to 6 numbers per
+frame. Frame k has normal n = normalize(v0 + (0, 0, 1)) and tangent
+t = normalize(v1 + (1, 0, 0)) with (v0, v1) its six numbers, and bitangent
+b = n x t; the frame is deliberately not orthogonalised. ``wi`` and ``wo`` are
+projected on (t, b, n) of every frame, and the projections plus the latent feed
+an MLP with ReLU hidden layers whose 3 outputs pass through exp(x - 3).
+
+``forward`` returns f(wi, wo) * cos(wo) in linear RGB (the cosine is learned,
+as the reference's ``eval`` includes it), for directions in the local frame.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .mlp import mlp, parse_hidden
+
+OUTPUT_OFFSET = 3.0
+
+
+class BrdfDecoder(nn.Module):
+    def __init__(self, latent_dim: int = 8, frames: int = 2, hidden="2x32", albedo_head: bool = False):
+        super().__init__()
+        self.latent_dim, self.frames = latent_dim, frames
+        self.hidden = parse_hidden(hidden)
+        self.frame_layer = nn.Linear(latent_dim, 6 * frames, bias=False)
+        self.net = mlp(6 * frames + latent_dim, self.hidden, 3)
+        # Optional albedo head: directional albedo from (latent, wi in the learned frames).
+        self.albedo = mlp(3 * frames + latent_dim, (self.hidden[-1],), 3) if albedo_head else None
+
+    def shading_frames(self, latent: torch.Tensor):
+        """(t, b, n), each [N, frames, 3], from the latent [N, latent_dim]."""
+        v = self.frame_layer(latent).view(-1, self.frames, 6)
+        n = v[..., 0:3] + v.new_tensor([0.0, 0.0, 1.0])
+        t = v[..., 3:6] + v.new_tensor([1.0, 0.0, 0.0])
+        n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        t = t / t.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        return t, torch.linalg.cross(n, t, dim=-1), n
+
+    @staticmethod
+    def project(w: torch.Tensor, frame) -> torch.Tensor:
+        """[N,3] direction -> [N, 3*frames] coordinates (t, b, n) in every frame."""
+        t, b, n = frame
+        w = w[:, None, :]
+        return torch.stack([(w * t).sum(-1), (w * b).sum(-1), (w * n).sum(-1)], -1).flatten(1)
+
+    def forward(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        frame = self.shading_frames(latent)
+        x = torch.cat([self.project(wi, frame), self.project(wo, frame), latent], -1)
+        return torch.exp(self.net(x).clamp(max=30.0) - OUTPUT_OFFSET)
+
+    def predict_albedo(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
+        if self.albedo is None:
+            raise RuntimeError("this decoder was built without an albedo head")
+        x = torch.cat([self.project(wi, self.shading_frames(latent)), latent], -1)
+        return torch.exp(self.albedo(x).clamp(max=30.0) - OUTPUT_OFFSET)
