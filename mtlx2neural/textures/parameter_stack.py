@@ -76,6 +76,17 @@ class ParameterStack:
         """
         return self._decode(_bilinear(self.levels[level], uv))
 
+    def sample_raw(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        """Undecoded channels [N, C] (LEAN moments, not lobes) at ``uv`` with per-query integer
+        ``level`` [N]: the encoder's input. [N, 0] for a uniform material."""
+        out = torch.zeros(uv.shape[0], self.levels[0].shape[0], dtype=torch.float32, device=uv.device)
+        if out.shape[1] == 0:
+            return out
+        for k in torch.unique(level).tolist():
+            idx = torch.nonzero(level == k)[:, 0]
+            out[idx] = _bilinear(self.levels[int(k)], uv[idx]).float()
+        return out
+
     def texel_values(self, level: int = 0) -> dict:
         """Every texel of ``level`` decoded as parameters: ``{name: [H*W, width]}`` (row-major, top row first)."""
         lv = self.levels[level]

@@ -1,0 +1,55 @@
+"""Training configuration: a dataclass with a docstring per field, and named presets."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+
+@dataclass
+class TrainConfig:
+    iterations: int = 2000
+    """Total optimisation steps over all three phases."""
+    batch: int = 4096
+    """Samples per batch; two batches (BRDF and sampler) per step."""
+    decoder: str = "2x32"
+    """Decoder hidden layers: 2x16, 2x32 or 3x64."""
+    frames: int = 2
+    """Learned shading frames."""
+    latent_dim: int = 8
+    """Latent channels."""
+    encoder_fraction: float = 0.6
+    """Share of iterations for phase 1 (encoder end to end); the rest fine-tunes baked latents."""
+    lr_start: float = 1e-3
+    """Adam learning rate at the start; cosine decay to ``lr_end``."""
+    lr_end: float = 1e-4
+    mollify_degrees: float = 10.0
+    """Initial half-angle of the mollification cone; decays linearly to 0."""
+    mollify_fraction: float = 0.1
+    """Share of iterations over which mollification decays (paper: 20k of 300k)."""
+    mollify_samples: int = 4
+    """Cone samples per target while mollifying (paper: 256)."""
+    footprint_samples: int = 16
+    """Cap on reference samples per footprint-filtered target."""
+    level_rate: float = 1.0
+    """Level distribution P(k) ~ exp(-rate k): larger favours fine levels more."""
+    albedo_head: bool = False
+    """Train the optional albedo head (L2 against one-sample Monte Carlo estimates)."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints."""
+    seed: int = 0
+
+
+PRESETS = {
+    "fast": TrainConfig(),
+    "balanced": TrainConfig(iterations=20_000, batch=16_384, mollify_samples=16),
+    "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
+                         mollify_samples=256, footprint_samples=64, decoder="3x64"),
+}
+
+
+def preset(name: str, **overrides) -> TrainConfig:
+    """A preset with explicit overrides (``None`` values are ignored)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset '{name}': choose one of {', '.join(PRESETS)}")
+    return dataclasses.replace(PRESETS[name], **{k: v for k, v in overrides.items() if v is not None})

@@ -1,0 +1,198 @@
+"""Train a neural material against its reference (DESIGN.md, "Model and training").
+
+Three phases over ``cfg.iterations`` steps:
+1. encoder end to end: prefiltered parameters at (uv, level) -> encoder -> decoder;
+2. bake: the encoder runs over every texel of every level of the parameter pyramid;
+3. fine-tune: the baked latents are optimised directly (with the decoder and sampler).
+
+Each step draws (uv, level, wi, wo), a footprint-filtered (and, early on,
+mollified) reference target, and optimises the log-L1 BRDF loss plus the
+sampler's KL loss against the current neural BRDF (latents detached).
+Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
+loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+import time
+from pathlib import Path
+
+import torch
+
+from ..model.neural_material import NeuralMaterial
+from ..textures.footprint import footprint_targets, sample_levels
+from ..textures.parameter_stack import ParameterStack
+from .config import TrainConfig
+from .directions import cone_jitter, half_difference_pairs
+from .losses import log_l1
+
+UNIFORM_PDF = 1.0 / (2.0 * math.pi)
+
+
+class TrainingInterrupted(Exception):
+    """Raised after Ctrl-C once a checkpoint has been written."""
+
+
+def _lr(cfg: TrainConfig, step: int) -> float:
+    t = min(1.0, step / max(1, cfg.iterations))
+    return cfg.lr_end + 0.5 * (cfg.lr_start - cfg.lr_end) * (1.0 + math.cos(math.pi * t))
+
+
+def _atomic_save(obj, path: Path) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+class Trainer:
+    def __init__(self, reference, stack: ParameterStack, cfg: TrainConfig, out_dir: Path, device="cpu"):
+        self.ref, self.stack, self.cfg = reference, stack, cfg
+        self.out_dir = Path(out_dir)
+        self.device = torch.device(device)
+        self.textured = stack.levels[0].shape[0] > 0
+        self.model = NeuralMaterial(stack.resolution if self.textured else (1, 1), stack.levels[0].shape[0],
+                                    cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head).to(self.device)
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+        self.step = 0
+        self.baked = False
+        self.history: list[dict] = []
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        torch.manual_seed(cfg.seed)
+
+    # -- checkpoints -------------------------------------------------------------------
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.out_dir / "checkpoint.pt"
+
+    def save(self) -> None:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        _atomic_save({"model": self.model.state_dict(), "opt": self.opt.state_dict(), "step": self.step,
+                      "baked": self.baked, "history": self.history, "config": dataclasses.asdict(self.cfg),
+                      "rng": self.gen.get_state()}, self.checkpoint_path)
+        self._write_curves()
+
+    def resume(self) -> bool:
+        if not self.checkpoint_path.exists():
+            return False
+        ck = torch.load(self.checkpoint_path, map_location=self.device, weights_only=False)
+        self.model.load_state_dict(ck["model"])
+        self.opt.load_state_dict(ck["opt"])
+        self.step, self.baked, self.history = ck["step"], ck["baked"], ck["history"]
+        self.gen.set_state(ck["rng"])
+        return True
+
+    def _write_curves(self) -> None:
+        if not self.history:
+            return
+        path = self.out_dir / "training_curves.csv"
+        tmp = path.with_suffix(".csv.tmp")
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(self.history[0]))
+            w.writeheader()
+            w.writerows(self.history)
+        os.replace(tmp, path)
+
+    # -- one step ----------------------------------------------------------------------
+    def _targets(self, wi, wo, uv, level):
+        cfg = self.cfg
+        frac = self.step / max(1.0, cfg.iterations * cfg.mollify_fraction)
+        angle = math.radians(cfg.mollify_degrees) * max(0.0, 1.0 - frac)
+        if self.textured:
+            wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
+            return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen)
+        if angle <= 0:
+            return self.ref.eval(wi, wo)
+        k = cfg.mollify_samples
+        wo_k = cone_jitter(wo, angle, k, self.gen)
+        return self.ref.eval(wi.repeat_interleave(k, 0), wo_k).view(-1, k, 3).mean(1)
+
+    def _latent(self, uv, level):
+        if self.baked:
+            return self.model.latents.fetch(uv, level)
+        return self.model.encoder(self.stack.sample_raw(uv, level))
+
+    def bake(self) -> None:
+        """Phase 2: run the encoder over every texel of every level into the latent pyramid."""
+        with torch.no_grad():
+            for k, lv in enumerate(self.model.latents.levels):
+                if self.textured:
+                    raw = self.stack.levels[k].float().reshape(self.stack.levels[k].shape[0], -1).T
+                    codes = torch.cat([self.model.encoder(raw[s:s + 65536]) for s in range(0, raw.shape[0], 65536)])
+                    lv.copy_(codes.T.reshape(lv.shape))
+                else:
+                    lv.copy_(self.model.encoder(torch.zeros(1, 0)).T.reshape(lv.shape))
+        self.baked = True
+        # The encoder is no longer used: keep optimising latents, decoder and sampler.
+        for p in self.model.encoder.parameters():
+            p.requires_grad_(False)
+
+    def train_step(self) -> dict:
+        cfg, g, dev = self.cfg, self.gen, self.device
+        b = cfg.batch
+        uv = torch.rand(b, 2, generator=g).to(dev)
+        level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
+            else torch.zeros(b, dtype=torch.long, device=dev)
+        wi, wo = half_difference_pairs(b, g, dev)
+        with torch.no_grad():
+            target = self._targets(wi, wo, uv, level)
+        latent = self._latent(uv, level)
+        loss_brdf = log_l1(self.model.decoder(latent, wi, wo), target)
+        # Sampler: KL(neural BRDF || proxy) up to a constant, with the latent detached.
+        wo_u = torch.nn.functional.normalize(torch.randn(b, 3, generator=g).to(dev), dim=-1)
+        wo_u = torch.cat([wo_u[:, :2], wo_u[:, 2:3].abs()], -1)
+        lat_d = latent.detach()
+        with torch.no_grad():
+            w = self.model.decoder(lat_d, wi, wo_u).mean(-1) / UNIFORM_PDF
+            w = w / w.sum().clamp_min(1e-12)
+        q = self.model.sampler.pdf(wi, wo_u, lat_d)
+        loss_kl = -(w * torch.log(q + 1e-4)).sum()
+        loss = loss_brdf + loss_kl
+        if cfg.albedo_head:
+            with torch.no_grad():
+                _, weight, _ = self.ref.sample(wi, torch.rand(b, 2, generator=g).to(dev))
+            loss = loss + ((self.model.decoder.predict_albedo(latent, wi) - weight) ** 2).mean()
+        for group in self.opt.param_groups:
+            group["lr"] = _lr(cfg, self.step)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)  # guard against near-delta spikes
+        self.opt.step()
+        self.step += 1
+        return {"step": self.step, "phase": "finetune" if self.baked else "encoder",
+                "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(cfg, self.step)}
+
+    def run(self, progress: bool = True) -> NeuralMaterial:
+        from tqdm import tqdm
+
+        cfg = self.cfg
+        switch = int(cfg.iterations * cfg.encoder_fraction)
+        bar = tqdm(total=cfg.iterations, initial=self.step, disable=not progress, unit="it", dynamic_ncols=True)
+        start = time.time()
+        try:
+            while self.step < cfg.iterations:
+                if not self.baked and self.step >= switch:
+                    self.bake()
+                rec = self.train_step()
+                if not all(math.isfinite(rec[k]) for k in ("loss_brdf", "loss_kl")):
+                    raise FloatingPointError(f"non-finite loss at step {self.step}: {rec}")
+                if self.step % 25 == 0 or self.step == cfg.iterations:
+                    rec["seconds"] = round(time.time() - start, 2)
+                    self.history.append(rec)
+                    bar.set_postfix(phase=rec["phase"], loss=f"{rec['loss_brdf']:.4f}", kl=f"{rec['loss_kl']:.3f}")
+                bar.update(1)
+                if self.step % cfg.checkpoint_every == 0:
+                    self.save()
+            if not self.baked:
+                self.bake()
+        except KeyboardInterrupt:
+            self.save()
+            bar.close()
+            raise TrainingInterrupted(f"interrupted at step {self.step}; checkpoint saved to "
+                                      f"{self.checkpoint_path} (rerun with --resume)") from None
+        bar.close()
+        self.save()
+        return self.model
