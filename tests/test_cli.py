@@ -333,20 +333,30 @@ def test_inspect_shared_asset_with_missing_texture(capsys):
     assert_clean_input_error(code, out, err, str(asset), "brass_color.jpg", "N_img_color3")
 
 
-# ----------------------------------------------------------------------------- conversion (not implemented yet)
+# ----------------------------------------------------------------------------- conversion
 
 
-def test_convert_command_not_available(tmp_path, capsys, monkeypatch):
+def test_convert_trains_into_the_output_folder_and_leaves_the_input(tmp_path, capsys, monkeypatch):
     asset = tmp_path / "red.mtlx"
     asset.write_text(SIMPLE_MTLX)
     monkeypatch.chdir(tmp_path)
     before = snapshot(tmp_path)
-    code, out, err = run_cli(capsys, asset)
-    assert code != 0
-    assert out == ""
+    code, out, err = run_cli(capsys, asset, "--iterations", "20", "--batch", "256", "--quiet", "--device", "cpu")
+    assert code == 0, err
     assert "Traceback" not in err
-    assert "not available" in err and "mtlx2neural inspect" in err
-    assert snapshot(tmp_path) == before
+    outdir = tmp_path / "red_neural" / "Red"
+    summary = json.loads((outdir / "summary.json").read_text())
+    assert summary["steps"] == 20 and summary["material"] == "Red"
+    assert (outdir / "checkpoint.pt").exists() and (outdir / "training_curves.csv").exists()
+    # The input folder only gained the output folder; the input file is unchanged.
+    after = {k: v for k, v in snapshot(tmp_path).items() if not str(k).startswith("red_neural")}
+    assert after == before
+
+
+def test_convert_bad_input_is_exit_2(tmp_path, capsys):
+    code, out, err = run_cli(capsys, tmp_path / "missing.usda", "--quiet")
+    assert code == 2 and "missing.usda" in err and "Traceback" not in err
+    assert not (tmp_path / "missing_neural").exists()
 
 
 # ----------------------------------------------------------------------------- the installed entry point
@@ -366,11 +376,11 @@ def test_console_script_entry_point(tmp_path):
     assert report["asset"] == str(asset)
     assert [m["material"] for m in report["materials"]] == ["Red"]
 
-    # A non-zero return from main() must reach the shell (cheap: returns before heavy imports).
-    refused = subprocess.run([script, str(asset)], capture_output=True, text=True, cwd=tmp_path,
+    # A non-zero return from main() must reach the shell.
+    refused = subprocess.run([script, str(tmp_path / "nope.mtlx")], capture_output=True, text=True, cwd=tmp_path,
                              timeout=300, check=False)
-    assert refused.returncode == 1
-    assert "not available" in refused.stderr and "Traceback" not in refused.stderr
+    assert refused.returncode == 2
+    assert "nope.mtlx" in refused.stderr and "Traceback" not in refused.stderr
 
 
 def test_allow_missing_textures_uses_the_declared_default(capsys):

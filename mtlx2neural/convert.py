@@ -1,0 +1,101 @@
+"""``mtlx2neural ASSET``: train a neural material for every material the scene selects.
+
+For each material: compile the reference, build the parameter pyramid (capped
+at the preset's resolution), train, and write into ``OUT/<material>/``:
+``checkpoint.pt`` (model, optimiser, config), ``training_curves.csv`` and
+``summary.json`` (settings, time, held-out error). ``OUT`` defaults to
+``<asset folder>/<asset stem>_neural``; the input is never modified. USD
+export of the result is a later stage.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import time
+from pathlib import Path
+
+import torch
+
+from .graph import compile_material
+from .reference import ReferenceMaterial
+from .scene import load_asset
+from .textures.parameter_stack import _texture_resolution, build_parameter_stack
+from .train.config import TrainConfig
+from .train.directions import half_difference_pairs
+from .train.losses import log_l1
+from .train.trainer import Trainer
+
+
+def default_output(asset) -> Path:
+    asset = Path(asset).resolve()
+    return asset.parent / f"{asset.stem}_neural"
+
+
+def material_folder(name: str) -> str:
+    """A file-system-safe folder name for a material path or name."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name.strip("/")) or "material"
+
+
+def resolve_device(device: str) -> str:
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
+
+
+def _resolution(compiled, cfg: TrainConfig):
+    if not compiled.varying_parameters():
+        return (1, 1)
+    h, w, _ = _texture_resolution(compiled)
+    if cfg.max_resolution:
+        s = min(1.0, cfg.max_resolution / max(h, w))
+        h, w = max(1, int(h * s)), max(1, int(w * s))
+    return (h, w)
+
+
+def held_out_error(ref: ReferenceMaterial, model, n: int = 8192, seed: int = 12345) -> float:
+    """Log-L1 between neural and reference at level 0, uv uniform, half/difference directions."""
+    g = torch.Generator().manual_seed(seed)
+    wi, wo = half_difference_pairs(n, g)
+    uv = torch.rand(n, 2, generator=g)
+    with torch.no_grad():
+        return float(log_l1(model.eval(wi, wo, uv), ref.eval(wi, wo, uv)))
+
+
+def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None, device: str = "cpu",
+                  resume: bool = False, progress: bool = True, allow_missing_textures: bool = False) -> list[dict]:
+    """Train every selected material (or only ``material``); returns one summary per material."""
+    scene = load_asset(asset)
+    out = Path(out) if out else default_output(asset)
+    sources = [s for s in scene.materials
+               if material is None or material in (s.name, s.name.rsplit("/", 1)[-1], s.material)]
+    summaries = []
+    device = resolve_device(device)
+    for src in sources:
+        t0 = time.time()
+        compiled = compile_material(src.document, src.material, device=device,
+                                    allow_missing_textures=allow_missing_textures)
+        ref = ReferenceMaterial(compiled)
+        stack = build_parameter_stack(compiled, resolution=_resolution(compiled, cfg))
+        folder = out / material_folder(src.name)
+        trainer = Trainer(ref, stack, cfg, folder, device=device)
+        if resume:
+            trainer.resume()
+        if progress:
+            print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid, "
+                  f"{stack.levels[0].shape[0]} varying channels, preset {cfg.iterations} steps x {cfg.batch}")
+        model = trainer.run(progress=progress)
+        summary = {"material": src.name, "source": src.source_file, "bound_prims": list(src.bound_prims),
+                   "resolution": list(stack.resolution), "varying_channels": int(stack.levels[0].shape[0]),
+                   "config": trainer.history and __import__("dataclasses").asdict(cfg),
+                   "steps": trainer.step, "seconds": round(time.time() - t0, 1),
+                   "final_loss_brdf": trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
+                   "held_out_log_l1": held_out_error(ref, model), "device": device,
+                   "notes": stack.notes}
+        tmp = folder / "summary.json.tmp"
+        tmp.write_text(json.dumps(summary, indent=2))
+        os.replace(tmp, folder / "summary.json")
+        summaries.append(summary)
+    return summaries
