@@ -131,8 +131,24 @@ class Expander:
             return self.graph_output(self._document_graph(ng), inst.getOutputString())
         if inst.hasValueString() and inst.getValueString() != "":
             colorspace = inst.getActiveColorSpace() if mx_type == "filename" else ""
-            return Const(_const_value(inst, mx_type, self.base_dir), mx_type, colorspace)
+            value = _const_value(inst, mx_type, self.base_dir)
+            if mx_type in ("color3", "color4") and isinstance(value, tuple):
+                value = self._to_working_space(value, inst.getActiveColorSpace())
+            return Const(value, mx_type, colorspace)
         return self._default(ndin) if ndin is not None else Const(None, mx_type)
+
+    def _to_working_space(self, value: tuple, colorspace: str) -> tuple:
+        """A colour value declared in ``colorspace``, converted into the working space (as MaterialX does)."""
+        from .sources import needs_conversion
+        from ..textures.colour import convert
+
+        working = self.working_space or "lin_rec709"
+        if not needs_conversion(colorspace, working):
+            return value
+        import numpy as np
+
+        rgb = convert(np.array([value[:3]], dtype=np.float32), colorspace, working)[0]
+        return tuple(float(x) for x in rgb) + tuple(value[3:])
 
     # -- graphs and nodes ----------------------------------------------------
     def _document_graph(self, ng: mx.NodeGraph) -> _Scope:

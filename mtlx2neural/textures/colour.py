@@ -114,14 +114,17 @@ _ALIASES: dict[str, tuple[str, ...]] = {
     ),
     "acescg": ("lin_ap1", "lin_ap1_scene", "ACEScg", "ACES - ACEScg"),
     "g22_rec709": (
+        "gamma22",  # MaterialX's legacy (1.38) name
         "g22_rec709_scene", "g22_encoded_rec709", "Gamma 2.2 Encoded Rec.709",
         "Gamma 2.2 Rec.709 - Texture", "Utility - Gamma 2.2 - Rec.709 - Texture", "g22_rec709_tx",
     ),
     "g18_rec709": (
+        "gamma18",  # MaterialX's legacy (1.38) name
         "g18_rec709_scene", "g18_encoded_rec709", "Gamma 1.8 Encoded Rec.709",
         "Gamma 1.8 Rec.709 - Texture", "Utility - Gamma 1.8 - Rec.709 - Texture", "g18_rec709_tx",
     ),
     "rec709_display": (
+        "gamma24",  # MaterialX's legacy (1.38) name
         "g24_rec709", "g24_rec709_scene", "g24_encoded_rec709", "Gamma 2.4 Encoded Rec.709",
         "Gamma 2.4 Rec.709 - Texture", "Utility - Rec.709 - Display", "g24_rec709_tx",
     ),
