@@ -10,6 +10,7 @@ export of the result is a later stage.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -89,7 +90,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
         model = trainer.run(progress=progress)
         summary = {"material": src.name, "source": src.source_file, "bound_prims": list(src.bound_prims),
                    "resolution": list(stack.resolution), "varying_channels": int(stack.levels[0].shape[0]),
-                   "config": trainer.history and __import__("dataclasses").asdict(cfg),
+                   "config": dataclasses.asdict(cfg),
                    "steps": trainer.step, "seconds": round(time.time() - t0, 1),
                    "final_loss_brdf": trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
                    "held_out_log_l1": held_out_error(ref, model), "device": device,
