@@ -72,6 +72,13 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
     out = Path(out) if out else default_output(asset)
     sources = [s for s in scene.materials
                if material is None or material in (s.name, s.name.rsplit("/", 1)[-1], s.material)]
+    if not sources:
+        from .errors import InputError
+
+        choices = [s.name for s in scene.materials] + [f"{n} (skipped: {why})" for n, why in scene.skipped]
+        what = f"no material named '{material}'" if material else "no material bound to renderable geometry"
+        raise InputError(f"{scene.asset}: {what}. Materials: {', '.join(choices) or 'none'}. "
+                         f"Name one with --material.")
     summaries = []
     device = resolve_device(device)
     for src in sources:
