@@ -72,6 +72,10 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
     out = Path(out) if out else default_output(asset)
     sources = [s for s in scene.materials
                if material is None or material in (s.name, s.name.rsplit("/", 1)[-1], s.material)]
+    if not sources and material is not None:
+        from .scene import find_material
+
+        sources = [find_material(asset, material)]  # an explicitly named material, even if unbound
     if not sources:
         from .errors import InputError
 
