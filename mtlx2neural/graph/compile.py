@@ -60,6 +60,8 @@ class CompiledMaterial:
             if n.category == "image":
                 f = n.inputs.get("file")
                 cs, working = texture_colorspaces(n)
+                if n.type not in ("color3", "color4"):
+                    cs = "raw"  # data textures (normals, roughness, masks) are never converted
                 textures.append({"node": n.path, "file": f.value if isinstance(f, Const) else None,
                                  "colorspace": cs or "raw", "working_space": working,
                                  "converted": needs_conversion(cs, working)})
