@@ -59,7 +59,8 @@ def _convert(args) -> int:
         return 1
     out = args.output or default_output(args.asset)
     for s in summaries:
-        print(f"{s['material']}: {s['steps']} steps in {s['seconds']} s, held-out log-L1 {s['held_out_log_l1']:.4f}")
+        print(f"{s['material']}: {s['steps']} steps in {s['seconds']} s, held-out log-L1 "
+              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})")
     print(f"wrote {out} (checkpoints, training curves, summaries); USD export comes with a later stage")
     return 0
 

@@ -2,8 +2,9 @@
 
 For each material: compile the reference, build the parameter pyramid (capped
 at the preset's resolution), train, and write into ``OUT/<material>/``:
-``checkpoint.pt`` (model, optimiser, config), ``training_curves.csv`` and
-``summary.json`` (settings, time, held-out error). ``OUT`` defaults to
+``checkpoint.pt`` (model, optimiser, config), ``training_curves.csv``,
+``summary.json`` (settings, time, held-out error, HDR FLIP at three views) and
+PNG renders of reference, neural model and FLIP map per view. ``OUT`` defaults to
 ``<asset folder>/<asset stem>_neural``; the input is never modified. USD
 export of the result is a later stage.
 """
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from .evaluate.render import compare, save_png
 from .graph import compile_material
 from .reference import ReferenceMaterial
 from .scene import load_asset
@@ -99,12 +101,20 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
             print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid, "
                   f"{stack.levels[0].shape[0]} varying channels, preset {cfg.iterations} steps x {cfg.batch}")
         model = trainer.run(progress=progress)
+        errors = compare(ref, model, texels=tuple(stack.resolution))
+        for i, e in enumerate(errors):
+            save_png(folder / f"view{i}_reference.png", e["reference"])
+            save_png(folder / f"view{i}_neural.png", e["neural"])
+            save_png(folder / f"view{i}_flip.png", e["flip_map"])
         summary = {"material": src.name, "source": src.source_file, "bound_prims": list(src.bound_prims),
                    "resolution": list(stack.resolution), "varying_channels": int(stack.levels[0].shape[0]),
                    "config": dataclasses.asdict(cfg),
                    "steps": trainer.step, "seconds": round(time.time() - t0, 1),
                    "final_loss_brdf": trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
                    "held_out_log_l1": held_out_error(ref, model), "device": device,
+                   "flip_per_view": [round(e["flip"], 4) for e in errors],
+                   "flip_mean": round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
+                   "relmse_mean": round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
                    "notes": stack.notes}
         tmp = folder / "summary.json.tmp"
         tmp.write_text(json.dumps(summary, indent=2))
