@@ -105,7 +105,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
         for i, e in enumerate(errors):
             save_png(folder / f"view{i}_reference.png", e["reference"])
             save_png(folder / f"view{i}_neural.png", e["neural"])
-            save_png(folder / f"view{i}_flip.png", e["flip_map"])
+            save_png(folder / f"view{i}_flip.png", e["flip_map"], linear=False)
         summary = {"material": src.name, "source": src.source_file, "bound_prims": list(src.bound_prims),
                    "resolution": list(stack.resolution), "varying_channels": int(stack.levels[0].shape[0]),
                    "config": dataclasses.asdict(cfg),

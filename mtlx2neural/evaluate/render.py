@@ -104,7 +104,8 @@ def neural_fn(model):
 
 
 def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
-    """HDR FLIP (mean and map), mean absolute error and relative MSE (eps 1e-2)."""
+    """HDR FLIP (mean, and flip-evaluator's colour-mapped error map), mean absolute error and
+    relative MSE (eps 1e-2)."""
     import flip_evaluator
 
     fmap, mean, _ = flip_evaluator.evaluate(np.clip(ref, 0, None), np.clip(test, 0, None), "HDR")
@@ -122,13 +123,14 @@ def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 9
     return out
 
 
-def save_png(path, img: np.ndarray, exposure: float = 1.0) -> None:
-    """Write an HDR image as an 8-bit sRGB PNG (clamped), or a [H,W] error map as grey."""
+def save_png(path, img: np.ndarray, exposure: float = 1.0, linear: bool = True) -> None:
+    """Write an 8-bit PNG: a linear HDR image is exposed, clamped and sRGB-encoded;
+    ``linear=False`` writes display-ready values as they are (e.g. FLIP's colour-mapped error)."""
     import OpenImageIO as oiio
 
     x = img if img.ndim == 3 else np.repeat(img[..., None], 3, -1)
     x = np.clip(x * exposure, 0, 1)
-    if img.ndim == 3:
+    if linear:
         x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     out = oiio.ImageOutput.create(str(path))
     out.open(str(path), oiio.ImageSpec(x.shape[1], x.shape[0], 3, "uint8"))
