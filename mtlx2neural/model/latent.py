@@ -15,6 +15,8 @@ import math
 import torch
 from torch import nn
 
+from ..textures.grid_lookup import bilinear_periodic
+
 
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
     shapes = [(height, width)]
@@ -47,23 +49,8 @@ class LatentPyramid(nn.Module):
         out = torch.zeros(uv.shape[0], self.channels, dtype=self.levels[0].dtype, device=uv.device)
         for k in torch.unique(level).tolist():
             idx = torch.nonzero(level == k)[:, 0]
-            out = out.index_put((idx,), _bilinear_periodic(self.levels[int(k)], uv[idx]))
+            out = out.index_put((idx,), bilinear_periodic(self.levels[int(k)], uv[idx]))
         return out
 
     def forward(self, uv: torch.Tensor, lod: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return self.fetch(uv, self.choose_levels(lod, u))
-
-
-def _bilinear_periodic(level: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    c, h, w = level.shape
-    x = torch.remainder(uv[:, 0], 1.0) * w - 0.5
-    y = (1.0 - torch.remainder(uv[:, 1], 1.0)) * h - 0.5
-    x0, y0 = x.floor(), y.floor()
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.long(), y0.long()
-    flat = level.reshape(c, -1)
-    out = 0
-    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        idx = torch.remainder(y0 + dy, h) * w + torch.remainder(x0 + dx, w)
-        out = out + flat[:, idx].T * wgt
-    return out

@@ -28,6 +28,7 @@ import torch.nn.functional as F
 
 from ..graph.compile import CompiledMaterial
 from ..graph.ir import CHANNELS, Const
+from .grid_lookup import bilinear_periodic
 from .lean import lobe_from_moments, moments
 
 MICROFACET = {"dielectric_bsdf", "conductor_bsdf", "generalized_schlick_bsdf"}
@@ -74,7 +75,7 @@ class ParameterStack:
         UV space wraps (periodic), as the material's textures repeat. Returns
         ``{parameter name: [N, width]}``, including LEAN-derived normal/tangent/roughness.
         """
-        return self._decode(_bilinear(self.levels[level], uv))
+        return self._decode(bilinear_periodic(self.levels[level], uv))
 
     def sample_raw(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """Undecoded channels [N, C] (LEAN moments, not lobes) at ``uv`` with per-query integer
@@ -84,7 +85,7 @@ class ParameterStack:
             return out
         for k in torch.unique(level).tolist():
             idx = torch.nonzero(level == k)[:, 0]
-            out[idx] = _bilinear(self.levels[int(k)], uv[idx]).float()
+            out[idx] = bilinear_periodic(self.levels[int(k)], uv[idx]).float()
         return out
 
     def texel_values(self, level: int = 0) -> dict:
@@ -106,21 +107,6 @@ class ParameterStack:
                 out[c.name] = v / v.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         return out
 
-
-def _bilinear(level: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """[C,H,W] map, [N,2] uv (bottom-left origin, periodic) -> [N,C]."""
-    c, h, w = level.shape
-    x = torch.remainder(uv[:, 0], 1.0) * w - 0.5
-    y = (1.0 - torch.remainder(uv[:, 1], 1.0)) * h - 0.5
-    x0, y0 = x.floor(), y.floor()
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.long(), y0.long()
-    flat = level.reshape(c, -1)
-    out = 0
-    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        idx = torch.remainder(y0 + dy, h) * w + torch.remainder(x0 + dx, w)
-        out = out + flat[:, idx].T * wgt
-    return out
 
 
 def _semantic(name: str, mx_type: str) -> tuple[str, str, str]:
