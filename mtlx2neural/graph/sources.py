@@ -14,6 +14,7 @@ import torch
 import functools
 
 from ..textures.image_io import Texture
+from ..textures.texel_lookup import conform_channels
 
 SPATIAL = {"texcoord", "position", "geomcolor", "geompropvalue", "image"}
 FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
@@ -24,18 +25,6 @@ UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
 def texture(path: str, node_path: str) -> Texture:
     """The texture (file or UDIM set) read by image node ``node_path`` (pixels cached by image_io)."""
     return Texture(path, node=node_path)
-
-
-def _fit_channels(x: torch.Tensor, channels: int) -> torch.Tensor:
-    """Adapt a texture's channel count to the node's type: grey broadcasts, missing channels read 1."""
-    c = x.shape[-1]
-    if c == channels:
-        return x
-    if c == 1:
-        return x.expand(x.shape[0], channels)
-    if c > channels:
-        return x[:, :channels]
-    return torch.cat([x, torch.ones(x.shape[0], channels - c, dtype=x.dtype, device=x.device)], -1)
 
 
 def texture_colorspaces(node) -> tuple[str, str]:
@@ -75,8 +64,8 @@ def eval_source(node, args: dict, uv: torch.Tensor):
         raw = tex.sample(args["texcoord"].expand(n, -1), uaddress=args.get("uaddressmode", "periodic"),
                          vaddress=args.get("vaddressmode", "periodic"),
                          filtertype=args.get("filtertype", "linear") or "linear",
-                         default=_fit_channels(default, tex.channels))
-        out = _fit_channels(raw, CHANNELS[node.type])
+                         default=conform_channels(default, tex.channels))
+        out = conform_channels(raw, CHANNELS[node.type])
         src, dst = texture_colorspaces(node)
         if out.shape[-1] >= 3 and needs_conversion(src, dst):
             from ..textures.colour import convert_torch
