@@ -25,7 +25,7 @@ from .evaluate.render import compare, save_png
 from .graph import compile_material
 from .reference import ReferenceMaterial
 from .scene import load_asset
-from .textures.parameter_stack import _texture_resolution, build_parameter_stack
+from .textures.parameter_stack import texture_resolution, build_parameter_stack
 from .train.config import TrainConfig
 from .train.directions import half_difference_pairs
 from .train.losses import log_l1
@@ -51,7 +51,7 @@ def resolve_device(device: str) -> str:
 def _resolution(compiled, cfg: TrainConfig):
     if not compiled.varying_parameters():
         return (1, 1)
-    h, w, _ = _texture_resolution(compiled)
+    h, w, _ = texture_resolution(compiled)
     if cfg.max_resolution:
         s = min(1.0, cfg.max_resolution / max(h, w))
         h, w = max(1, int(h * s)), max(1, int(w * s))

@@ -74,7 +74,7 @@ def test_automatic_resolution_counts_tiling():
     m = m2n.load_reference(path)
     from mtlx2neural.textures import parameter_stack as ps
 
-    h, w, notes = ps._texture_resolution(m.compiled)
+    h, w, notes = ps.texture_resolution(m.compiled)
     spec = oiio.ImageInput.open(str(shared_path("materialx", "resources", "Images", "wood_color.jpg"))).spec()
     # The texture repeats 4 times across UV space (uvtiling 4): 4x its texels, up to MAX_RES.
     expected = min(4 * spec.width, ps.MAX_RES)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import MaterialX as mx
 import torch
@@ -28,6 +28,7 @@ class CompiledMaterial:
     evaluator: GraphEvaluator
     program: BsdfProgram
     spatial_nodes: list[int]
+    _parameters: list | None = field(default=None, repr=False)
 
     def parameters(self) -> list[tuple[str, Input, str]]:
         """Every run-time parameter of the BSDF program: (name, IR input, MaterialX type).
@@ -36,6 +37,8 @@ class CompiledMaterial:
         "<combinator node path>.<mix|in2|opacity>" for mix amounts and tints; the
         reference accepts the same names as overrides (``params=``).
         """
+        if self._parameters is not None:  # the program is fixed after compilation
+            return self._parameters
         out = []
         for leaf in self.program.leaves():
             nd_inputs = self.graph[leaf.node].inputs
@@ -45,6 +48,7 @@ class CompiledMaterial:
         for key, inp in self.program.amounts():
             mx_type = inp.type if isinstance(inp, Const) else self.graph.output_type(inp)
             out.append((key, inp, mx_type))
+        self._parameters = out
         return out
 
     def varying_parameters(self) -> list[tuple[str, Input, str]]:

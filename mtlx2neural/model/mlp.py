@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import torch
 from torch import nn
 
 
@@ -27,10 +26,3 @@ def parse_hidden(spec: str | tuple) -> tuple[int, ...]:
         return DECODER_SIZES[spec]
     layers, width = spec.lower().split("x")
     return (int(width),) * int(layers)
-
-
-def count_parameters(module: nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-__all__ = ["mlp", "parse_hidden", "count_parameters", "DECODER_SIZES", "torch"]

@@ -58,18 +58,22 @@ def fresnel_dielectric(c, ior):
     return torch.where(g2 < 0.0, torch.ones_like(g2), 0.5 * a * (1.0 + b))
 
 
+def _polarized(c2, s2, x, t2):
+    """(Rp, Rs) from cos^2, sin^2, x = |eta^2 - sin^2| (a^2 + b^2 for a conductor) and t2 = 2 a cos."""
+    t1 = x + c2
+    rs = (t1 - t2) / (t1 + t2).clamp_min(1e-20)
+    t3 = c2 * x + s2 * s2
+    t4 = t2 * s2
+    rp = rs * (t3 - t4) / (t3 + t4).clamp_min(1e-20)
+    return rp, rs
+
+
 def fresnel_dielectric_polarized(cos_theta, ior):
     """(Rp, Rs) of a dielectric interface."""
     c2 = cos_theta.clamp(0.0, 1.0) ** 2
     s2 = 1.0 - c2
     t0 = (ior * ior - s2).clamp_min(0.0)
-    t1 = t0 + c2
-    t2 = 2.0 * t0.sqrt() * cos_theta
-    rs = (t1 - t2) / (t1 + t2).clamp_min(1e-20)
-    t3 = c2 * t0 + s2 * s2
-    t4 = t2 * s2
-    rp = rs * (t3 - t4) / (t3 + t4).clamp_min(1e-20)
-    return rp, rs
+    return _polarized(c2, s2, t0, 2.0 * t0.sqrt() * cos_theta)
 
 
 def fresnel_conductor_polarized(cos_theta, n, k):
@@ -79,14 +83,8 @@ def fresnel_conductor_polarized(cos_theta, n, k):
     n2, k2 = n * n, k * k
     t0 = n2 - k2 - s2
     a2b2 = (t0 * t0 + 4.0 * n2 * k2).sqrt()
-    t1 = a2b2 + c2
     a = (0.5 * (a2b2 + t0)).clamp_min(0.0).sqrt()
-    t2 = 2.0 * a * cos_theta
-    rs = (t1 - t2) / (t1 + t2).clamp_min(1e-20)
-    t3 = c2 * a2b2 + s2 * s2
-    t4 = t2 * s2
-    rp = rs * (t3 - t4) / (t3 + t4).clamp_min(1e-20)
-    return rp, rs
+    return _polarized(c2, s2, a2b2, 2.0 * a * cos_theta)
 
 
 def fresnel_conductor(cos_theta, n, k):

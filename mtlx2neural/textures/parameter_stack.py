@@ -125,7 +125,7 @@ def _semantic(name: str, mx_type: str) -> tuple[str, str, str]:
     return ("scalar" if CHANNELS.get(mx_type, 1) == 1 else "vector"), "box", mx_type
 
 
-def _texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]:
+def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]:
     """Finest texel grid over UV [0,1]^2: each image's size times its UV scale (tiling)."""
     import OpenImageIO as oiio
 
@@ -188,9 +188,10 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
     float16 when level 0 would exceed ``STORAGE_BUDGET_BYTES`` (lookups return float32).
     """
     ev = compiled.evaluator
-    h, w, notes = _texture_resolution(compiled) if resolution is None else (*resolution, [])
+    h, w, notes = texture_resolution(compiled) if resolution is None else (*resolution, [])
     varying, lean, plan = _layout(compiled)
-    constants = {k: ev.value(i, {}) for k, i, _ in compiled.parameters() if k not in varying}
+    inputs = {k: i for k, i, _ in compiled.parameters()}
+    constants = {k: ev.value(i, {}) for k, i in inputs.items() if k not in varying}
     for lobe in lean:  # LEAN lobes take normal/roughness/tangent from the moments, never from constants
         for p in ("normal", "roughness", "tangent"):
             constants.pop(f"{lobe}.{p}", None)
@@ -219,7 +220,7 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
         def get(key, default_width):
             if key in varying:
                 return ev.value(varying[key][0], env).expand(count, -1)
-            c = ev.value(compiled_parameter(compiled, key), {})
+            c = ev.value(inputs[key], {})
             return c.expand(count, default_width)
 
         parts = []
@@ -254,11 +255,3 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
             F.avg_pool2d(prev[c:c + 1][None].float(), 2, ceil_mode=True, count_include_pad=False)[0].to(storage_dtype)
             for c in range(prev.shape[0])], 0))
     return ParameterStack(channels, levels, constants, lean, notes)
-
-
-def compiled_parameter(compiled: CompiledMaterial, key: str):
-    """The IR input of parameter ``key`` (see ``CompiledMaterial.parameters``)."""
-    for k, inp, _ in compiled.parameters():
-        if k == key:
-            return inp
-    raise KeyError(key)
