@@ -2,6 +2,8 @@
 
     mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64] ...
     mtlx2neural inspect ASSET [--material M] [--json]
+    mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
+                       [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
 
 Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
 node and what to do).
@@ -15,7 +17,7 @@ import sys
 
 from .errors import Mtlx2NeuralError
 
-SUBCOMMANDS = ("inspect", "convert")
+SUBCOMMANDS = ("inspect", "convert", "render")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -41,7 +43,35 @@ def _parser() -> argparse.ArgumentParser:
     conv.add_argument("--resume", action="store_true", help="continue from the checkpoints in the output folder")
     conv.add_argument("--allow-missing-textures", action="store_true")
     conv.add_argument("--quiet", action="store_true", help="no progress bar")
+    ren = sub.add_parser("render", help="render one material (reference or neural) to an EXR and a PNG")
+    ren.add_argument("asset", help=".mtlx file or USD stage")
+    ren.add_argument("-o", "--output", required=True, help="output .exr (a .png is written beside it)")
+    ren.add_argument("--material", help="prim path, prim name or MaterialX name")
+    ren.add_argument("--model", default="reference", choices=["reference", "neural"])
+    ren.add_argument("--checkpoint", help="neural checkpoint.pt or its folder "
+                                          "(default: ASSET_neural/<material>/checkpoint.pt)")
+    ren.add_argument("--geometry", default="sphere", help="sphere, plane, teapot or a path to an .obj")
+    ren.add_argument("--env", default="sky", help="'sky' (procedural) or a lat-long .hdr/.exr environment map")
+    ren.add_argument("--res", type=int, default=256, help="image width and height in pixels")
+    ren.add_argument("--spp", type=int, default=16, help="samples per pixel (one light sample each)")
+    ren.add_argument("--azimuth", type=float, default=30.0, help="degrees; 0 looks from +z, 90 from +x")
+    ren.add_argument("--elevation", type=float, default=20.0, help="degrees above the horizon")
+    ren.add_argument("--distance", type=float, default=4.0, help="camera distance in bounding-sphere radii")
+    ren.add_argument("--fov", type=float, default=30.0, help="vertical field of view, degrees")
+    ren.add_argument("--seed", type=int, default=0)
+    ren.add_argument("--allow-missing-textures", action="store_true")
     return p
+
+
+def _render(args) -> int:
+    from .evaluate.render_cli import render_asset
+
+    s = render_asset(args.asset, args.output, args.material, args.model, args.checkpoint, args.geometry,
+                     args.env, args.res, args.spp, args.azimuth, args.elevation, args.distance, args.fov,
+                     args.seed, args.allow_missing_textures)
+    print(f"{s['material']} ({s['model']}): {s['geometry']} under {s['env']}, {s['res']}x{s['res']}, "
+          f"{s['spp']} spp in {s['seconds']} s; wrote {s['exr']} and {s['png']}")
+    return 0
 
 
 def _convert(args) -> int:
@@ -77,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
             report = inspect_asset(args.asset, args.material, args.allow_missing_textures)
             print(json.dumps(report, indent=2) if args.json else format_report(report))
             return 0
+        if args.command == "render":
+            return _render(args)
         return _convert(args)
     except Mtlx2NeuralError as exc:
         print(f"mtlx2neural: error: {exc}", file=sys.stderr)

@@ -1,0 +1,143 @@
+"""``mtlx2neural render``: render one material (reference or trained neural model) to an EXR and a PNG.
+
+The library function :func:`render_asset` does the work; the CLI only parses
+arguments. Geometry is ``sphere``, ``plane``, ``teapot`` (MaterialX's
+``resources/Geometry/teapot.obj``, found through MATERIALX_SEARCH_PATH or the
+``../shared`` assets next to the repository) or a path to an ``.obj``; lighting
+is ``sky`` (the procedural :meth:`EnvironmentMap.sky`) or a lat-long ``.hdr``/``.exr``
+file. The neural model's checkpoint defaults to the one ``mtlx2neural ASSET``
+writes: ``<asset folder>/<asset stem>_neural/<material folder>/checkpoint.pt``.
+The EXR (float32 linear RGB) and the PNG (sRGB, exposure 1) are written through
+temporary files and renamed into place, so a failed run leaves no partial file.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+GEOMETRIES = ("sphere", "plane", "teapot")
+TEAPOT = Path("resources") / "Geometry" / "teapot.obj"
+
+
+def find_teapot() -> Path:
+    """MaterialX's teapot.obj: under each MATERIALX_SEARCH_PATH entry, then ../shared/assets/materialx."""
+    roots = [Path(p) for p in os.environ.get("MATERIALX_SEARCH_PATH", "").split(os.pathsep) if p]
+    roots.append(Path(__file__).resolve().parents[3] / "shared" / "assets" / "materialx")
+    for root in roots:
+        for cand in (root / TEAPOT, root / "Geometry" / "teapot.obj", root / "teapot.obj"):
+            if cand.is_file():
+                return cand
+    raise InputError("teapot.obj not found (looked under MATERIALX_SEARCH_PATH and ../shared/assets/materialx/"
+                     f"{TEAPOT}); set MATERIALX_SEARCH_PATH to a MaterialX checkout or pass --geometry FILE.obj")
+
+
+def make_geometry(spec: str):
+    """``sphere`` | ``plane`` | ``teapot`` | a path to an OBJ file -> a geometry of :mod:`.geometry`."""
+    from .geometry import Plane, Sphere, load_obj
+
+    if spec == "sphere":
+        return Sphere()
+    if spec == "plane":
+        return Plane()
+    if spec == "teapot":
+        return load_obj(find_teapot())
+    if not spec.lower().endswith(".obj"):
+        raise InputError(f"unknown geometry '{spec}': use {', '.join(GEOMETRIES)} or a path to an .obj file")
+    return load_obj(spec)
+
+
+def make_lights(spec: str | None):
+    """``sky`` (default) or a lat-long HDR/EXR file -> a list of lights."""
+    from .lighting import EnvironmentMap
+
+    if spec in (None, "sky"):
+        return [EnvironmentMap.sky()]
+    return [EnvironmentMap.from_file(spec)]
+
+
+def write_exr(path, img: np.ndarray) -> None:
+    """Write a float32 [H, W, 3] image with OpenImageIO: a temporary file, then os.replace."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None or not out.open(str(tmp), oiio.ImageSpec(img.shape[1], img.shape[0], 3, "float")):
+        raise InputError(f"{path}: cannot write the image ({oiio.geterror()})")
+    try:
+        ok = out.write_image(np.ascontiguousarray(img, dtype=np.float32))
+    finally:
+        out.close()
+    if not ok:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"{path}: cannot write the image ({oiio.geterror()})")
+    os.replace(tmp, path)
+
+
+def write_png(path, img: np.ndarray) -> None:
+    """:func:`.render.save_png` through a temporary file and os.replace."""
+    from .render import save_png
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
+    save_png(tmp, img)
+    os.replace(tmp, path)
+
+
+def default_checkpoint(asset, material_name: str) -> Path:
+    """Where ``mtlx2neural ASSET`` puts the checkpoint of ``material_name``."""
+    from ..convert import default_output, material_folder
+
+    return default_output(asset) / material_folder(material_name) / "checkpoint.pt"
+
+
+def render_asset(asset, output, material: str | None = None, model: str = "reference", checkpoint=None,
+                 geometry: str = "sphere", env: str | None = "sky", res: int = 256, spp: int = 16,
+                 azimuth: float = 30.0, elevation: float = 20.0, distance: float = 4.0, fov: float = 30.0,
+                 seed: int = 0, allow_missing_textures: bool = False) -> dict:
+    """Render ``material`` of ``asset`` with the reference or neural ``model``; write ``output`` (.exr)
+    and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError."""
+    from ..scene import find_material
+    from .geometry import Camera
+    from .render import neural_fn, reference_fn, render_scene
+
+    output = Path(output)
+    if output.suffix.lower() != ".exr":
+        raise InputError(f"{output}: the output must be an .exr file (a .png is written beside it)")
+    if not output.parent.is_dir():
+        raise InputError(f"{output.parent}: the output folder does not exist")
+    if model not in ("reference", "neural"):
+        raise InputError(f"unknown model '{model}': use reference or neural")
+    if res < 1 or spp < 1:
+        raise InputError(f"--res and --spp must be positive (got {res}, {spp})")
+    if distance <= 1.0 or not 0.0 < fov < 180.0:
+        raise InputError("--distance must exceed 1 (bounding radii) and --fov lie in (0, 180) degrees")
+    src = find_material(asset, material)  # InputError for an unknown or ambiguous material
+    geo, lights = make_geometry(geometry), make_lights(env)
+    if model == "neural":
+        from ..model.checkpoint import load_checkpoint
+
+        ck = Path(checkpoint) if checkpoint else default_checkpoint(asset, src.name)
+        net = load_checkpoint(ck)
+        fn, texels = neural_fn(net), tuple(int(s) for s in net.latents.levels[0].shape[1:])
+    else:
+        from ..graph import compile_material
+        from ..reference import ReferenceMaterial
+
+        compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
+        fn, texels, ck = reference_fn(ReferenceMaterial(compiled)), (1, 1), None
+    t0 = time.time()
+    img = render_scene(fn, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed)
+    seconds = time.time() - t0
+    png = output.with_suffix(".png")
+    write_exr(output, img)
+    write_png(png, img)
+    return {"material": src.name, "model": model, "checkpoint": str(ck) if ck else None, "exr": str(output),
+            "png": str(png), "geometry": geometry, "env": env or "sky", "res": res, "spp": spp,
+            "seconds": round(seconds, 2), "mean": float(np.mean(img))}

@@ -1,0 +1,85 @@
+"""Loading trained neural materials from the trainer's checkpoint.pt."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import pytest
+import torch
+
+from mtlx2neural.errors import InputError
+from mtlx2neural.model.checkpoint import load_checkpoint, model_arguments
+from mtlx2neural.model.neural_material import NeuralMaterial
+from mtlx2neural.train.config import TrainConfig
+
+
+def _save_like_trainer(model, folder, cfg=None, **extra):
+    """The dict Trainer.save writes (minus optimiser/rng state the loader ignores)."""
+    cfg = dataclasses.asdict(cfg or TrainConfig())
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.save({"model": model.state_dict(), "step": 10, "baked": True, "history": [], "config": cfg, **extra},
+               folder / "checkpoint.pt")
+    return folder / "checkpoint.pt"
+
+
+def _randomised(model, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.copy_(torch.randn(p.shape, generator=g) * 0.3)
+    return model
+
+
+@pytest.mark.parametrize("resolution, in_dim, decoder, frames, albedo", [
+    ((6, 10), 5, "2x16", 2, False),
+    ((1, 1), 0, "3x64", 3, True),  # a uniform material: encoder input width 1 but in_dim 0
+])
+def test_roundtrip_gives_identical_outputs(tmp_path, resolution, in_dim, decoder, frames, albedo):
+    model = _randomised(NeuralMaterial(resolution, in_dim, 8, frames, decoder, albedo)).train(False)
+    cfg = TrainConfig(decoder=decoder, frames=frames, albedo_head=albedo)
+    path = _save_like_trainer(model, tmp_path / "Mat", cfg)
+    for where in (path, tmp_path / "Mat"):  # the file or its folder
+        loaded = load_checkpoint(where)
+        assert not loaded.training and loaded.checkpoint_step == 10
+        assert loaded.encoder.in_dim == in_dim
+        assert tuple(loaded.latents.levels[0].shape[1:]) == resolution
+        g = torch.Generator().manual_seed(1)
+        wi = torch.nn.functional.normalize(torch.randn(64, 3, generator=g).abs(), dim=-1)
+        wo = torch.nn.functional.normalize(torch.randn(64, 3, generator=g).abs(), dim=-1)
+        uv, lod, u = torch.rand(64, 2, generator=g), torch.rand(64, generator=g) * 3, torch.rand(64, generator=g)
+        with torch.no_grad():
+            assert torch.equal(loaded.eval(wi, wo, uv, lod, u), model.eval(wi, wo, uv, lod, u))
+            assert torch.equal(loaded.pdf(wi, wo, uv, lod, u), model.pdf(wi, wo, uv, lod, u))
+
+
+def test_unknown_config_keys_are_ignored(tmp_path):
+    model = NeuralMaterial((4, 4), 3)
+    cfg = dataclasses.asdict(TrainConfig()) | {"ablation": "no_frames", "some_future_knob": 3}
+    torch.save({"model": model.state_dict(), "config": cfg}, tmp_path / "checkpoint.pt")
+    assert isinstance(load_checkpoint(tmp_path), NeuralMaterial)
+    assert "some_future_knob" not in model_arguments(model.state_dict(), cfg)
+
+
+def test_missing_or_corrupt_checkpoint_is_an_input_error(tmp_path):
+    with pytest.raises(InputError, match=re.escape(str(tmp_path / "nowhere" / "checkpoint.pt"))):
+        load_checkpoint(tmp_path / "nowhere")
+    bad = tmp_path / "bad" / "checkpoint.pt"
+    bad.parent.mkdir()
+    bad.write_bytes(b"not a torch file")
+    with pytest.raises(InputError, match=re.escape(str(bad))):
+        load_checkpoint(bad)
+    torch.save({"weights": 1}, bad)
+    with pytest.raises(InputError, match="not a mtlx2neural checkpoint"):
+        load_checkpoint(bad)
+    state = NeuralMaterial((4, 4), 3).state_dict()
+    del state["decoder.net.0.bias"]
+    torch.save({"model": state}, bad)
+    with pytest.raises(InputError, match="does not match"):
+        load_checkpoint(bad)
+
+
+def test_unbaked_checkpoint_warns(tmp_path):
+    _save_like_trainer(NeuralMaterial((2, 2), 1), tmp_path, baked=False)
+    with pytest.warns(UserWarning, match="before the latent bake"):
+        load_checkpoint(tmp_path)
