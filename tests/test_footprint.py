@@ -82,3 +82,28 @@ def test_targets_are_finite_for_random_queries(tmp_path):
     t = footprint_targets(ref, stack, random_dirs(n, 3), random_dirs(n, 4), torch.rand(n, 2, generator=g),
                           sample_levels(n, len(stack.levels), generator=g), generator=g)
     assert t.shape == (n, 3) and bool(torch.isfinite(t).all()) and bool((t >= 0).all())
+
+
+def test_capped_grid_prefilters_level0_and_targets_use_the_true_material(tmp_path):
+    """A grid 4x coarser than a 1-texel stripe texture: level 0 must hold the stripes' average
+    (not a point sample of one stripe), and level-0 targets must average the real texture."""
+    path = tmp_path / "stripes64.exr"
+    _stripes(path, res=64)
+    compiled = _diffuse_textured(path)
+    ref = ReferenceMaterial(compiled)
+    stack = build_parameter_stack(compiled, resolution=(16, 16))
+    assert stack.texel_ratio == (4.0, 4.0)
+    assert samples_for_level(0, 64, stack.texel_ratio) == 16
+    # Each level-0 texel averages 4x4 sub-samples: two black and two white columns -> exactly 0.5
+    # (float32 sums of 0/1 values are exact).
+    colour = stack.texel_values(0)["d.color"]
+    assert float((colour - 0.5).abs().max()) == 0.0
+    n = 2048
+    g = torch.Generator().manual_seed(3)
+    wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3)
+    uv = torch.rand(n, 2, generator=g)
+    t = footprint_targets(ref, stack, wi, wi, uv, torch.zeros(n, dtype=torch.long), 16, g) * math.pi
+    # 16 points over ~4 stripes: each target is a mean of 0/1 values, so it varies (std of the
+    # mean of 16 fair coins is 0.125), but the batch mean is 0.5 within 4 standard errors (0.011).
+    assert abs(float(t[:, 0].mean()) - 0.5) < 0.011
+    assert 0.05 < float(t[:, 0].std()) < 0.3

@@ -3,8 +3,14 @@
 A query is (uv, MIP level k, wi, wo). Its target is the mean of the reference
 ``eval`` over points drawn from an isotropic Gaussian around ``uv`` whose
 standard deviation is half a level-k texel (``2^k`` level-0 texels wide), with
-the level-0 (unfiltered) parameters at each point. The number of points grows
-with the filter area (4^k), capped at ``max_samples``.
+the unfiltered material at each point. The number of points grows with the
+filter area in native texels, capped at ``max_samples``.
+
+"Unfiltered" means the stack's level 0 when it is at the textures' own
+resolution. When the grid was capped below it (``stack.texel_ratio > 1``), level
+0 is itself a LEAN/box-filtered version, whose appearance differs from the true
+average (LEAN cannot model masking between the bumps of a normal map, nor
+sparkle), so the points evaluate the material graph directly at their uv.
 
 Levels are drawn from a truncated exponential distribution that favours fine
 levels: P(k) proportional to exp(-rate * k).
@@ -30,9 +36,10 @@ def sample_levels(n: int, num_levels: int, rate: float = 1.0, generator: torch.G
     return torch.multinomial((p / p.sum()).float(), n, replacement=True, generator=generator).to(device)
 
 
-def samples_for_level(level: int, max_samples: int) -> int:
-    """Points averaged at ``level``: proportional to the filter area 4^k, at least 1, capped."""
-    return int(min(max_samples, 4 ** level))
+def samples_for_level(level: int, max_samples: int, texel_ratio: tuple[float, float] = (1.0, 1.0)) -> int:
+    """Points averaged at ``level``: proportional to the filter area in native texels
+    (4^k times the native texels per level-0 texel), at least 1, capped."""
+    return int(min(max_samples, math.ceil(4 ** level * texel_ratio[0] * texel_ratio[1] - 1e-6)))
 
 
 def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
@@ -45,17 +52,21 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
     """
     n = wi.shape[0]
     h, w = stack.resolution
+    native = stack.texel_ratio == (1.0, 1.0)
     out = torch.zeros(n, 3, dtype=wi.dtype, device=wi.device)
     for k in torch.unique(level).tolist():
         idx = torch.nonzero(level == k)[:, 0]
-        s = samples_for_level(int(k), max_samples)
+        s = samples_for_level(int(k), max_samples, stack.texel_ratio)
         m = idx.shape[0]
         # Gaussian offsets in uv: sigma = half a level-k texel, per axis.
         sigma = torch.tensor([0.5 * 2 ** k / w, 0.5 * 2 ** k / h], dtype=uv.dtype, device=uv.device)
         offsets = torch.randn(m, s, 2, generator=generator, dtype=uv.dtype).to(uv.device) * sigma
         pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
-        params = stack.sample(pts, 0)
-        vals = reference.eval(wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0), params=params)
+        wi_k, wo_k = wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0)
+        if native:
+            vals = reference.eval(wi_k, wo_k, params=stack.sample(pts, 0))
+        else:
+            vals = reference.eval(wi_k, wo_k, pts)
         out[idx] = vals.view(m, s, 3).mean(1)
     return out
 

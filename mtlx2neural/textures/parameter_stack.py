@@ -57,6 +57,9 @@ class ParameterStack:
     constants: dict = field(default_factory=dict)
     lean_groups: list[str] = field(default_factory=list)  # lobe paths whose normal/tangent/roughness are LEAN
     notes: list[str] = field(default_factory=list)
+    texel_ratio: tuple[float, float] = (1.0, 1.0)
+    """Native texels (of the finest texture) per level-0 texel, (rows, columns); > 1 when the
+    grid was capped below the textures' resolution, so level 0 is already a filtered version."""
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -178,25 +181,46 @@ def _layout(compiled: CompiledMaterial):
     return varying, lean, plan
 
 
+MAX_SUPERSAMPLE = 16  # sub-texel samples per axis when a capped grid prefilters finer textures
+
+
 def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int] | None = None,
                           chunk_rows: int | None = None, storage_dtype: torch.dtype | None = None) -> ParameterStack:
     """Evaluate the varying parameters on a texel grid and build the prefiltered pyramid.
 
-    ``resolution`` (H, W) overrides the automatic finest-texture grid. Level 0 is
-    filled in row chunks straight into its final tensor, so peak memory stays
-    near the pyramid's own size. ``storage_dtype`` defaults to float32, or
-    float16 when level 0 would exceed ``STORAGE_BUDGET_BYTES`` (lookups return float32).
+    ``resolution`` (H, W) overrides the automatic finest-texture grid. A grid
+    coarser than the textures is *prefiltered*, not point-sampled: each level-0
+    texel averages an s x s grid of sub-texel samples (s = native texels per
+    texel, at most ``MAX_SUPERSAMPLE``), box or LEAN by channel, exactly as the
+    coarser MIP levels are built. Level 0 is filled in row chunks straight into
+    its final tensor, so peak memory stays near the pyramid's own size.
+    ``storage_dtype`` defaults to float32, or float16 when level 0 would exceed
+    ``STORAGE_BUDGET_BYTES`` (lookups return float32).
     """
     ev = compiled.evaluator
-    h, w, notes = texture_resolution(compiled) if resolution is None else (*resolution, [])
     varying, lean, plan = _layout(compiled)
+    if resolution is None:
+        h, w, notes = texture_resolution(compiled)
+        ratio = (1.0, 1.0)
+    else:
+        h, w = resolution
+        notes = []
+        if plan:
+            nh, nw, _ = texture_resolution(compiled)
+            ratio = (max(1.0, nh / h), max(1.0, nw / w))
+        else:
+            ratio = (1.0, 1.0)
+    ss = (min(MAX_SUPERSAMPLE, math.ceil(ratio[0] - 1e-6)), min(MAX_SUPERSAMPLE, math.ceil(ratio[1] - 1e-6)))
+    if ss != (1, 1):
+        notes.append(f"{w}x{h} grid below the textures' {round(w * ratio[1])}x{round(h * ratio[0])}: "
+                     f"level 0 averages {ss[1]}x{ss[0]} samples per texel")
     inputs = {k: i for k, i, _ in compiled.parameters()}
     constants = {k: ev.value(i, {}) for k, i in inputs.items() if k not in varying}
     for lobe in lean:  # LEAN lobes take normal/roughness/tangent from the moments, never from constants
         for p in ("normal", "roughness", "tangent"):
             constants.pop(f"{lobe}.{p}", None)
     if not plan:  # a uniform material: nothing varies, constants only
-        return ParameterStack([], [torch.zeros(0, h, w)], constants, [], notes)
+        return ParameterStack([], [torch.zeros(0, h, w)], constants, [], notes, ratio)
     total = sum(width for _, width, _ in plan)
     if storage_dtype is None:
         storage_dtype = torch.float16 if total * h * w * 4 > STORAGE_BUDGET_BYTES else torch.float32
@@ -207,13 +231,17 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
     lo = torch.full((total,), float("inf"))
     hi = torch.full((total,), float("-inf"))
     nodes = ev.spatial_closure([inp for inp, _ in varying.values()])
-    xs = (torch.arange(w, dtype=torch.float32) + 0.5) / w
-    rows = chunk_rows or max(1, (1 << 16) // w)
+    sy, sx = ss
+    # Sub-texel sample positions: an sy x sx grid of cell centres inside each texel.
+    xs = ((torch.arange(w * sx, dtype=torch.float32) + 0.5) / (w * sx)).view(w, sx)
+    rows = chunk_rows or max(1, (1 << 16) // (w * sx * sy))
     z = torch.tensor([0.0, 0.0, 1.0])
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)
-        ys = 1.0 - (torch.arange(r0, r1, dtype=torch.float32) + 0.5) / h  # row 0 at the top (v = 1)
-        uv = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2)
+        ys = 1.0 - ((torch.arange(r0 * sy, r1 * sy, dtype=torch.float32) + 0.5) / (h * sy)).view(r1 - r0, sy)
+        # Order (row, col, sub-row, sub-col) so each texel's samples are contiguous.
+        uv = torch.stack([xs[None, :, None, :].expand(r1 - r0, w, sy, sx),
+                          ys[:, None, :, None].expand(r1 - r0, w, sy, sx)], -1).reshape(-1, 2)
         count = uv.shape[0]
         env = ev.run(nodes, uv)
 
@@ -234,6 +262,8 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
             else:
                 parts.append(get(name, width))
         block = torch.cat(parts, 1)  # [count, C]
+        if sy * sx > 1:  # box / LEAN-moment average of each texel's sub-samples
+            block = block.view(-1, sy * sx, block.shape[1]).mean(1)
         lo = torch.minimum(lo, block.min(0).values)
         hi = torch.maximum(hi, block.max(0).values)
         level0[:, r0:r1, :] = block.T.reshape(total, r1 - r0, w).to(storage_dtype)
@@ -254,4 +284,4 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
         levels.append(torch.cat([
             F.avg_pool2d(prev[c:c + 1][None].float(), 2, ceil_mode=True, count_include_pad=False)[0].to(storage_dtype)
             for c in range(prev.shape[0])], 0))
-    return ParameterStack(channels, levels, constants, lean, notes)
+    return ParameterStack(channels, levels, constants, lean, notes, ratio)
