@@ -49,7 +49,9 @@ def resolve_device(device: str) -> str:
     return device
 
 
-def _resolution(compiled, cfg: TrainConfig):
+def latent_resolution(compiled, cfg: TrainConfig) -> tuple[int, int]:
+    """The latent grid for ``compiled``: (1, 1) for a uniform material, else the textures'
+    texel grid scaled down to ``cfg.max_resolution`` texels per side."""
     if not compiled.varying_parameters():
         return (1, 1)
     h, w, _ = texture_resolution(compiled)
@@ -97,7 +99,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
         compiled = compile_material(src.document, src.material, device=device,
                                     allow_missing_textures=allow_missing_textures)
         ref = ReferenceMaterial(compiled)
-        stack = build_parameter_stack(compiled, resolution=_resolution(compiled, cfg))
+        stack = build_parameter_stack(compiled, resolution=latent_resolution(compiled, cfg))
         folder = out / material_folder(src.name)
         trainer = Trainer(ref, stack, cfg, folder, device=device)
         if resume:

@@ -7,6 +7,9 @@ b = n x t; the frame is deliberately not orthogonalised. ``wi`` and ``wo`` are
 projected on (t, b, n) of every frame, and the projections plus the latent feed
 an MLP with ReLU hidden layers whose 3 outputs pass through exp(x - 3).
 
+``frames=0`` is the ablation without learned frames (the paper's Table 2):
+the MLP sees ``wi`` and ``wo`` in the local frame as they are.
+
 ``forward`` returns f(wi, wo) * cos(wo) in linear RGB (the cosine is learned,
 as the reference's ``eval`` includes it), for directions in the local frame.
 """
@@ -27,9 +30,10 @@ class BrdfDecoder(nn.Module):
         self.latent_dim, self.frames = latent_dim, frames
         self.hidden = parse_hidden(hidden)
         self.frame_layer = nn.Linear(latent_dim, 6 * frames, bias=False)
-        self.net = mlp(6 * frames + latent_dim, self.hidden, 3)
+        per_dir = 3 * max(frames, 1)  # frames=0: the raw local direction
+        self.net = mlp(2 * per_dir + latent_dim, self.hidden, 3)
         # Optional albedo head: directional albedo from (latent, wi in the learned frames).
-        self.albedo = mlp(3 * frames + latent_dim, (self.hidden[-1],), 3) if albedo_head else None
+        self.albedo = mlp(per_dir + latent_dim, (self.hidden[-1],), 3) if albedo_head else None
 
     def shading_frames(self, latent: torch.Tensor):
         """(t, b, n), each [N, frames, 3], from the latent [N, latent_dim]."""
@@ -47,13 +51,18 @@ class BrdfDecoder(nn.Module):
         w = w[:, None, :]
         return torch.stack([(w * t).sum(-1), (w * b).sum(-1), (w * n).sum(-1)], -1).flatten(1)
 
-    def forward(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    def _directions(self, latent: torch.Tensor, *ws: torch.Tensor) -> list[torch.Tensor]:
+        if self.frames == 0:
+            return list(ws)
         frame = self.shading_frames(latent)
-        x = torch.cat([self.project(wi, frame), self.project(wo, frame), latent], -1)
+        return [self.project(w, frame) for w in ws]
+
+    def forward(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([*self._directions(latent, wi, wo), latent], -1)
         return torch.exp(self.net(x).clamp(max=30.0) - OUTPUT_OFFSET)
 
     def predict_albedo(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
         if self.albedo is None:
             raise RuntimeError("this decoder was built without an albedo head")
-        x = torch.cat([self.project(wi, self.shading_frames(latent)), latent], -1)
+        x = torch.cat([*self._directions(latent, wi), latent], -1)
         return torch.exp(self.albedo(x).clamp(max=30.0) - OUTPUT_OFFSET)

@@ -15,11 +15,12 @@ class TrainConfig:
     decoder: str = "2x32"
     """Decoder hidden layers: 2x16, 2x32 or 3x64."""
     frames: int = 2
-    """Learned shading frames."""
+    """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
     """Latent channels."""
     encoder_fraction: float = 0.6
-    """Share of iterations for phase 1 (encoder end to end); the rest fine-tunes baked latents."""
+    """Share of iterations for phase 1 (encoder end to end); the rest fine-tunes baked latents.
+    0 skips the encoder: latents start from noise and are optimised directly (ablation)."""
     lr_start: float = 1e-3
     """Adam learning rate at the start; cosine decay to ``lr_end``."""
     lr_end: float = 1e-4

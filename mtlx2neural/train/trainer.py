@@ -62,6 +62,8 @@ class Trainer:
         self.history: list[dict] = []
         self.gen = torch.Generator().manual_seed(cfg.seed)
         torch.manual_seed(cfg.seed)
+        if cfg.encoder_fraction <= 0:
+            self._direct_latents()
 
     # -- checkpoints -------------------------------------------------------------------
     @property
@@ -114,6 +116,17 @@ class Trainer:
         if self.baked:
             return self.model.latents.fetch(uv, level)
         return self.model.encoder(self.stack.sample_raw(uv, level))
+
+    def _direct_latents(self) -> None:
+        """No encoder phase (the ablation's "vanilla" model): latents start as small Gaussian
+        noise (std 0.1, seeded) and are optimised directly from the first step."""
+        g = torch.Generator().manual_seed(self.cfg.seed + 1)
+        with torch.no_grad():
+            for lv in self.model.latents.levels:
+                lv.copy_(0.1 * torch.randn(lv.shape, generator=g))
+        self.baked = True
+        for p in self.model.encoder.parameters():
+            p.requires_grad_(False)
 
     def bake(self) -> None:
         """Phase 2: run the encoder over every texel of every level into the latent pyramid."""
