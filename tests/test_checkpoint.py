@@ -83,3 +83,14 @@ def test_unbaked_checkpoint_warns(tmp_path):
     _save_like_trainer(NeuralMaterial((2, 2), 1), tmp_path, baked=False)
     with pytest.warns(UserWarning, match="before the latent bake"):
         load_checkpoint(tmp_path)
+
+
+def test_frameless_ablation_round_trips(tmp_path):
+    torch.manual_seed(0)
+    m = NeuralMaterial((4, 4), 3, 8, frames=0, decoder="2x16")
+    torch.save({"model": m.state_dict(), "config": {}}, tmp_path / "checkpoint.pt")
+    back = load_checkpoint(tmp_path)
+    assert back.decoder.frames == 0 and back.decoder.frame_layer is None
+    wi = torch.nn.functional.normalize(torch.rand(64, 3) + 0.1, dim=-1)
+    uv = torch.rand(64, 2)
+    assert torch.equal(back.eval(wi, wi, uv), m.eval(wi, wi, uv))

@@ -59,3 +59,75 @@ def test_ctrl_c_saves_and_resume_continues(carpaint, tmp_path, monkeypatch):
     assert again.resume() and again.step == 30
     again.run(progress=False)
     assert again.step == 60 and again.history[-1]["step"] == 60
+
+
+def test_same_seed_same_model(carpaint, tmp_path):
+    """--seed makes a run reproducible on one device: identical weights, bit for bit."""
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=30, batch=256, seed=7)
+    a = Trainer(ref, stack, cfg, tmp_path / "a").run(progress=False).state_dict()
+    b = Trainer(ref, stack, cfg, tmp_path / "b").run(progress=False).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    c = Trainer(ref, stack, preset("fast", iterations=30, batch=256, seed=8), tmp_path / "c").run(progress=False)
+    assert not torch.equal(a["decoder.net.0.weight"], c.state_dict()["decoder.net.0.weight"])
+
+
+def _tiny_textured(tmp_path):
+    import MaterialX as mx
+    import numpy as np
+
+    from conftest import write_float_image
+    from mtlx2neural.graph import compile_material
+    from mtlx2neural.reference import ReferenceMaterial
+
+    rng = np.random.default_rng(0)
+    write_float_image(tmp_path / "rough.exr", np.repeat(rng.uniform(0.02, 0.6, (16, 16, 1)), 3, -1).astype(np.float32))
+    doc = mx.createDocument()
+    img = doc.addNode("image", "rough", "float")
+    img.setInputValue("file", str(tmp_path / "rough.exr"), "filename")
+    s = doc.addNode("standard_surface", "s", "surfaceshader")
+    s.setInputValue("metalness", 1.0, "float")
+    s.setConnectedNode("specular_roughness", img)
+    doc.addMaterialNode("M", s)
+    return ReferenceMaterial(compile_material(doc, "M"))
+
+
+@pytest.mark.parametrize("variant", [{}, {"frames": 0}, {"frames": 0, "encoder_fraction": 0.0}],
+                         ids=["full", "no_frames", "vanilla"])
+def test_one_texel_pyramid_and_ablation_variants_stay_finite(tmp_path, variant):
+    """A textured metal (roughness down to 0.02, near-delta) baked into a 1x1 latent grid, trained
+    with mollification on from the first step: every loss and output finite, and the loss drops."""
+    ref = _tiny_textured(tmp_path)
+    stack = build_parameter_stack(ref.compiled, resolution=(1, 1))
+    assert stack.channels and len(stack.levels) == 1 and stack.texel_ratio == (16.0, 16.0)
+    cfg = preset("fast", iterations=120, batch=512, seed=3, mollify_fraction=0.5, **variant)
+    tr = Trainer(ref, stack, cfg, tmp_path / "out")
+    model = tr.run(progress=False)  # raises FloatingPointError on a non-finite loss
+    # 120 steps: the loss falls clearly (measured ~0.5x); 0.9x allows seed noise.
+    assert tr.history[-1]["loss_brdf"] < 0.9 * tr.history[0]["loss_brdf"]
+    g = torch.Generator().manual_seed(0)
+    wi = torch.nn.functional.normalize(torch.rand(512, 3, generator=g) * torch.tensor([2.0, 2.0, 1.0]) -
+                                       torch.tensor([1.0, 1.0, 0.0]) + torch.tensor([0.0, 0.0, 1e-4]), dim=-1)
+    uv = torch.rand(512, 2, generator=g)
+    f = model.eval(wi, wi * torch.tensor([-1.0, -1.0, 1.0]), uv)
+    wo, weight, pdf = model.sample(wi, torch.rand(512, 2, generator=g), uv)
+    assert all(bool(torch.isfinite(t).all()) for t in (f, wo, weight, pdf))
+
+
+def test_learned_sampler_beats_cosine_on_a_glossy_material(carpaint, tmp_path):
+    """After a short training run the learned proxy tracks CarPaint's glossy lobes better than
+    cosine sampling: lower relative variance of f*cos/pdf for the neural BRDF."""
+    from mtlx2neural.evaluate.sampling_efficiency import (cosine_sample, elevation_directions,
+                                                          estimator_statistics, neural_sample_fn)
+
+    ref, stack = carpaint
+    model = Trainer(ref, stack, preset("fast", iterations=300, batch=1024, seed=4), tmp_path).run(progress=False)
+    wis = elevation_directions((20.0, 50.0), azimuths=2)
+    cos = estimator_statistics(model.eval, cosine_sample, wis, n=4096, seed=1)
+    learned = estimator_statistics(model.eval, neural_sample_fn(model), wis, n=4096, seed=1)
+    # Both estimate the same albedo: means agree within 15% (4096 samples; the cosine estimate of a
+    # glossy lobe is the noisy one, relative standard error ~ sqrt(rel_var / 4096)).
+    for a, b in zip(cos["mean"], learned["mean"]):
+        assert abs(a - b) < 0.15 * a
+    # The benchmark measures a ratio of several x after 1000 steps; here 300 steps must at least win.
+    assert learned["rel_var"] < cos["rel_var"], (learned["rel_var"], cos["rel_var"])

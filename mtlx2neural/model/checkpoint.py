@@ -49,7 +49,7 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     enc_in = int(state["encoder.net.0.weight"].shape[1])
     in_dim = 0 if (enc_in == 1 and (h, w) == (1, 1)) else enc_in
     frame_w = state.get("decoder.frame_layer.weight")
-    frames = int(frame_w.shape[0]) // 6 if frame_w is not None else int(config.get("frames", 2))
+    frames = int(frame_w.shape[0]) // 6 if frame_w is not None else 0  # no frame layer: the frames=0 ablation
     hidden = tuple(_linear_widths(state, "decoder.net.")[:-1]) or config.get("decoder", "2x32")
     args = {"resolution": (h, w), "in_dim": in_dim, "latent_dim": latent_dim, "frames": frames,
             "decoder": hidden, "albedo_head": any(k.startswith("decoder.albedo.") for k in state)}

@@ -29,7 +29,7 @@ class BrdfDecoder(nn.Module):
         super().__init__()
         self.latent_dim, self.frames = latent_dim, frames
         self.hidden = parse_hidden(hidden)
-        self.frame_layer = nn.Linear(latent_dim, 6 * frames, bias=False)
+        self.frame_layer = nn.Linear(latent_dim, 6 * frames, bias=False) if frames > 0 else None
         per_dir = 3 * max(frames, 1)  # frames=0: the raw local direction
         self.net = mlp(2 * per_dir + latent_dim, self.hidden, 3)
         # Optional albedo head: directional albedo from (latent, wi in the learned frames).

@@ -43,11 +43,20 @@ class NeuralMaterial(nn.Module):
         lat = self._latent(wi.shape[0], uv, lod, u_level, wi.device)
         return self.sampler.pdf(wi, wo, lat)
 
-    def sample(self, wi, u, uv=None, lod=None, u_level=None):
+    def sample_direction(self, wi, u, uv=None, lod=None, u_level=None):
+        """(wo [N,3], pdf [N] per steradian) from the learned sampler, without evaluating the BRDF;
+        ``u`` [N,2] uniform random numbers."""
+        wo, pdf, _ = self._sample(wi, u, uv, lod, u_level)
+        return wo, pdf
+
+    def _sample(self, wi, u, uv, lod, u_level):
         lat = self._latent(wi.shape[0], uv, lod, u_level, wi.device)
         params = self.sampler(wi, lat)
         wo = proxy.sample(wi, params, u)
-        pdf = proxy.pdf(wi, wo, params)
+        return wo, proxy.pdf(wi, wo, params), lat
+
+    def sample(self, wi, u, uv=None, lod=None, u_level=None):
+        wo, pdf, lat = self._sample(wi, u, uv, lod, u_level)
         f = self.decoder(lat, wi, wo)
         ok = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0) & (pdf[:, None] > 0)
         weight = torch.where(ok, f / pdf.clamp_min(1e-12)[:, None], torch.zeros_like(f))

@@ -54,14 +54,14 @@ class Trainer:
         self.out_dir = Path(out_dir)
         self.device = torch.device(device)
         self.textured = stack.levels[0].shape[0] > 0
+        torch.manual_seed(cfg.seed)  # the model's initial weights
         self.model = NeuralMaterial(stack.resolution if self.textured else (1, 1), stack.levels[0].shape[0],
                                     cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head).to(self.device)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
         self.step = 0
         self.baked = False
         self.history: list[dict] = []
-        self.gen = torch.Generator().manual_seed(cfg.seed)
-        torch.manual_seed(cfg.seed)
+        self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
 
