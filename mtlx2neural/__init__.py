@@ -5,6 +5,7 @@ Public API (see DESIGN.md):
 >>> import mtlx2neural as m2n
 >>> m = m2n.load_reference("asset.usda", material="/World/Looks/Brass")
 >>> m.eval(wi, wo)   # [N,3] f * cos
+>>> n = m2n.load_neural("asset_neural.usda", material="/World/Looks/Brass")  # the same methods
 """
 
 from __future__ import annotations
@@ -32,4 +33,43 @@ def load_reference(path, material: str | None = None, device: str = "cpu", allow
     return ReferenceMaterial(compiled)
 
 
-__all__ = ["load_reference", "__version__"]
+def usd_plugin_path() -> str:
+    """Folder of mtlx2neural's USD schema plugin (``plugInfo.json`` of the codeless ``NeuralMaterialAPI``).
+
+    Put it on ``PXR_PLUGINPATH_NAME`` (``os.pathsep``-separated) so that usdview
+    or a DCC knows ``NeuralMaterialAPI`` in assets mtlx2neural exports:
+
+        export PXR_PLUGINPATH_NAME="$(python -c 'import mtlx2neural; print(mtlx2neural.usd_plugin_path())')"
+
+    Without it such assets still open and their materials still work: the
+    schema is applied to a standard ``Material``. The Sdr ``NeuralBSDF`` shader
+    definition is in its ``shaders/`` subfolder, found through
+    ``PXR_SDR_FS_PLUGIN_SEARCH_PATHS=<that folder>`` together with
+    ``PXR_SDR_FS_PLUGIN_ALLOWED_EXTS=usda``
+    (:func:`mtlx2neural.usd_schema.environment` builds all three). Inside a
+    Python process, :func:`mtlx2neural.usd_schema.register` registers both
+    without environment variables, if called before USD's schema registry is
+    first used.
+    """
+    from .usd_schema import plugin_path
+
+    return str(plugin_path())
+
+
+def load_neural(path, material: str | None = None, device: str = "cpu"):
+    """Load ``material`` from a neural USD layer that ``mtlx2neural ASSET`` wrote (``ASSET_neural.usda``).
+
+    The model is rebuilt from the layer's ``NeuralMaterialAPI`` attributes, the weights
+    manifest and binary and the latent EXRs alone (not the training checkpoint); it has
+    the reference's methods (``eval``, ``sample``, ``pdf``, ``albedo``, ``describe``) and
+    reproduces the trained model to FP16 precision. ``material`` is the Material prim
+    path or name (or the MaterialX material name for a ``.mtlx`` input); it may be
+    omitted when the layer holds one neural material.
+    Returns a :class:`mtlx2neural.export.load.ExportedNeuralMaterial`.
+    """
+    from .export.load import load_neural as _load
+
+    return _load(path, material, device)
+
+
+__all__ = ["__version__", "load_neural", "load_reference", "usd_plugin_path"]
