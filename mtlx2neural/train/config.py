@@ -41,6 +41,9 @@ class TrainConfig:
     max_resolution: int | None = 256
     """Cap on the latent/parameter pyramid's finest level (texels per side); None: the texture's own."""
     seed: int = 0
+    compile: bool = False
+    """torch.compile the decoder/sampler losses (and a uniform material's reference): faster
+    steps after tens of seconds of compilation; worth it for long runs only."""
 
 
 PRESETS = {
@@ -49,9 +52,10 @@ PRESETS = {
     # 0.07 at 5e-3, 0.09 at 1e-2; BENCHMARKS.md).
     "fast": TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
-                            max_resolution=1024),
+                            max_resolution=1024, compile=True),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
-                         mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None),
+                         mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
+                         compile=True),
 }
 
 

@@ -42,6 +42,24 @@ def _lr(cfg: TrainConfig, step: int) -> float:
     return cfg.lr_end + 0.5 * (cfg.lr_start - cfg.lr_end) * (1.0 + math.cos(math.pi * t))
 
 
+def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, wo_u):
+    """The two batches of one step, given the latents.
+
+    BRDF: log-L1 between the decoder and the (filtered) reference target.
+    Sampler: KL(neural BRDF || proxy) up to a constant, estimated with directions
+    ``wo_u`` uniform on the hemisphere and self-normalised weights; the latent is
+    detached so the sampler cannot pull the latents towards what it can sample.
+    """
+    loss_brdf = log_l1(decoder(latent, wi, wo), target)
+    lat_d = latent.detach()
+    with torch.no_grad():
+        w = decoder(lat_d, wi, wo_u).mean(-1) / UNIFORM_PDF
+        w = w / w.sum().clamp_min(1e-12)
+    q = sampler.pdf(wi, wo_u, lat_d)
+    loss_kl = -(w * torch.log(q + 1e-4)).sum()
+    return loss_brdf, loss_kl
+
+
 def _atomic_save(obj, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(obj, tmp)
@@ -62,6 +80,14 @@ class Trainer:
         self.baked = False
         self.history: list[dict] = []
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
+        # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md); it costs
+        # tens of seconds of compilation, so only the long presets turn it on.
+        if cfg.compile:
+            import logging
+
+            torch._logging.set_logs(dynamo=logging.ERROR)  # the reference's data-dependent branches break graphs
+        self._losses = torch.compile(brdf_and_sampler_losses) if cfg.compile else brdf_and_sampler_losses
+        self._reference_eval = torch.compile(reference.eval) if cfg.compile and not self.textured else reference.eval
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
 
@@ -107,10 +133,10 @@ class Trainer:
             wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
             return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen)
         if angle <= 0:
-            return self.ref.eval(wi, wo)
+            return self._reference_eval(wi, wo)
         k = cfg.mollify_samples
         wo_k = cone_jitter(wo, angle, k, self.gen)
-        return self.ref.eval(wi.repeat_interleave(k, 0), wo_k).view(-1, k, 3).mean(1)
+        return self._reference_eval(wi.repeat_interleave(k, 0), wo_k).view(-1, k, 3).mean(1)
 
     def _latent(self, uv, level):
         if self.baked:
@@ -153,16 +179,9 @@ class Trainer:
         with torch.no_grad():
             target = self._targets(wi, wo, uv, level)
         latent = self._latent(uv, level)
-        loss_brdf = log_l1(self.model.decoder(latent, wi, wo), target)
-        # Sampler: KL(neural BRDF || proxy) up to a constant, with the latent detached.
         wo_u = torch.nn.functional.normalize(torch.randn(b, 3, generator=g).to(dev), dim=-1)
         wo_u = torch.cat([wo_u[:, :2], wo_u[:, 2:3].abs()], -1)
-        lat_d = latent.detach()
-        with torch.no_grad():
-            w = self.model.decoder(lat_d, wi, wo_u).mean(-1) / UNIFORM_PDF
-            w = w / w.sum().clamp_min(1e-12)
-        q = self.model.sampler.pdf(wi, wo_u, lat_d)
-        loss_kl = -(w * torch.log(q + 1e-4)).sum()
+        loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, latent, wi, wo, target, wo_u)
         loss = loss_brdf + loss_kl
         if cfg.albedo_head:
             with torch.no_grad():
