@@ -39,6 +39,9 @@ def test_training_reduces_loss_and_writes_checkpoints(carpaint, tmp_path):
     assert (tmp_path / "checkpoint.pt").exists()
     rows = list(csv.DictReader(open(tmp_path / "training_curves.csv")))
     assert len(rows) == len(tr.history) and rows[-1]["step"] == "150"
+    # Gradient clipping is counted, not hidden: the curves carry the norm and the clipped-step count.
+    assert all(float(r["grad_norm"]) > 0 for r in rows)
+    assert int(rows[-1]["clipped_steps"]) == tr.clipped_steps <= 150
 
 
 def test_ctrl_c_saves_and_resume_continues(carpaint, tmp_path, monkeypatch):
