@@ -1,6 +1,6 @@
 """Command line: a thin shell over the library API.
 
-    mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64] ...
+    mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64] [--force] ...
     mtlx2neural inspect ASSET [--material M] [--json]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
                        [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
@@ -31,7 +31,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="use an image node's declared default when its file is missing")
     conv = sub.add_parser("convert", help="train a neural material for every selected material (default command)")
     conv.add_argument("asset", help=".mtlx file or USD stage")
-    conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input)")
+    conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input); "
+                                             "the USD layer is written beside it as <folder>.usda")
     conv.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"])
     conv.add_argument("--decoder", choices=["2x16", "2x32", "3x64"])
     conv.add_argument("--iterations", type=int)
@@ -41,6 +42,8 @@ def _parser() -> argparse.ArgumentParser:
     conv.add_argument("--device", default="auto", help="cpu, cuda or auto (CUDA when present)")
     conv.add_argument("--seed", type=int)
     conv.add_argument("--resume", action="store_true", help="continue from the checkpoints in the output folder")
+    conv.add_argument("--force", action="store_true",
+                      help="retrain every material, even one unchanged since the last run (same source hash)")
     conv.add_argument("--allow-missing-textures", action="store_true")
     conv.add_argument("--quiet", action="store_true", help="no progress bar")
     ren = sub.add_parser("render", help="render one material (reference or neural) to an EXR and a PNG")
@@ -83,15 +86,27 @@ def _convert(args) -> int:
                  frames=args.frames, seed=args.seed)
     try:
         summaries = convert_asset(args.asset, cfg, args.output, args.material, args.device, args.resume,
-                                  not args.quiet, args.allow_missing_textures)
+                                  not args.quiet, args.allow_missing_textures, force=args.force,
+                                  preset=args.preset)
     except TrainingInterrupted as exc:
         print(f"mtlx2neural: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # the export could not write its files; nothing partial was left
+        print(f"mtlx2neural: error: cannot write the output ({exc}); nothing was exported", file=sys.stderr)
+        return 1
     out = args.output or default_output(args.asset)
     for s in summaries:
-        print(f"{s['material']}: {s['steps']} steps in {s['seconds']} s, held-out log-L1 "
+        how = "reused (unchanged; --force retrains)" if s["cached"] else f"{s['steps']} steps in {s['seconds']} s"
+        print(f"{s['material']}: {how}, held-out log-L1 "
               f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})")
-    print(f"wrote {out} (checkpoints, training curves, summaries); USD export comes with a later stage")
+        notes = s.get("export_notes", [])
+        for note in notes[:3]:
+            print(f"  fp16: {note}")
+        if len(notes) > 3:
+            print(f"  fp16: ... and {len(notes) - 3} more (see neural/weights.json and export.json)")
+    print(f"wrote {out} (checkpoints, training curves, summaries, latent EXRs, weights)")
+    if summaries:
+        print(f"wrote {summaries[0]['usd']} (USD layer with the neural materials)")
     return 0
 
 

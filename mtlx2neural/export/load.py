@@ -1,0 +1,150 @@
+"""Rebuild a neural material from an exported USD layer and its files alone (no checkpoint).
+
+``load_neural(path, material)`` opens the layer, selects the ``neural`` variant of
+the Material (in the session layer, so nothing is written), reads the
+``neural:*`` attributes, the weights manifest and binary, and the latent EXR MIP
+chains, and builds a :class:`NeuralMaterial` in float32 holding exactly the stored
+FP16 values. Its ``eval``/``sample``/``pdf`` therefore equal those of the trained
+model with its latents and weights rounded to FP16 (the encoder, used only in
+training, is not exported and is left untrained).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from ..errors import InputError
+from ..model.checkpoint import model_arguments
+from ..model.neural_material import NeuralMaterial
+from .cache import FORMAT_VERSION
+from .latents import read_latent_textures
+from .usd_writer import API, NEURAL, VARIANT_SET, register_schema
+from .weights import read_weights
+
+
+class ExportedNeuralMaterial(NeuralMaterial):
+    """A :class:`NeuralMaterial` read back from USD, with the public API's ``albedo`` and ``describe``."""
+
+    def albedo(self, wi, uv=None, samples: int = 256, seed: int = 0):
+        """[N,3] directional albedo: the mean of ``sample``'s weights over ``samples``
+        independent uniform draws (seeded by ``seed``)."""
+        g = torch.Generator().manual_seed(seed)
+        n = wi.shape[0]
+        acc = torch.zeros(n, 3, device=wi.device)
+        with torch.no_grad():
+            for _ in range(samples):
+                _, w, _ = self.sample(wi, torch.rand(n, 2, generator=g).to(wi.device), uv)
+                acc += w
+        return acc / samples
+
+    def describe(self) -> dict:
+        return dict(self.usd_info)
+
+
+def applied_schemas(prim) -> list[str]:
+    """The API schema names applied to ``prim``, including ones whose plugin is not registered
+    (``GetAppliedSchemas`` lists registered schemas only)."""
+    listop = prim.GetMetadata("apiSchemas")
+    return list(listop.GetAddedOrExplicitItems()) if listop else []
+
+
+def _neural_prims(stage):
+    """Prims with the API or the variant set; all prims, since a Material from a referenced ``.mtlx``
+    file (which usd-core cannot compose) is only an ``over`` here."""
+    from pxr import Usd
+
+    return [p for p in Usd.PrimRange.Stage(stage, Usd.PrimAllPrimsPredicate)
+            if API in applied_schemas(p) or p.GetVariantSets().HasVariantSet(VARIANT_SET)]
+
+
+def _choose(path, prims, material: str | None):
+    def names(p):
+        return {str(p.GetPath()), p.GetName(), p.GetCustomDataByKey("mtlx2neural:material")} - {None}
+
+    if material is None:
+        if len(prims) == 1:
+            return prims[0]
+        listing = ", ".join(str(p.GetPath()) for p in prims) or "none"
+        raise InputError(f"{path}: {len(prims)} neural materials ({listing}); choose one with material=...")
+    hits = [p for p in prims if material in names(p) or "/" + material.lstrip("/") in names(p)]
+    if len(hits) != 1:
+        listing = ", ".join(str(p.GetPath()) for p in prims) or "none"
+        what = "is ambiguous" if hits else "matches no neural material"
+        raise InputError(f"{path}: {material!r} {what}; neural materials: {listing}")
+    return hits[0]
+
+
+def _get(prim, name: str, path):
+    attr = prim.GetAttribute(name)
+    if not attr or not attr.HasAuthoredValue():
+        raise InputError(f"{path}: {prim.GetPath()} has no {name}; re-export it with mtlx2neural")
+    return attr.Get()
+
+
+def _resolved(asset_path, prim, name: str, path) -> Path:
+    p = asset_path.resolvedPath
+    if not p:
+        raise InputError(f"{path}: {prim.GetPath()}.{name} names {asset_path.path!r}, which does not exist "
+                         f"relative to the layer; keep the exported folder next to the .usda")
+    return Path(p)
+
+
+def load_neural(path, material: str | None = None, device: str = "cpu") -> ExportedNeuralMaterial:
+    """The neural material ``material`` (prim path, prim name or MaterialX name; optional when the layer
+    holds one) of the exported layer ``path``, in eval mode on ``device``."""
+    from pxr import Usd
+
+    register_schema()  # the attributes are read the same way without it
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file; give the .usda that `mtlx2neural ASSET` wrote")
+    stage = Usd.Stage.Open(str(path), load=Usd.Stage.LoadNone)
+    if stage is None:
+        raise InputError(f"{path}: cannot open the USD layer")
+    prim = _choose(path, _neural_prims(stage), material)
+    vset = prim.GetVariantSets().GetVariantSet(VARIANT_SET)
+    if vset and vset.GetVariantSelection() != NEURAL:
+        with Usd.EditContext(stage, stage.GetSessionLayer()):
+            vset.SetVariantSelection(NEURAL)
+        prim = stage.GetPrimAtPath(prim.GetPath())
+    version = _get(prim, "neural:version", path)
+    if version != FORMAT_VERSION:
+        raise InputError(f"{path}: {prim.GetPath()} has neural:version {version}; this mtlx2neural reads "
+                         f"version {FORMAT_VERSION}")
+    channels = int(_get(prim, "neural:latentChannels", path))
+    manifest_file = _resolved(_get(prim, "neural:weightsManifest", path), prim, "neural:weightsManifest", path)
+    weights_file = _resolved(_get(prim, "neural:weights", path), prim, "neural:weights", path)
+    textures = [_resolved(a, prim, "neural:latentTextures", path) for a in _get(prim, "neural:latentTextures", path)]
+    manifest, state = read_weights(manifest_file, weights_file)
+    arch = manifest["architecture"]
+    checks = {"neural:latentChannels": (channels, arch["latent_channels"]),
+              "neural:frameCount": (int(_get(prim, "neural:frameCount", path)), arch["frames"]),
+              "neural:decoderLayers": (list(_get(prim, "neural:decoderLayers", path)), arch["decoder_hidden"])}
+    for name, (usd_value, file_value) in checks.items():
+        if usd_value != file_value:
+            raise InputError(f"{path}: {prim.GetPath()}.{name} = {usd_value} but {manifest_file} says "
+                             f"{file_value}; the layer and its files are from different exports")
+    levels = read_latent_textures(textures, channels)
+    for k, lv in enumerate(levels):
+        state[f"latents.levels.{k}"] = lv
+    state["encoder.net.0.weight"] = torch.zeros(1, 1)  # not exported: build a placeholder encoder
+    args = model_arguments(state, {"decoder": tuple(arch["decoder_hidden"])})
+    args["in_dim"] = 0
+    del state["encoder.net.0.weight"]
+    try:
+        model = ExportedNeuralMaterial(**args)
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except (RuntimeError, ValueError, KeyError) as exc:
+        raise InputError(f"{path}: {prim.GetPath()}: the exported files do not form a NeuralMaterial "
+                         f"({type(exc).__name__}: {exc})") from None
+    missing = [k for k in missing if not k.startswith("encoder.")]
+    if missing or unexpected:
+        raise InputError(f"{path}: {prim.GetPath()}: tensors missing {missing} or unexpected {unexpected} "
+                         f"in {manifest_file}")
+    model.usd_info = {"layer": str(path), "material": str(prim.GetPath()),
+                      "source_hash": prim.GetAttribute("neural:sourceHash").Get(),
+                      "latent_textures": [str(t) for t in textures], "weights": str(weights_file),
+                      "architecture": arch, "notes": manifest.get("notes", [])}
+    return model.to(device).train(False)

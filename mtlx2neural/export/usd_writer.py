@@ -1,0 +1,245 @@
+"""The neural USD layer: NeuralMaterialAPI, a NeuralBSDF shader and the ``neuralMaterial`` variant set.
+
+USD input: the new layer **sublayers the input** (a path relative to the new layer)
+and authors only ``over`` opinions on the converted Material prims (also on those
+that come from a referenced ``.mtlx`` file, which usd-core cannot compose but a USD
+build with usdMtlx does), so binding,
+geometry and the original networks come from the input unchanged. The root layer's
+stage metadata (upAxis, metersPerUnit, defaultPrim, time codes...) is copied, since
+USD reads stage metadata from the root layer only.
+
+``.mtlx`` input (usd-core cannot compose ``.mtlx`` files, so the layer references
+nothing): ``/Materials`` holds one Material per converted material, whose original
+network stays MaterialX: a Shader ``MaterialX`` whose implementation is the
+``.mtlx`` file (``info:implementationSource = "sourceAsset"``,
+``info:mtlx:sourceAsset``, sub-identifier the surfacematerial's name) feeds
+``outputs:mtlx:surface``.
+
+Per converted Material, everything neural lives in the ``neural`` variant of the
+variant set ``neuralMaterial`` (selected by default): the applied
+``NeuralMaterialAPI`` and its ``neural:*`` attributes, the ``NeuralBSDF`` Shader
+(with a ``UsdPrimvarReader_float2`` for ``st``) and the connection of
+``outputs:neural:surface`` to it. The ``original`` variant is empty, so selecting it
+gives back exactly the input's Material (a variant cannot block an opinion authored
+outside it, so the neural opinions must not be authored outside). Asset paths are
+relative to the layer (``./...``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .cache import FORMAT_VERSION
+
+VARIANT_SET = "neuralMaterial"
+NEURAL, ORIGINAL = "neural", "original"
+SHADER_ID = "NeuralBSDF"
+API = "NeuralMaterialAPI"
+MTLX_SCOPE = "/Materials"
+
+
+_schema_tried = False
+
+
+def register_schema() -> None:
+    """Register the NeuralMaterialAPI / NeuralBSDF plugin once per process (best effort: the layer
+    is written and read the same way without it; USD only knows the schema when this runs
+    before its schema registry is first built)."""
+    global _schema_tried
+    if _schema_tried:
+        return
+    _schema_tried = True
+    try:
+        from .. import usd_schema
+
+        usd_schema.register()
+    except Exception:  # noqa: BLE001, S110 - e.g. the plugin folder is missing from an install
+        pass
+
+
+@dataclass
+class ExportedMaterial:
+    """One material's exported files (final, absolute paths) and what the USD layer records about it."""
+
+    name: str
+    """USD Material prim path, or the MaterialX surfacematerial name for ``.mtlx`` input."""
+    material: str
+    """The surfacematerial node name."""
+    folder: Path
+    latent_textures: list[Path]
+    weights: Path
+    manifest: Path
+    architecture: dict
+    """``weights.architecture(model)``."""
+    source_hash: str
+    metrics: dict
+    """flip (mean HDR FLIP), iterations, preset, device, train_seconds."""
+    notes: list[str] = field(default_factory=list)
+    """FP16 range-check notes."""
+
+
+def relative_asset(path, anchor_dir) -> str:
+    """``path`` relative to ``anchor_dir`` as a USD anchored asset path (``./x`` or ``../x``)."""
+    try:
+        rel = os.path.relpath(path, anchor_dir).replace(os.sep, "/")
+    except ValueError:  # another drive: keep it absolute
+        return Path(path).as_posix()
+    return rel if rel.startswith("../") else "./" + rel
+
+
+def _define_shader(stage, path):
+    """A ``def Shader`` at ``path`` whose missing ancestors are authored as ``over``, not ``def``
+    (``UsdShade.Shader.Define`` would define them, which matters under a Material that only a
+    usdMtlx-enabled USD composes)."""
+    from pxr import Sdf, UsdShade
+
+    prim = stage.OverridePrim(path)
+    prim.SetSpecifier(Sdf.SpecifierDef)
+    prim.SetTypeName("Shader")
+    return UsdShade.Shader(prim)
+
+
+def _set(prim, name: str, type_name, value) -> None:
+    prim.CreateAttribute(name, type_name, custom=False).Set(value)
+
+
+def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
+    from pxr import Gf, Sdf, Vt
+
+    a, t = m.architecture, Sdf.ValueTypeNames
+    prim.AddAppliedSchema(API)
+    _set(prim, "neural:version", t.Int, FORMAT_VERSION)
+    _set(prim, "neural:latentChannels", t.Int, a["latent_channels"])
+    _set(prim, "neural:frameCount", t.Int, a["frames"])
+    _set(prim, "neural:decoderLayers", t.IntArray, Vt.IntArray(a["decoder_hidden"]))
+    _set(prim, "neural:samplerLayers", t.IntArray, Vt.IntArray(a["sampler_hidden"]))
+    _set(prim, "neural:encoderLayers", t.IntArray, Vt.IntArray(a["encoder_hidden"]))
+    _set(prim, "neural:activation", t.Token, a["activation"])
+    _set(prim, "neural:outputActivation", t.Token, a["output_activation"])
+    _set(prim, "neural:latentTextures", t.AssetArray,
+         Sdf.AssetPathArray([Sdf.AssetPath(rel(p)) for p in m.latent_textures]))
+    _set(prim, "neural:latentResolution", t.Int2, Gf.Vec2i(*a["latent_resolution"]))
+    _set(prim, "neural:weights", t.Asset, Sdf.AssetPath(rel(m.weights)))
+    _set(prim, "neural:weightsManifest", t.Asset, Sdf.AssetPath(rel(m.manifest)))
+    _set(prim, "neural:weightsLayout", t.Token, "row_major_fp16")
+    _set(prim, "neural:proxyType", t.Token, a["proxy_type"])
+    _set(prim, "neural:sourceHash", t.String, m.source_hash)
+    x = m.metrics
+    _set(prim, "neural:metrics:flip", t.Float, float(x["flip"]))
+    _set(prim, "neural:metrics:iterations", t.Int, int(x["iterations"]))
+    _set(prim, "neural:metrics:preset", t.Token, str(x["preset"]))
+    _set(prim, "neural:metrics:device", t.String, str(x["device"]))
+    _set(prim, "neural:metrics:trainSeconds", t.Float, float(x["train_seconds"]))
+
+
+def _neural_shader(stage, material, m: ExportedMaterial, rel) -> None:
+    from pxr import Sdf
+
+    t = Sdf.ValueTypeNames
+    path = material.GetPath()
+    shader = _define_shader(stage, path.AppendChild(SHADER_ID))
+    shader.CreateIdAttr(SHADER_ID)
+    for k, p in enumerate(m.latent_textures):
+        shader.CreateInput(f"latentTexture{k}", t.Asset).Set(Sdf.AssetPath(rel(p)))
+    shader.CreateInput("weights", t.Asset).Set(Sdf.AssetPath(rel(m.weights)))
+    shader.CreateInput("weightsManifest", t.Asset).Set(Sdf.AssetPath(rel(m.manifest)))
+    reader = _define_shader(stage, path.AppendChild("NeuralStReader"))
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", t.String).Set("st")
+    st = reader.CreateOutput("result", t.Float2)
+    shader.CreateInput("st", t.Float2).ConnectToSource(st)
+    out = shader.CreateOutput("surface", t.Token)
+    material.CreateSurfaceOutput("neural").ConnectToSource(out)
+
+
+def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> None:
+    from pxr import Sdf, UsdShade
+
+    shader = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("MaterialX"))
+    shader.SetSourceAsset(Sdf.AssetPath(rel(asset)), "mtlx")
+    shader.SetSourceAssetSubIdentifier(m.material, "mtlx")
+    out = shader.CreateOutput("out", Sdf.ValueTypeNames.Token)
+    material.CreateSurfaceOutput("mtlx").ConnectToSource(out)
+    material.GetPrim().SetCustomDataByKey("mtlx2neural:material", m.material)
+
+
+def _mtlx_prim_paths(materials) -> list[str]:
+    from pxr import Tf
+
+    names, paths = set(), []
+    for m in materials:
+        base = Tf.MakeValidIdentifier(m.name)
+        name, i = base, 1
+        while name in names:
+            name, i = f"{base}_{i}", i + 1
+        names.add(name)
+        paths.append(f"{MTLX_SCOPE}/{name}")
+    return paths
+
+
+def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, anchor=None) -> Path:
+    """Write the neural layer for ``materials`` of ``asset`` to ``out_usda``.
+
+    ``anchor`` is where the layer will finally live (default ``out_usda``): relative
+    asset and sublayer paths are computed from its folder, so the layer can be written
+    into a staging folder first. Returns ``out_usda``. The input is only read.
+    """
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    asset = Path(asset).resolve()
+    out_usda = Path(out_usda)
+    anchor_dir = Path(anchor or out_usda).resolve().parent
+
+    def rel(p):
+        return relative_asset(Path(p).resolve(), anchor_dir)
+
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    is_mtlx = asset.suffix.lower() == ".mtlx"
+    if is_mtlx:
+        paths = _mtlx_prim_paths(materials)
+        stage = Usd.Stage.Open(layer)
+        UsdGeom.Scope.Define(stage, MTLX_SCOPE)
+        stage.SetDefaultPrim(stage.GetPrimAtPath(MTLX_SCOPE))
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+        UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.LinearUnits.meters)
+    else:
+        src = Sdf.Layer.FindOrOpen(str(asset))
+        info = src.pseudoRoot
+        for key in info.ListInfoKeys():
+            if key not in ("subLayers", "subLayerOffsets", "documentation", "comment"):
+                layer.pseudoRoot.SetInfo(key, info.GetInfo(key))
+        layer.subLayerPaths.append(str(asset))  # absolute while authoring, relative when saved
+        paths = [m.name for m in materials]
+        mask = Usd.StagePopulationMask(paths) if paths else Usd.StagePopulationMask.All()
+        stage = Usd.Stage.OpenMasked(layer, mask, load=Usd.Stage.LoadNone)
+    stage.SetEditTarget(stage.GetRootLayer())
+    for m, path in zip(materials, paths):
+        if is_mtlx:
+            material = UsdShade.Material.Define(stage, path)
+            _mtlx_original(stage, material, m, asset, rel)
+        else:
+            prim = stage.GetPrimAtPath(path)
+            if prim and prim.IsDefined() and not prim.IsA(UsdShade.Material):
+                raise ValueError(f"{asset}: {path} is a {prim.GetTypeName() or 'typeless prim'}, not a Material; "
+                                 f"cannot write its neural material")
+            # A Material that usd-core cannot compose (from a referenced .mtlx file, which needs the
+            # usdMtlx plugin) is not on this stage: the over still applies where usdMtlx composes it.
+            material = UsdShade.Material(prim if prim else stage.OverridePrim(path))
+        vset = material.GetPrim().GetVariantSets().AddVariantSet(VARIANT_SET)
+        vset.AddVariant(ORIGINAL)
+        vset.AddVariant(NEURAL)
+        vset.SetVariantSelection(NEURAL)
+        with vset.GetVariantEditContext():
+            _api_attributes(material.GetPrim(), m, rel)
+            _neural_shader(stage, material, m, rel)
+    del stage  # a live stage would recompose (and warn) when the sublayer path becomes relative
+    if not is_mtlx:
+        layer.subLayerPaths[0] = rel(asset)
+    layer.documentation = (f"mtlx2neural neural materials for {asset.name}: "
+                           + ", ".join(m.name for m in materials)
+                           + f". Variant set '{VARIANT_SET}' on each Material: '{NEURAL}' (default) or '{ORIGINAL}'.")
+    if not layer.Export(str(out_usda)):
+        raise OSError(f"{out_usda}: cannot write the USD layer")
+    return out_usda
