@@ -1,8 +1,8 @@
 """Build hook; all other configuration is in pyproject.toml.
 
 DESIGN.md keeps non-Python assets in top-level folders (``schemas/``: the USD
-schema plugin and Sdr shader definition). A source checkout and the editable
-install (``pip install -e .``) read them from the checkout; pyproject-only
+schema plugin and Sdr shader definition; ``codegen/``: the shader runtime,
+templates and examples). A source checkout and the editable install (``pip install -e .``) read them from the checkout; pyproject-only
 setuptools cannot put a folder from outside the package into a wheel, so this
 hook copies each of them into the built package, where the runtime looks
 first (see ``mtlx2neural.usd_schema.plugin_path``). ``MANIFEST.in`` puts the
@@ -17,7 +17,7 @@ from setuptools.command.build_py import build_py
 
 ROOT = Path(__file__).resolve().parent
 # top-level folder -> folder inside the built package
-SHIPPED_DIRS = {"schemas": "mtlx2neural/_schemas"}
+SHIPPED_DIRS = {"schemas": "mtlx2neural/_schemas", "codegen": "mtlx2neural/_codegen"}
 
 
 class BuildPyWithDataDirs(build_py):

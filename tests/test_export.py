@@ -257,7 +257,10 @@ def test_output_layout(converted):
     assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
     for name in ("World_Looks_CarPaint", "World_Looks_Plastic"):
         files = sorted(p.name for p in (converted["out"] / name / "neural").iterdir())
-        assert files == ["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json"]
+        shader = "NeuralMaterial_" + name.rsplit("_", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
+        assert files == sorted(["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json",
+                                f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin",
+                                "NeuralLayers.slang", "NeuralMaterial.slang"])
     assert not [p for p in converted["asset"].parent.rglob("*") if "staging" in p.name or ".tmp" in p.name]
     assert sha(converted["asset"]) == converted["before"]  # the input is never touched
 

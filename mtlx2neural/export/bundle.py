@@ -11,6 +11,8 @@ default; the layer sits beside it, so by default next to the input)::
           neural/                      export, replaced as a whole
             latents_0.exr ...          latent channels 0-3, 4-7, ... (half, RGBA, MIP chain, raw)
             weights.bin, weights.json  FP16 weights and their manifest
+            NeuralMaterial_<name>.slang (+ .fp16.bin, .coopvec.bin), NeuralMaterial.slang,
+            NeuralLayers.slang         generated shader module and runtime (mtlx2neural.codegen)
             export.json                source hash, metrics and FP16 notes of this export
 
 Every file is first written into a staging folder beside the layer and moved into
@@ -23,6 +25,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..codegen import write_material_shader
 from .latents import write_latent_textures
 from .staging import Staging
 from .usd_writer import ExportedMaterial, write_neural_layer
@@ -48,6 +51,7 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
     """Write ``model``'s latents and weights into ``staged``; paths in the result point at ``final``."""
     textures, notes = write_latent_textures(list(model.latents.levels), staged)
     manifest, wnotes = write_weights(model, staged)
+    write_material_shader(model, staged, summary["material"])  # NeuralMaterial_<name>.slang + runtime
     m = ExportedMaterial(
         name=summary["material"], material=summary.get("mtlx_material", summary["material"]), folder=final,
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],

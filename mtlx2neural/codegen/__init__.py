@@ -1,0 +1,20 @@
+"""Slang shader code for trained neural materials (DESIGN.md, "Shader side").
+
+- :func:`generate_slang`: the per-material module ``NeuralMaterial_<name>.slang`` (FP32,
+  divergent FP16 and coherent CoopVec variants) from a model or an export folder;
+- :func:`write_material_shader`: that module plus its weight binaries and the runtime, into an
+  export folder;
+- :mod:`.cpu`: run generated modules on slangpy's CPU device (tests, benchmarks);
+- :mod:`.compile`: compile them to HLSL / SPIR-V with ``slangc`` and validate the result.
+
+The runtime (``NeuralMaterial.slang``, ``NeuralLayers.slang``) and the templates are in the
+top-level ``codegen/`` folder (see :mod:`.paths`).
+"""
+
+from .generate import coopvec_blob, fp16_blob, generate_slang, identifier
+from .paths import codegen_path, runtime_path
+from .spec import NetworkSpec, as_spec
+from .write import write_material_shader
+
+__all__ = ["NetworkSpec", "as_spec", "codegen_path", "coopvec_blob", "fp16_blob", "generate_slang", "identifier",
+           "runtime_path", "write_material_shader"]

@@ -1,0 +1,147 @@
+"""Compile generated material modules to HLSL / SPIR-V with ``slangc`` and validate the output.
+
+``slangc`` is looked up as ``$M2N_SLANGC``, then on ``PATH``, then inside the ``slangtorch``
+wheel (``slangtorch/bin/slangc``; installing that wheel with ``--no-deps`` is enough). The
+slangpy wheel ships the Slang compiler library but no command-line compiler.
+
+Validators, each optional: ``spirv-val`` (spirv-tools) for SPIR-V, ``glslangValidator``
+(glslang-tools) for HLSL without cooperative vectors, ``dxc`` for HLSL. Old spirv-val releases
+predate Slang's source-language id (the OpSource operand is set to 0 before validating) and the
+SPV_NV_cooperative_vector capability (:func:`spirv_val` reports that as "unsupported").
+
+SPIR-V is emitted with ``-O0`` when slangc cannot load its SPIR-V optimiser library (the
+slangtorch wheel lacks ``libslang-glslang``); the code is the same program, unoptimised.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import struct
+import subprocess
+import tempfile
+from pathlib import Path
+
+from .paths import runtime_path
+
+COOPVEC_SPIRV_EXTENSION = "SPV_NV_cooperative_vector"
+
+
+def find_slangc() -> Path | None:
+    env = os.environ.get("M2N_SLANGC")
+    if env and Path(env).is_file():
+        return Path(env)
+    found = shutil.which("slangc")
+    if found:
+        return Path(found)
+    spec = importlib.util.find_spec("slangtorch")
+    if spec and spec.submodule_search_locations:
+        cand = Path(next(iter(spec.submodule_search_locations))) / "bin" / "slangc"
+        if cand.is_file():
+            if not os.access(cand, os.X_OK):
+                try:
+                    cand.chmod(cand.stat().st_mode | 0o111)
+                except OSError:
+                    return None
+            return cand
+    return None
+
+
+def tool(name: str) -> Path | None:
+    found = shutil.which(name)
+    return Path(found) if found else None
+
+
+class CompileError(RuntimeError):
+    pass
+
+
+def slangc(source: Path, target: str, *, entry: str | None = None, stage: str | None = None,
+           profile: str | None = None, include: list[Path] = (), defines: dict[str, str] | None = None,
+           extra: list[str] = (), output: Path | None = None) -> bytes:
+    """Run slangc on ``source`` for ``target`` (hlsl, spirv, glsl, ...); returns the output bytes."""
+    exe = find_slangc()
+    if exe is None:
+        raise CompileError("slangc not found (set M2N_SLANGC, put slangc on PATH, or pip install --no-deps slangtorch)")
+    with tempfile.TemporaryDirectory(prefix="m2n_slangc_") as tmp:
+        out = output or Path(tmp) / ("out.spv" if target == "spirv" else f"out.{target}")
+        cmd = [str(exe), str(source), "-target", target, "-o", str(out), "-I", str(runtime_path())]
+        for inc in include:
+            cmd += ["-I", str(inc)]
+        for k, v in (defines or {}).items():
+            cmd.append(f"-D{k}={v}" if v is not None else f"-D{k}")
+        if entry:
+            cmd += ["-entry", entry]
+        if stage:
+            cmd += ["-stage", stage]
+        if profile:
+            cmd += ["-profile", profile]
+        cmd += list(extra)
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+        if r.returncode != 0 or not out.is_file():
+            if target == "spirv" and "-O0" not in extra and "spirv-opt" in (r.stderr + r.stdout):
+                return slangc(source, target, entry=entry, stage=stage, profile=profile, include=include,
+                              defines=defines, extra=[*extra, "-O0"], output=output)
+            raise CompileError(f"slangc failed ({r.returncode}): {' '.join(cmd)}\n{r.stdout}\n{r.stderr}")
+        return out.read_bytes()
+
+
+def spirv_extensions(spv: bytes) -> list[str]:
+    """The OpExtension strings of a SPIR-V module."""
+    words = struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4])
+    out, i = [], 5
+    while i < len(words):
+        count, op = words[i] >> 16, words[i] & 0xFFFF
+        if count == 0:
+            break
+        if op == 10:  # OpExtension
+            out.append(struct.pack(f"<{count - 1}I", *words[i + 1:i + count]).split(b"\0", 1)[0].decode())
+        i += count
+    return out
+
+
+def _zero_source_language(spv: bytes) -> bytes:
+    words = list(struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4]))
+    i = 5
+    while i < len(words):
+        count, op = words[i] >> 16, words[i] & 0xFFFF
+        if count == 0:
+            break
+        if op == 3 and count > 1:  # OpSource: source language -> Unknown
+            words[i + 1] = 0
+        i += count
+    return struct.pack(f"<{len(words)}I", *words)
+
+
+def spirv_val(spv: bytes, target_env: str = "vulkan1.3") -> tuple[str, str]:
+    """("ok" | "error" | "unsupported" | "missing", message) from spirv-val."""
+    exe = tool("spirv-val")
+    if exe is None:
+        return "missing", "spirv-val not found (apt-get install spirv-tools)"
+    with tempfile.NamedTemporaryFile(suffix=".spv", delete=False) as f:
+        f.write(_zero_source_language(spv))
+        path = f.name
+    try:
+        r = subprocess.run([str(exe), "--target-env", target_env, path], capture_output=True, text=True, timeout=300, check=False)
+    finally:
+        os.unlink(path)
+    msg = (r.stdout + r.stderr).strip()
+    if r.returncode == 0:
+        return "ok", msg
+    if "Invalid capability operand" in msg or "Invalid extension" in msg or "Invalid opcode" in msg:
+        return "unsupported", msg
+    return "error", msg
+
+
+def glslang_hlsl(hlsl: str, entry: str, stage: str = "comp") -> tuple[str, str]:
+    """("ok" | "error" | "missing", message): glslangValidator's HLSL front end on ``hlsl``."""
+    exe = tool("glslangValidator")
+    if exe is None:
+        return "missing", "glslangValidator not found (apt-get install glslang-tools)"
+    with tempfile.TemporaryDirectory(prefix="m2n_glslang_") as tmp:
+        src = Path(tmp) / "shader.hlsl"
+        src.write_text(hlsl)
+        r = subprocess.run([str(exe), "-V", "-D", "-S", stage, "-e", entry, "--hlsl-enable-16bit-types",
+                            "-o", str(Path(tmp) / "out.spv"), str(src)], capture_output=True, text=True, timeout=300, check=False)
+    return ("ok" if r.returncode == 0 else "error"), (r.stdout + r.stderr).strip()

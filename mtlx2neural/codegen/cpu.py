@@ -1,0 +1,155 @@
+"""Run a generated material module on slangpy's CPU device (tests, benchmarks).
+
+:class:`CpuMaterial` writes the module into a temporary folder, compiles the harness kernel
+(``codegen/templates/cpu_harness.slang.in``) for one network variant and evaluates
+``eval`` / ``evalPdf`` / ``sample`` / ``albedo`` for batches of (latent, wi, wo, u) given as
+float32 NumPy arrays, plus the latent fetch. Buffers are passed through ``dispatch(vars=...)``
+(DESIGN.md, "Verification toolbox"). The CPU back end compiles the C++ on first dispatch.
+
+Variants: ``"FP32"``, ``"FP16"``, ``"FP16Buffer"``, ``"CoopVec"``, ``"Auto"`` (the per-warp
+selector; on the CPU its choice is the NM_CPU_COHERENT define, 1 = coherent).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import tempfile
+import threading
+from pathlib import Path
+from string import Template
+
+import numpy as np
+
+from .generate import coopvec_blob, fp16_blob, identifier
+from .paths import runtime_path, template
+
+OPS = {"eval": 0, "pdf": 1, "sample": 2, "albedo": 3}
+_lock = threading.Lock()
+_devices: dict[tuple, object] = {}
+
+
+def slangpy_available() -> tuple[bool, str]:
+    """(ok, reason): whether slangpy imports and has a CPU device type."""
+    try:
+        import slangpy as spy
+    except Exception as exc:  # noqa: BLE001  # pragma: no cover - any import failure means "unavailable"
+        return False, f"slangpy is not importable ({type(exc).__name__}: {exc}); pip install 'mtlx2neural[shaders]'"
+    if not hasattr(spy, "DeviceType") or not hasattr(spy.DeviceType, "cpu"):
+        return False, "this slangpy has no CPU device type"
+    return True, f"slangpy {getattr(spy, '__version__', '?')}"
+
+
+def device(include: Path, defines: dict[str, str]):
+    """A slangpy CPU device with ``include`` and the runtime on its include path (cached)."""
+    import slangpy as spy
+
+    key = (str(include), tuple(sorted(defines.items())))
+    with _lock:
+        dev = _devices.get(key)
+        if dev is None:
+            opts = {"include_paths": [str(include), str(runtime_path())], "defines": dict(defines)}
+            dev = spy.Device(type=spy.DeviceType.cpu, enable_hot_reload=False, compiler_options=opts)
+            _devices[key] = dev
+        return dev
+
+
+class CpuMaterial:
+    """A generated module ``source`` for material ``name``, compiled for one ``variant``.
+
+    ``unroll=False`` compiles with ``NM_UNROLL`` empty (loops kept: the same arithmetic, much
+    faster C++ compilation); ``spec`` (the NetworkSpec) supplies the weight binaries for the
+    buffer-reading variants."""
+
+    def __init__(self, source: str, name: str, spec, variant: str = "FP32", *, unroll: bool = False,
+                 cpu_coherent: bool = True, workdir=None):
+        import slangpy as spy
+
+        self.spy = spy
+        self.ident = identifier(name)
+        self.module = f"NeuralMaterial_{self.ident}"
+        self.channels = spec.latent_channels
+        digest = hashlib.sha256(source.encode()).hexdigest()[:12]
+        self.workdir = Path(workdir or tempfile.mkdtemp(prefix="m2n_cg_"))
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        (self.workdir / f"{self.module}.slang").write_text(source)
+        defines = {"NM_CPU_COHERENT": "1" if cpu_coherent else "0"}
+        if not unroll:
+            defines["NM_UNROLL"] = ""
+        self.dev = device(self.workdir, defines)
+        net = f"NM_{self.ident}" if variant == "Auto" else f"NM_{self.ident}_{variant}"
+        init = ""
+        if variant in ("CoopVec", "Auto", "FP16Buffer"):
+            init = "    n.weights = gWeights;\n    n.base = 0;"
+            if variant == "Auto":
+                init += "\n    n.materialId = 0;"
+        blob = fp16_blob(spec)[0] if variant == "FP16Buffer" else coopvec_blob(spec)[0]
+        harness = Template(template("cpu_harness.slang.in")).substitute(
+            module=self.module, net_type=net, net_init=init, channels=self.channels)
+        mod = self.dev.load_module_from_source(f"m2n_harness_{variant}_{digest}", harness)
+        self.kernel = self.dev.create_compute_kernel(self.dev.link_program([mod], [mod.entry_point("nmHarness")]))
+        self.fetch_kernel = self.dev.create_compute_kernel(
+            self.dev.link_program([mod], [mod.entry_point("nmHarnessFetch")]))
+        self.weights = self._buf(np.frombuffer(blob, np.uint8).view(np.float32))
+        self._dummy = self._buf(np.zeros(4, np.float32))
+        self._dummy4 = self.dev.create_buffer(usage=spy.BufferUsage.shader_resource, struct_size=16,
+                                              data=np.zeros(4, np.uint32))
+        self.run("eval", np.zeros((1, self.channels), np.float32), np.zeros((1, 3), np.float32))  # compile now
+
+    def _buf(self, a: np.ndarray):
+        a = np.array(a, np.float32, copy=True).reshape(-1)
+        if a.size == 0:
+            a = np.zeros(1, np.float32)
+        return self.dev.create_buffer(usage=self.spy.BufferUsage.shader_resource, struct_size=4, data=a)
+
+    def _out(self, n: int):
+        usage = self.spy.BufferUsage.shader_resource | self.spy.BufferUsage.unordered_access
+        return self.dev.create_buffer(element_count=max(n, 1), struct_size=4, usage=usage)
+
+    def run(self, op: str, latent, wi, wo=None, u=None) -> np.ndarray:
+        """[N, 8] float32 results: eval/albedo in [:, :3]; pdf in [:, 0]; sample: wo [:, :3],
+        weight [:, 3:6], pdf [:, 6]."""
+        n = int(wi.shape[0])
+        wo = np.zeros((n, 3), np.float32) if wo is None else wo
+        u = np.zeros((n, 2), np.float32) if u is None else u
+        out = self._out(8 * n)
+        with _lock:
+            self.kernel.dispatch(thread_count=[max(n, 1), 1, 1], vars={
+                "gLatent": self._buf(latent), "gWi": self._buf(wi), "gWo": self._buf(wo), "gU": self._buf(u),
+                "gWeights": self.weights, "gOut": out, "gCount": n, "gOp": OPS[op],
+                "gTexels": self._dummy, "gLevels": self._dummy4, "gNumLevels": 0})
+            return out.to_numpy().view(np.float32)[: 8 * n].reshape(n, 8).copy()
+
+    def eval(self, latent, wi, wo):
+        return self.run("eval", latent, wi, wo)[:, :3]
+
+    def pdf(self, latent, wi, wo):
+        return self.run("pdf", latent, wi, wo)[:, 0]
+
+    def sample(self, latent, wi, u):
+        r = self.run("sample", latent, wi, None, u)
+        return r[:, :3], r[:, 3:6], r[:, 6]
+
+    def albedo(self, latent, wi):
+        return self.run("albedo", latent, wi)[:, :3]
+
+    def fetch(self, levels: list[np.ndarray], uv, lod, u) -> np.ndarray:
+        """Latents [N, C] from pyramid ``levels`` (each [C, H, W], finest first) at uv [N,2],
+        level of detail lod [N] and level-selection random numbers u [N]."""
+        texels, table, off = [], [], 0
+        for lv in levels:
+            c, h, w = lv.shape
+            texels.append(np.ascontiguousarray(np.transpose(lv, (1, 2, 0)), np.float32).ravel())
+            table.append([w, h, off, 0])
+            off += h * w * c
+        n = int(uv.shape[0])
+        q = np.concatenate([uv, lod[:, None]], 1).astype(np.float32)
+        uu = np.stack([u, np.zeros_like(u)], 1).astype(np.float32)
+        lv_buf = self.dev.create_buffer(usage=self.spy.BufferUsage.shader_resource, struct_size=16,
+                                        data=np.asarray(table, np.uint32).ravel())
+        out = self._out(self.channels * n)
+        with _lock:
+            self.fetch_kernel.dispatch(thread_count=[max(n, 1), 1, 1], vars={
+                "gTexels": self._buf(np.concatenate(texels)), "gLevels": lv_buf, "gNumLevels": len(levels),
+                "gWi": self._buf(q), "gU": self._buf(uu), "gOut": out, "gCount": n,
+                "gLatent": self._dummy, "gWo": self._dummy, "gWeights": self.weights, "gOp": 0})
+            return out.to_numpy().view(np.float32)[: self.channels * n].reshape(n, self.channels).copy()

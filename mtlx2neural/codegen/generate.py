@@ -1,0 +1,365 @@
+"""Generate the Slang module of one neural material from its trained networks.
+
+``generate_slang(model_or_export_dir, name)`` returns the text of ``NeuralMaterial_<name>.slang``.
+It fills the templates in ``codegen/templates/`` and imports the runtime modules
+``NeuralMaterial`` and ``NeuralLayers`` from ``codegen/slang/`` (see :mod:`.paths`).
+
+Weight storage choices (documented in the module header too):
+
+- **Divergent FP16 path**: weights baked into the shader as ``static const half2`` arrays *in
+  access order* (per neuron pair: the bias pair, then one weight pair per input), consumed by
+  a fully unrolled sequence of packed half2 FMAs. After unrolling every array index is a
+  compile-time constant, so the compiler turns each weight into an immediate / constant-bank
+  operand: no per-lane loads, which is what divergent warps need. The same arrays are also
+  written as a binary (:func:`fp16_blob`) for the buffer-loaded variant (``*_FP16Buffer``),
+  which lets engines share one shader between materials.
+- **Coherent path**: cooperative vectors need the matrices in memory. :func:`coopvec_blob`
+  lays each layer out row-major with rows padded to 16 bytes (matrices 64-byte aligned, biases
+  16-byte aligned); engines convert each matrix to the InferencingOptimal layout with the
+  graphics API's conversion call and keep the offsets (or regenerate with their own).
+- **FP32 variant**: the float32 weights as trained (from an export folder: its FP16 values),
+  for exact checks against the torch model.
+
+Network inputs follow the torch model (:mod:`mtlx2neural.model.decoder`): decoder ``[wi in
+each frame (t, b, n), wo likewise, latent]`` (raw ``wi, wo`` without frames), albedo head
+``[wi in each frame, latent]``, sampler ``[wi, latent]``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from string import Template
+
+import numpy as np
+
+from .paths import template
+from .spec import Layer, NetworkSpec, as_spec
+
+MATRIX_ALIGN = 64  # bytes: cooperative-vector matrix offsets
+BIAS_ALIGN = 16    # bytes: bias offsets and row strides
+
+
+def identifier(name: str) -> str:
+    """A Slang identifier from a material name ('/World/Looks/Car Paint' -> 'Car_Paint')."""
+    s = re.sub(r"\W+", "_", str(name).rstrip("/").rsplit("/", 1)[-1]).strip("_") or "Material"
+    return s if not s[0].isdigit() else f"M{s}"
+
+
+def _f32(x: float) -> str:
+    s = f"{float(x):.9g}"  # 9 significant digits round-trip every float32 exactly
+    return s if any(c in s for c in ".enai") else s + ".0"
+
+
+def _f16(x: float) -> str:
+    s = repr(float(np.float16(x)))  # the exact value of the half, which parses exactly
+    return s + "h"
+
+
+def _array(ctype: str, name: str, items: list[str], per_line: int = 8) -> str:
+    lines = [", ".join(items[i:i + per_line]) for i in range(0, len(items), per_line)] or ["0"]
+    body = ",\n    ".join(lines)
+    return f"public static const {ctype} {name}[{max(len(items), 1)}] = {{\n    {body}\n}};"
+
+
+# ------------------------------------------------------------------------------------------
+# Access-order weight streams
+# ------------------------------------------------------------------------------------------
+
+def stream32(layers: list[Layer]) -> tuple[np.ndarray, list[int]]:
+    """FP32 access order: per layer, per neuron (bias, weights); returns (values, layer bases)."""
+    vals, bases, n = [], [], 0
+    for l in layers:
+        bases.append(n)
+        block = np.concatenate([l.bias[:, None], l.weight], 1).astype(np.float32).ravel()
+        vals.append(block)
+        n += block.size
+    return np.concatenate(vals), bases
+
+
+def stream16(layers: list[Layer]) -> tuple[np.ndarray, list[int]]:
+    """FP16 access order as [n, 2] pairs: per layer, per neuron pair (bias pair, then one pair
+    per input); an odd output count is padded with a zero neuron. Returns (pairs, layer bases)."""
+    vals, bases, n = [], [], 0
+    for l in layers:
+        m, k = l.shape
+        m2 = (m + 1) // 2
+        w = np.zeros((2 * m2, k + 1), np.float32)
+        w[:m, 0], w[:m, 1:] = l.bias, l.weight
+        pairs = w.reshape(m2, 2, k + 1).transpose(0, 2, 1).reshape(-1, 2)  # [(p, k), 2]
+        bases.append(n)
+        vals.append(pairs.astype(np.float16))
+        n += pairs.shape[0]
+    return np.concatenate(vals), bases
+
+
+def fp16_blob(spec: NetworkSpec) -> tuple[bytes, dict[str, int]]:
+    """The FP16 access-order streams of every network as one little-endian binary (for the
+    ``*_FP16Buffer`` variant); returns (bytes, {network: byte offset}), offsets 16-aligned."""
+    spec = spec.fp16()
+    blob, offsets = bytearray(), {}
+    for name, layers in spec.networks():
+        blob += b"\0" * (-len(blob) % 16)
+        offsets[name] = len(blob)
+        blob += stream16(layers)[0].astype("<f2").tobytes()
+    blob += b"\0" * (-len(blob) % 16)
+    return bytes(blob), offsets
+
+
+def coopvec_blob(spec: NetworkSpec) -> tuple[bytes, dict]:
+    """Row-major FP16 matrices and biases of every layer for the coherent path.
+
+    Returns (bytes, layout) where layout[network] is a list of per-layer dicts with the byte
+    ``matrix`` and ``bias`` offsets, ``shape`` [out, in] and ``row_stride`` in bytes."""
+    spec = spec.fp16()
+    blob, layout = bytearray(), {}
+    for name, layers in spec.networks():
+        entries = []
+        for l in layers:
+            m, k = l.shape
+            stride = (2 * k + BIAS_ALIGN - 1) // BIAS_ALIGN * BIAS_ALIGN
+            blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
+            mat = np.zeros((m, stride // 2), "<f2")
+            mat[:, :k] = l.weight
+            entry = {"matrix": len(blob), "shape": [m, k], "row_stride": stride}
+            blob += mat.tobytes()
+            blob += b"\0" * (-len(blob) % BIAS_ALIGN)
+            entry["bias"] = len(blob)
+            blob += l.bias.astype("<f2").tobytes()
+            entries.append(entry)
+        layout[name] = entries
+    blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
+    return bytes(blob), layout
+
+
+# ------------------------------------------------------------------------------------------
+# Code
+# ------------------------------------------------------------------------------------------
+
+@dataclass
+class _Ctx:
+    p: str        # identifier prefix, e.g. NM_CarPaint
+    c: int        # latent channels
+    frames: int
+
+
+def _inputs_function(ctx: _Ctx, name: str, with_wo: bool) -> str:
+    """``<p>_<name>Inputs<W>(frameWeights, lat, wi[, wo], out float x[K])`` in FP32."""
+    p, c, f = ctx.p, ctx.c, ctx.frames
+    dirs = ["wi", "wo"] if with_wo else ["wi"]
+    k = len(dirs) * 3 * max(f, 1) + c
+    args = ", ".join(f"float3 {d}" for d in dirs)
+    lines = [f"public void {p}_{name}Inputs<W : INMWeights32>(W fw, NMLatent<{c}> lat, {args}, out float x[{k}])", "{"]
+    if f == 0:
+        for j, d in enumerate(dirs):
+            lines.append(f"    x[{3 * j}] = {d}.x; x[{3 * j + 1}] = {d}.y; x[{3 * j + 2}] = {d}.z;")
+    else:
+        lines.append(f"    float v[{6 * f}];")
+        lines.append(f"    nmLinear32<{c}, {6 * f}>(fw, 0, lat.v, v);")
+        for i in range(f):
+            vs = ", ".join(f"v[{6 * i + j}]" for j in range(6))
+            lines.append(f"    float3x3 f{i} = nmFrame({vs});")
+        lines.append("    float3 q;")
+        for j, d in enumerate(dirs):
+            for i in range(f):
+                o = 3 * (j * f + i)
+                lines.append(f"    q = nmProject(f{i}, {d}); x[{o}] = q.x; x[{o + 1}] = q.y; x[{o + 2}] = q.z;")
+    off = k - c
+    lines.append(f"    NM_UNROLL for (int i = 0; i < {c}; i++) x[{off} + i] = lat.v[i];")
+    lines.append("}")
+    return "\n".join(lines)
+
+
+def _sampler_inputs(ctx: _Ctx) -> str:
+    c = ctx.c
+    return "\n".join([
+        f"public void {ctx.p}_samplerInputs(NMLatent<{c}> lat, float3 wi, out float x[{3 + c}])", "{",
+        "    x[0] = wi.x; x[1] = wi.y; x[2] = wi.z;",
+        f"    NM_UNROLL for (int i = 0; i < {c}; i++) x[3 + i] = lat.v[i];", "}"])
+
+
+def _mlp32(layers, bases, weights: str, x: str) -> tuple[list[str], str]:
+    lines, cur = [], x
+    for i, (l, b) in enumerate(zip(layers, bases)):
+        m, k = l.shape
+        out = f"h{i}"
+        lines.append(f"    float {out}[{m}]; nmDense32<{k}, {m}>({weights}(), {b}, {cur}, {out});")
+        if i < len(layers) - 1:
+            lines.append(f"    nmRelu32<{m}>({out});")
+        cur = out
+    return lines, cur
+
+
+def _mlp16(layers, bases, x: str) -> tuple[list[str], str]:
+    lines, cur = [], x
+    for i, (l, b) in enumerate(zip(layers, bases)):
+        m, k = l.shape
+        m2 = (m + 1) // 2
+        lines.append(f"    half2 p{i}[{m2}]; nmDense16<{k}, {m2}>(w, {b}, {cur}, p{i});")
+        if i < len(layers) - 1:
+            lines.append(f"    half h{i}[{2 * m2}]; nmReluUnpack16<{m2}, {2 * m2}>(p{i}, h{i});")
+            cur = f"h{i}"
+        else:
+            lines.append(f"    float y[{m}]; nmUnpackOutput16<{m2}, {m}>(p{i}, y);")
+    return lines, "y"
+
+
+def _mlp_coop(layers, entries, x: str) -> list[str]:
+    lines, cur = [], x
+    for i, (l, e) in enumerate(zip(layers, entries)):
+        m, k = l.shape
+        call = f"nmCoopDense<{k}, {m}>({cur}, wb, base + {e['matrix']}u, base + {e['bias']}u)"
+        if i < len(layers) - 1:
+            call = f"nmCoopRelu<{m}>({call})"
+        lines.append(f"    CoopVec<half, {m}> v{i} = {call};")
+        cur = f"v{i}"
+    m = layers[-1].shape[0]
+    lines.append(f"    float y[{m}]; nmCoopToFloat<{m}>({cur}, y);")
+    return lines
+
+
+_RGB = "return float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]));"
+
+
+def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layout: dict | None) -> str:
+    p, c = ctx.p, ctx.c
+    lat = f"NMLatent<{c}> lat"
+    kinds = {  # network -> (signature args, inputs call (fp32 frame weights placeholder), output)
+        "decoder": ("decode", "float3", "float3 wi, float3 wo", f"{p}_decoderInputs({{fw}}(), lat, wi, wo, x)", _RGB,
+                    spec32.decoder_inputs),
+        "albedo": ("albedo", "float3", "float3 wi", f"{p}_albedoInputs({{fw}}(), lat, wi, x)", _RGB,
+                   3 * max(ctx.frames, 1) + c),
+        "sampler": ("proxy", "NMProxy", "float3 wi", f"{p}_samplerInputs(lat, wi, x)", "return nmProxyFromRaw(y);",
+                    3 + c),
+    }
+    nets32, nets16 = dict(spec32.networks()), dict(spec16.networks())
+    out = []
+    for net, (fn, rtype, args, inputs, ret, k) in kinds.items():
+        if net not in nets32:  # no albedo head: stubs
+            out.append(f"public {rtype} {p}_{fn}32({lat}, {args}) {{ return float3(0.0); }}")
+            out.append(f"public {rtype} {p}_{fn}16<W : INMWeights16>(W w, {lat}, {args}) {{ return float3(0.0); }}")
+            if layout is not None:
+                out.append(f"public {rtype} {p}_{fn}Coop(ByteAddressBuffer wb, uint base, {lat}, {args}) "
+                           f"{{ return float3(0.0); }}")
+            continue
+        tag = {"decoder": "Dec", "albedo": "Alb", "sampler": "Smp"}[net]
+        body, cur = _mlp32(nets32[net], stream32(nets32[net])[1], f"{p}_{tag}32", "x")
+        out += [f"public {rtype} {p}_{fn}32({lat}, {args})", "{", f"    float x[{k}]; " + inputs.format(fw=f"{p}_Frame32") + ";",
+                *body, f"    float y[{nets32[net][-1].shape[0]}] = {cur};", f"    {ret}", "}", ""]
+        body16, _ = _mlp16(nets16[net], stream16(nets16[net])[1], "xh")
+        out += [f"public {rtype} {p}_{fn}16<W : INMWeights16>(W w, {lat}, {args})", "{",
+                f"    float x[{k}]; " + inputs.format(fw=f"{p}_Frame16") + ";",
+                f"    half xh[{k}]; nmToHalfArray<{k}>(x, xh);", *body16, f"    {ret}", "}", ""]
+        if layout is not None:
+            out += [f"public {rtype} {p}_{fn}Coop(ByteAddressBuffer wb, uint base, {lat}, {args})", "{",
+                    f"    float x[{k}]; " + inputs.format(fw=f"{p}_Frame16") + ";",
+                    f"    CoopVec<half, {k}> xv = nmCoopFromFloat<{k}>(x);",
+                    *_mlp_coop(nets16[net], layout[net], "xv"), f"    {ret}", "}", ""]
+    return "\n".join(out)
+
+
+def _weights(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec) -> tuple[str, str]:
+    p, arrays, structs = ctx.p, [], []
+    frames32 = spec32.frame.ravel() if spec32.frame is not None else np.zeros(1, np.float32)
+    frames16 = spec16.frame.ravel() if spec16.frame is not None else np.zeros(1, np.float32)
+    for tag, vals in (("FRAME32", frames32), ("FRAME16", frames16)):
+        arrays.append(f"// frame layer [{6 * ctx.frames}, {ctx.c}] row-major, no bias"
+                      + (" (FP16-rounded values)" if tag == "FRAME16" else ""))
+        arrays.append(_array("float", f"{p}_{tag}", [_f32(v) for v in vals]))
+        structs.append(f"public struct {p}_{tag.title()} : INMWeights32 "
+                       f"{{ public float w(int i) {{ return {p}_{tag}[i]; }} }}")
+    nets16 = dict(spec16.networks())
+    for net, layers in spec32.networks():
+        tag = {"decoder": "DEC", "albedo": "ALB", "sampler": "SMP"}[net]
+        v32, _ = stream32(layers)
+        shapes = " -> ".join([str(layers[0].shape[1])] + [str(l.shape[0]) for l in layers])
+        arrays.append(f"// {net} {shapes}, FP32, per neuron: bias, weights")
+        arrays.append(_array("float", f"{p}_{tag}32", [_f32(v) for v in v32]))
+        v16, _ = stream16(nets16[net])
+        arrays.append(f"// {net} {shapes}, FP16 pairs, per neuron pair: bias pair, one pair per input")
+        arrays.append(_array("half2", f"{p}_{tag}16", [f"half2({_f16(a)}, {_f16(b)})" for a, b in v16], per_line=4))
+    for tag in ("DEC", "ALB", "SMP"):
+        name = tag.title()
+        if tag == "ALB" and spec32.albedo is None:
+            structs.append(f"public struct {p}_{name}32 : INMWeights32 {{ public float w(int i) {{ return 0.0; }} }}")
+            structs.append(f"public struct {p}_{name}16 : INMWeights16 {{ public half2 w2(int i) {{ return half2(half(0.0)); }} }}")
+            continue
+        structs.append(f"public struct {p}_{name}32 : INMWeights32 {{ public float w(int i) {{ return {p}_{tag}32[i]; }} }}")
+        structs.append(f"public struct {p}_{name}16 : INMWeights16 {{ public half2 w2(int i) {{ return {p}_{tag}16[i]; }} }}")
+    return "\n".join(arrays), "\n".join(structs)
+
+
+def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bool = True,
+                   source: str | None = None) -> str:
+    """The Slang module ``NeuralMaterial_<name>`` for a NeuralMaterial, an export folder (its
+    ``weights.json``/``weights.bin``) or a :class:`NetworkSpec`.
+
+    ``coherent=False`` leaves out the cooperative-vector path (plain FP16 fallback for
+    profiles without cooperative vectors). ``name`` defaults to the export folder's material
+    folder name; ``source`` is recorded in the header."""
+    version = _version()
+
+    spec32 = as_spec(model_or_export_dir)
+    spec16 = spec32.fp16()
+    if name is None:
+        if not isinstance(model_or_export_dir, (str, Path)):
+            raise ValueError("give the material name for a model in memory")
+        folder = Path(model_or_export_dir)
+        name = (folder.parent if folder.name in ("neural", "weights.json") else folder).name
+    ident = identifier(name)
+    ctx = _Ctx(f"NM_{ident}", spec32.latent_channels, spec32.frames)
+    arrays, structs = _weights(ctx, spec32, spec16)
+    layout = coopvec_blob(spec32)[1] if coherent else None
+    _, offsets16 = fp16_blob(spec32)
+    inputs = [_inputs_function(ctx, "decoder", True), _inputs_function(ctx, "albedo", False), _sampler_inputs(ctx)]
+    coherent_doc = (f"//   {ctx.p}_CoopVec  coherent path: CoopVec matrix-vector products (coopVecMatMulAdd,\n"
+                    "//                      InferencingOptimal layout) on the .coopvec.bin weights.\n"
+                    f"//   {ctx.p}         per-warp selection of the coherent or the divergent path."
+                    if coherent else f"//   {ctx.p}         the divergent FP16 path (no cooperative vectors).")
+    subs = {
+        "module": f"NeuralMaterial_{ident}", "material": str(name), "version": version, "prefix": ctx.p,
+        "material_type": f"NeuralMaterial_{ident}", "source": source or _describe_source(model_or_export_dir),
+        "channels": ctx.c, "frames": ctx.frames,
+        "decoder_arch": "x".join(map(str, spec32.decoder_hidden)) or "linear",
+        "sampler_arch": "x".join(map(str, spec32.sampler_hidden)) or "linear",
+        "albedo_head": "yes" if spec32.albedo else "no", "has_albedo": "true" if spec32.albedo else "false",
+        "arrays": arrays, "weight_structs": structs, "input_functions": "\n\n".join(inputs),
+        "network_functions": _network_functions(ctx, spec32, spec16, layout),
+        "dec16_offset": f"{offsets16['decoder']}u", "smp16_offset": f"{offsets16['sampler']}u",
+        "alb16_offset": f"{offsets16.get('albedo', 0)}u", "coherent_doc": coherent_doc,
+        "fp16_notes": "".join(f"// FP16 note: {n}\n" for n in spec16.notes),
+        "coopvec_layout": _layout_comment(layout, offsets16),
+    }
+    subs["coherent_structs"] = Template(template("coherent.slang.in" if coherent else "fallback.slang.in")
+                                        ).substitute(subs)
+    return Template(template("material.slang.in")).substitute(subs)
+
+
+def _layout_comment(layout: dict | None, offsets16: dict) -> str:
+    lines = ["// Weight binaries: .fp16.bin holds the FP16 access-order arrays of the networks at byte offsets "
+             + ", ".join(f"{k} {v}" for k, v in offsets16.items()) + "."]
+    if layout is not None:
+        lines.append("// .coopvec.bin (coherent path), FP16 row-major; per layer: [out, in], matrix offset, "
+                     "row stride, bias offset (bytes):")
+        for net, entries in layout.items():
+            lines.append(f"//   {net}: " + "; ".join(f"[{e['shape'][0]}, {e['shape'][1]}] @{e['matrix']} "
+                                                  f"stride {e['row_stride']} bias @{e['bias']}" for e in entries))
+    return "\n".join(lines)
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("mtlx2neural")
+    except Exception:  # noqa: BLE001  (not installed)
+        return "(source checkout)"
+
+
+def _describe_source(obj) -> str:
+    if isinstance(obj, (str, Path)):
+        return f"export {Path(obj)}"
+    if isinstance(obj, NetworkSpec):
+        return "network spec"
+    return f"{type(obj).__name__} in memory (float32 weights)"

@@ -1,0 +1,135 @@
+"""The renderer-side networks of a neural material as plain arrays, for code generation.
+
+A :class:`NetworkSpec` holds the decoder's frame layer, the decoder MLP, the optional albedo
+head and the sampler MLP of a :class:`~mtlx2neural.model.neural_material.NeuralMaterial`
+(the training-only encoder is not part of it), as float32 NumPy arrays with torch's
+``nn.Linear`` layout: weight ``[out, in]``, bias ``[out]``.
+
+It is built from a model in memory (float32 weights) or from an export folder (the FP16
+values of ``weights.bin``, read through ``weights.json``). :meth:`NetworkSpec.fp16` rounds
+every weight to FP16 with the export's range check (:func:`mtlx2neural.export.fp16.to_fp16`),
+so a spec built from a model and one read back from its export hold the same FP16 values.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+
+@dataclass
+class Layer:
+    weight: np.ndarray  # [out, in] float32
+    bias: np.ndarray    # [out] float32
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.weight.shape[0]), int(self.weight.shape[1])
+
+
+@dataclass
+class NetworkSpec:
+    latent_channels: int
+    frames: int
+    frame: np.ndarray | None          # [6 * frames, latent_channels] float32, None when frames = 0
+    decoder: list[Layer]
+    sampler: list[Layer]
+    albedo: list[Layer] | None = None
+    notes: list[str] = field(default_factory=list)  # FP16 range-check notes
+
+    @property
+    def decoder_hidden(self) -> list[int]:
+        return [l.shape[0] for l in self.decoder[:-1]]
+
+    @property
+    def sampler_hidden(self) -> list[int]:
+        return [l.shape[0] for l in self.sampler[:-1]]
+
+    @property
+    def decoder_inputs(self) -> int:
+        return 2 * 3 * max(self.frames, 1) + self.latent_channels
+
+    def networks(self) -> list[tuple[str, list[Layer]]]:
+        """(name, layers) of the MLPs in a fixed order: decoder, albedo head (if any), sampler."""
+        out = [("decoder", self.decoder)]
+        if self.albedo:
+            out.append(("albedo", self.albedo))
+        out.append(("sampler", self.sampler))
+        return out
+
+    def fp16(self) -> NetworkSpec:
+        """A copy with every weight rounded to FP16 (range-checked), held as float32."""
+        from ..export.fp16 import (
+            to_fp16,  # here: mtlx2neural.export imports this package
+        )
+        notes: list[str] = []
+
+        def r(a, what):
+            h, n = to_fp16(a, what)
+            notes.extend(n)
+            return h.astype(np.float32)
+
+        def layers(ls, what):
+            return [Layer(r(l.weight, f"{what}.{i}.weight"), r(l.bias, f"{what}.{i}.bias")) for i, l in enumerate(ls)]
+
+        return replace(self, frame=None if self.frame is None else r(self.frame, "frame_layer.weight"),
+                       decoder=layers(self.decoder, "decoder"), sampler=layers(self.sampler, "sampler"),
+                       albedo=layers(self.albedo, "albedo") if self.albedo else None, notes=notes)
+
+
+def _layers(state: dict, prefix: str) -> list[Layer]:
+    idx = sorted({int(m.group(1)) for k in state if (m := re.fullmatch(re.escape(prefix) + r"(\d+)\.weight", k))})
+    return [Layer(np.asarray(state[f"{prefix}{i}.weight"], np.float32), np.asarray(state[f"{prefix}{i}.bias"], np.float32))
+            for i in idx]
+
+
+def spec_from_state(state: dict) -> NetworkSpec:
+    """A spec from tensors named as in the model's state dict (torch tensors or arrays)."""
+    state = {k: (v.detach().cpu().float().numpy() if hasattr(v, "detach") else np.asarray(v, np.float32))
+             for k, v in state.items()}
+    decoder, sampler = _layers(state, "decoder.net."), _layers(state, "sampler.net.")
+    if not decoder or not sampler:
+        raise InputError("the weights hold no decoder or sampler network (decoder.net.*, sampler.net.*)")
+    frame = state.get("decoder.frame_layer.weight")
+    frames = 0 if frame is None else frame.shape[0] // 6
+    c = decoder[0].shape[1] - 6 * max(frames, 1)
+    if c <= 0 or sampler[0].shape[1] != 3 + c or (frame is not None and frame.shape != (6 * frames, c)):
+        raise InputError(f"inconsistent network shapes: decoder input {decoder[0].shape[1]}, "
+                         f"sampler input {sampler[0].shape[1]}, frame layer "
+                         f"{None if frame is None else frame.shape}")
+    if decoder[-1].shape[0] != 3 or sampler[-1].shape[0] != 9:
+        raise InputError(f"the decoder must output 3 values and the sampler 9, got {decoder[-1].shape[0]} "
+                         f"and {sampler[-1].shape[0]}")
+    albedo = _layers(state, "decoder.albedo.") or None
+    return NetworkSpec(c, frames, frame, decoder, sampler, albedo)
+
+
+def spec_from_model(model) -> NetworkSpec:
+    """The spec of a NeuralMaterial (float32 weights as trained)."""
+    return spec_from_state({k: v for k, v in model.state_dict().items() if k.startswith(("decoder.", "sampler."))})
+
+
+def spec_from_export(folder) -> NetworkSpec:
+    """The spec of an export folder (``weights.json`` + ``weights.bin``: FP16 values)."""
+    from ..export.weights import read_weights
+
+    folder = Path(folder)
+    manifest = folder / "weights.json" if folder.is_dir() else folder
+    _, tensors = read_weights(manifest)
+    return spec_from_state(tensors)
+
+
+def as_spec(model_or_export) -> NetworkSpec:
+    """A spec from a NetworkSpec, a NeuralMaterial, or an export folder / weights manifest path."""
+    if isinstance(model_or_export, NetworkSpec):
+        return model_or_export
+    if isinstance(model_or_export, (str, Path)):
+        return spec_from_export(model_or_export)
+    if hasattr(model_or_export, "state_dict"):
+        return spec_from_model(model_or_export)
+    raise TypeError(f"expected a NeuralMaterial, an export folder or a NetworkSpec, got {type(model_or_export)!r}")

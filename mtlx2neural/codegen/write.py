@@ -1,0 +1,44 @@
+"""Write a material's shader files next to its exported weights.
+
+Files written into ``folder`` (the export's ``<material>/neural/``)::
+
+    NeuralMaterial_<name>.slang          the generated module (imports the two below)
+    NeuralMaterial_<name>.fp16.bin       FP16 weights in access order (``*_FP16Buffer`` variant)
+    NeuralMaterial_<name>.coopvec.bin    row-major FP16 matrices and biases (coherent path; the
+                                         module's header lists their offsets, shapes and strides)
+    NeuralMaterial.slang, NeuralLayers.slang   copies of the runtime modules
+
+so that the folder compiles on its own (``slangc -I <folder>`` or Slang's default search of
+the importing file's folder).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from .generate import coopvec_blob, fp16_blob, generate_slang, identifier
+from .paths import RUNTIME_FILES, runtime_path
+from .spec import as_spec
+
+
+def write_material_shader(model_or_export, folder, name: str, *, coherent: bool = True) -> list[Path]:
+    """Generate and write the shader files of one material into ``folder``; returns their paths."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    spec = as_spec(model_or_export)
+    stem = f"NeuralMaterial_{identifier(name)}"
+    written = []
+
+    def put(fname: str, data) -> None:
+        path = folder / fname
+        path.write_bytes(data if isinstance(data, bytes) else data.encode())
+        written.append(path)
+
+    put(f"{stem}.slang", generate_slang(spec, name, coherent=coherent, source=f"material {name}"))
+    put(f"{stem}.fp16.bin", fp16_blob(spec)[0])
+    put(f"{stem}.coopvec.bin", coopvec_blob(spec)[0])
+    for f in RUNTIME_FILES:
+        shutil.copyfile(runtime_path() / f, folder / f)
+        written.append(folder / f)
+    return written
