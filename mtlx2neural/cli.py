@@ -1,12 +1,14 @@
 """Command line: a thin shell over the library API.
 
-    mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64] [--force] ...
-    mtlx2neural inspect ASSET [--material M] [--json]
+    mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64 | --max-error F]
+                      [--max-texels N] [--workers N|ray|ray://HOST:PORT] [--force] ...
+    mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
                        [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
 
 Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
-node and what to do).
+node and what to do). A missed ``--max-error`` budget is not a failure: exit 0, with
+a warning line per material and ``budget_met: false`` in its summary.
 """
 
 from __future__ import annotations
@@ -20,6 +22,50 @@ from .errors import Mtlx2NeuralError
 SUBCOMMANDS = ("inspect", "convert", "render")
 
 
+MAX_TEXELS_HELP = ("cap on the latent grid's longer side, in texels (default: the preset's: fast 256, "
+                   "balanced 1024, paper none; 0: no cap, the textures' own grid); a cap below the textures' "
+                   "grid prefilters their finer detail, with a warning")
+
+
+def _texels(text: str) -> int:
+    n = int(text) if text.strip().isdigit() else -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a texel count (a whole number; 0: no cap)")
+    return n
+
+
+def _budget(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not an HDR FLIP budget (a positive number, e.g. 0.1)")
+    return value
+
+
+def _workers(text: str):
+    from .jobs import parse_workers
+
+    try:
+        return parse_workers(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _config(args):
+    """The TrainConfig of ``args`` (preset, overrides, --max-texels)."""
+    import dataclasses
+
+    from .train.config import preset
+
+    cfg = preset(args.preset, **{k: getattr(args, k, None) for k in ("decoder", "iterations", "batch", "frames",
+                                                                     "seed")})
+    if args.max_texels is not None:
+        cfg = dataclasses.replace(cfg, max_resolution=args.max_texels or None)
+    return cfg
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mtlx2neural", description="Bake MaterialX materials into neural materials.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -29,23 +75,39 @@ def _parser() -> argparse.ArgumentParser:
     ins.add_argument("--json", action="store_true", help="print JSON instead of text")
     ins.add_argument("--allow-missing-textures", action="store_true",
                      help="use an image node's declared default when its file is missing")
+    ins.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"],
+                     help="settings the latent grid and the source hashes are shown for (default: fast)")
+    ins.add_argument("--max-texels", type=_texels, metavar="N", help=MAX_TEXELS_HELP)
     conv = sub.add_parser("convert", help="train a neural material for every selected material (default command)")
     conv.add_argument("asset", help=".mtlx file or USD stage")
     conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input); "
                                              "the USD layer is written beside it as <folder>.usda")
-    conv.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"])
-    conv.add_argument("--decoder", choices=["2x16", "2x32", "3x64"])
-    conv.add_argument("--iterations", type=int)
-    conv.add_argument("--batch", type=int)
-    conv.add_argument("--frames", type=int)
+    conv.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"],
+                      help="training settings: fast (minutes per material on a CPU), balanced, paper (the "
+                           "paper's 300k steps; a GPU); default: fast")
+    conv.add_argument("--decoder", choices=["2x16", "2x32", "3x64"],
+                      help="force this decoder size for every material (default: the preset's; "
+                           "conflicts with --max-error)")
+    conv.add_argument("--max-error", type=_budget, metavar="F",
+                      help="HDR FLIP budget (the summary's flip_mean): per material, train the smallest decoder "
+                           "of 2x16, 2x32, 3x64 that meets it; when even 3x64 misses, keep the best and warn")
+    conv.add_argument("--max-texels", type=_texels, metavar="N", help=MAX_TEXELS_HELP)
+    conv.add_argument("--workers", type=_workers, metavar="N|ray|ray://HOST:PORT",
+                      help="train materials in parallel: N local processes (1: in this process, with progress "
+                           "bars; default: one per material up to the CPU count, or per GPU), 'ray' (a local "
+                           "Ray cluster, or $RAY_ADDRESS) or 'ray://HOST:PORT' (needs mtlx2neural[ray])")
+    conv.add_argument("--iterations", type=int, metavar="N", help="training steps (overrides the preset)")
+    conv.add_argument("--batch", type=int, metavar="N", help="samples per batch (overrides the preset)")
+    conv.add_argument("--frames", type=int, metavar="N", help="learned shading frames (default 2; 0: none)")
     conv.add_argument("--material", help="only this material (prim path, prim name or MaterialX name)")
     conv.add_argument("--device", default="auto", help="cpu, cuda or auto (CUDA when present)")
-    conv.add_argument("--seed", type=int)
+    conv.add_argument("--seed", type=int, metavar="N", help="seed of the initial weights and training data")
     conv.add_argument("--resume", action="store_true", help="continue from the checkpoints in the output folder")
     conv.add_argument("--force", action="store_true",
                       help="retrain every material, even one unchanged since the last run (same source hash)")
-    conv.add_argument("--allow-missing-textures", action="store_true")
-    conv.add_argument("--quiet", action="store_true", help="no progress bar")
+    conv.add_argument("--allow-missing-textures", action="store_true",
+                      help="use an image node's declared default when its file is missing")
+    conv.add_argument("--quiet", action="store_true", help="no progress bars or per-material progress lines")
     ren = sub.add_parser("render", help="render one material (reference or neural) to an EXR and a PNG")
     ren.add_argument("asset", help=".mtlx file or USD stage")
     ren.add_argument("-o", "--output", required=True, help="output .exr (a .png is written beside it)")
@@ -79,15 +141,18 @@ def _render(args) -> int:
 
 def _convert(args) -> int:
     from .convert import convert_asset, default_output
-    from .train.config import preset
+    from .errors import InputError
     from .train.trainer import TrainingInterrupted
 
-    cfg = preset(args.preset, decoder=args.decoder, iterations=args.iterations, batch=args.batch,
-                 frames=args.frames, seed=args.seed)
+    if args.decoder and args.max_error is not None:
+        raise InputError(f"--decoder {args.decoder} and --max-error {args.max_error} conflict: --decoder forces "
+                         f"one size, --max-error picks the smallest of 2x16, 2x32, 3x64 that meets the budget. "
+                         f"Give one of them.")
+    cfg = _config(args)
     try:
         summaries = convert_asset(args.asset, cfg, args.output, args.material, args.device, args.resume,
                                   not args.quiet, args.allow_missing_textures, force=args.force,
-                                  preset=args.preset)
+                                  preset=args.preset, workers=args.workers, max_error=args.max_error)
     except TrainingInterrupted as exc:
         print(f"mtlx2neural: {exc}", file=sys.stderr)
         return 1
@@ -96,14 +161,28 @@ def _convert(args) -> int:
         return 1
     out = args.output or default_output(args.asset)
     for s in summaries:
-        how = "reused (unchanged; --force retrains)" if s["cached"] else f"{s['steps']} steps in {s['seconds']} s"
-        print(f"{s['material']}: {how}, held-out log-L1 "
+        if s.get("shared_with"):
+            how = f"identical to {s['shared_with']} (same graph, textures and settings): trained once, shared"
+        elif s["cached"]:
+            how = "reused (unchanged; --force retrains)"
+        else:
+            how = f"{s['steps']} steps in {s['seconds']} s"
+        print(f"{s['material']}: {how}, decoder {s.get('decoder', s['config']['decoder'])}, held-out log-L1 "
               f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})")
+        budget = s.get("budget")
+        if budget:
+            tried = ", ".join(f"{k} {v:.4f}" for k, v in budget["flip_by_decoder"].items())
+            print(f"  budget HDR FLIP <= {budget['max_error']}: {'met' if budget['met'] else 'NOT met'} "
+                  f"(tried {tried})")
+        for w in s.get("warnings", []):
+            print(f"  warning: {w}")
         notes = s.get("export_notes", [])
         for note in notes[:3]:
             print(f"  fp16: {note}")
         if len(notes) > 3:
             print(f"  fp16: ... and {len(notes) - 3} more (see neural/weights.json and export.json)")
+    for k in getattr(summaries, "skipped", []):
+        print(f"{k['material']}: skipped ({k['reason']})")
     print(f"wrote {out} (checkpoints, training curves, summaries, latent EXRs, weights)")
     if summaries:
         print(f"wrote {summaries[0]['usd']} (USD layer with the neural materials)")
@@ -119,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "inspect":
             from .inspect import format_report, inspect_asset
 
-            report = inspect_asset(args.asset, args.material, args.allow_missing_textures)
+            report = inspect_asset(args.asset, args.material, args.allow_missing_textures, _config(args))
             print(json.dumps(report, indent=2) if args.json else format_report(report))
             return 0
         if args.command == "render":

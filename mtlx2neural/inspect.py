@@ -2,29 +2,49 @@
 
 For each material the scene selects: the prims bound to it, the lobes the
 compiler keeps and prunes (with reasons), approximations, spatial inputs and
-textures. Materials the scene skips are listed with the reason.
+textures, and what a conversion with the given settings would decide
+(:mod:`.plan`): the latent grid (1x1 when uniform, the textures' native grid, or
+capped by ``--max-texels``), the source hash (``summary.json``'s cache key) and the
+name-free content hash, and "identical to X: trained once" for a material that would
+share an earlier one's result. Materials the scene skips are listed with the reason.
 """
 
 from __future__ import annotations
 
 from .errors import InputError
-from .graph import compile_material
+from .plan import plan_materials
 from .scene import load_asset
 
 
-def inspect_asset(path, material: str | None = None, allow_missing_textures: bool = False) -> dict:
-    """JSON-friendly report of ``path`` (a .mtlx file or USD stage)."""
+def inspect_asset(path, material: str | None = None, allow_missing_textures: bool = False, cfg=None) -> dict:
+    """JSON-friendly report of ``path`` (a .mtlx file or USD stage).
+
+    ``cfg`` (default: the ``fast`` preset) is the training configuration the latent grid
+    and the hashes are computed for. Each material's entry adds ``latent`` (``grid`` [H, W],
+    ``kind`` uniform/native/capped, ``texture_grid`` [H, W] or None, ``max_texels``,
+    ``text``), ``source_hash``, ``content_hash``, ``identical_to`` (None, or the earlier
+    material whose result it would share) and ``warnings``.
+    """
+    from .train.config import preset
+
+    cfg = cfg or preset("fast")
     scene = load_asset(path)
     report = {"asset": str(scene.asset), "materials": [], "skipped": [
         {"material": name, "reason": reason} for name, reason in scene.skipped]}
-    for src in scene.materials:
-        if material and material not in (src.name, src.name.rsplit("/", 1)[-1], src.material):
-            continue
-        info = compile_material(src.document, src.material,
-                                allow_missing_textures=allow_missing_textures).describe()
+    sources = [src for src in scene.materials
+               if not material or material in (src.name, src.name.rsplit("/", 1)[-1], src.material)]
+    for plan in plan_materials(sources, cfg, allow_missing_textures):
+        src = plan.source
+        info = plan.compiled.describe()
         info["material"] = src.name
         info["source"] = src.source_file
         info["bound_prims"] = list(src.bound_prims)
+        info["latent"] = {"grid": list(plan.grid), "kind": plan.grid_kind, "max_texels": cfg.max_resolution,
+                          "texture_grid": list(plan.texture_grid) if plan.texture_grid else None,
+                          "text": plan.grid_text()}
+        info["source_hash"], info["content_hash"] = plan.digest, plan.content
+        info["identical_to"] = plan.shared_with
+        info["warnings"] = list(plan.warnings)
         report["materials"].append(info)
     if material and not report["materials"] and not any(
             material in (name, name.rsplit("/", 1)[-1]) for name, _ in scene.skipped):
@@ -57,6 +77,13 @@ def format_report(report: dict) -> str:
             lines += [f"    parameter    {p}" for p in m["varying_parameters"]]
         else:
             lines.append("  spatially uniform: a single latent code suffices")
+        if "latent" in m:
+            lines.append(f"  latent grid: {m['latent']['text']}")
+            lines.append(f"  source hash: {m['source_hash'][:12]}  (content {m['content_hash'][:12]})")
+            if m["identical_to"]:
+                lines.append(f"  identical to {m['identical_to']}: trained once (same compiled graph, textures "
+                             f"and settings), this material shares its result")
+            lines += [f"  warning: {w}" for w in m["warnings"]]
     if report["skipped"]:
         lines.append("\nskipped:")
         lines += [f"  {s['material']}: {s['reason']}" for s in report["skipped"]]

@@ -16,6 +16,15 @@
 
 ``convert_asset`` stores the hash in ``summary.json``; a later run with the same hash
 reuses the checkpoint instead of training (``--force`` retrains).
+
+``content_hash`` is the name-free counterpart that finds materials of one scene that
+would train to the same model (trained once, shared: :mod:`mtlx2neural.plan`). It hashes
+the *compiled* material rather than the document, so node names, prim paths and
+``doc`` strings do not matter: every IR node in order (category, nodedef, outputs,
+attributes, inputs as constants or references to earlier nodes; not its path), the
+bytes of every file its image nodes read, then the same settings, OCIO config and
+missing-texture flag as ``source_hash``. Two graphs that compile to the same operators
+hash equal; a graph whose node order depends on names only misses a chance to share.
 """
 
 from __future__ import annotations
@@ -87,6 +96,57 @@ def source_hash(source, cfg, allow_missing_textures: bool = False) -> str:
     put("allow_missing_textures", str(bool(allow_missing_textures)))
     put("settings", json.dumps(settings_for_hash(cfg), sort_keys=True, default=str))
     put("ocio", os.environ.get("OCIO", ""))
+    return h.hexdigest()
+
+
+def graph_text(compiled) -> str:
+    """The compiled material's IR as name-free text, one line per node (see the module docstring)."""
+    lines = []
+    for node in compiled.graph.nodes:
+        ins = []
+        for key in sorted(node.inputs):
+            v = node.inputs[key]
+            ins.append(f"{key}=@{v.node}.{v.output}" if hasattr(v, "node")
+                       else f"{key}={v.type}:{v.value!r}:{v.colorspace}")
+        lines.append("|".join([node.category, node.nodedef, json.dumps(node.outputs, sort_keys=True),
+                               json.dumps(node.attrs, sort_keys=True), *ins]))
+    return "\n".join(lines)
+
+
+def graph_files(compiled) -> list[str]:
+    """Every file a ``filename`` constant of the compiled graph names (UDIM sets expanded), sorted."""
+    from ..textures.udim import discover_tiles, is_tiled_path
+
+    files = set()
+    for node in compiled.graph.nodes:
+        for v in node.inputs.values():
+            if getattr(v, "type", None) == "filename" and v.value:
+                files.add(v.value)
+                if is_tiled_path(v.value):
+                    files.update(discover_tiles(v.value).values())
+    return sorted(files)
+
+
+def content_hash(compiled, cfg, allow_missing_textures: bool = False, extra: str = "") -> str:
+    """Hex sha256 of what a material trains to, without its name (see the module docstring).
+
+    ``extra`` adds settings that live outside ``cfg`` (an error budget).
+    """
+    h = hashlib.sha256()
+
+    def put(tag: str, text: str) -> None:
+        data = text.encode()
+        h.update(f"{tag}:{len(data)}:".encode() + data)
+
+    put("format", str(FORMAT_VERSION))
+    put("graph", graph_text(compiled))
+    for f in graph_files(compiled):
+        put("file", f)
+        put("digest", file_digest(f) if os.path.isfile(f) else "missing")
+    put("allow_missing_textures", str(bool(allow_missing_textures)))
+    put("settings", json.dumps(settings_for_hash(cfg), sort_keys=True, default=str))
+    put("ocio", os.environ.get("OCIO", ""))
+    put("extra", extra)
     return h.hexdigest()
 
 

@@ -204,7 +204,10 @@ class Trainer:
                 "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(cfg, self.step),
                 "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
 
-    def run(self, progress: bool = True) -> NeuralMaterial:
+    def run(self, progress: bool = True, listener=None) -> NeuralMaterial:
+        """Train to ``cfg.iterations`` steps (from the current step), showing a tqdm bar when
+        ``progress``; ``listener(step, total, record)`` is called with every logged record
+        (every 25 steps), e.g. to draw a parent process's bar for a pool worker."""
         from tqdm import tqdm
 
         cfg = self.cfg
@@ -222,6 +225,8 @@ class Trainer:
                     rec["seconds"] = round(time.time() - start, 2)
                     self.history.append(rec)
                     bar.set_postfix(phase=rec["phase"], loss=f"{rec['loss_brdf']:.4f}", kl=f"{rec['loss_kl']:.3f}")
+                    if listener is not None:
+                        listener(self.step, cfg.iterations, rec)
                 bar.update(1)
                 if self.step % cfg.checkpoint_every == 0:
                     self.save()
