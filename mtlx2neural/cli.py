@@ -5,6 +5,7 @@
     mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
                        [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
+    mtlx2neural report OUT_neural.usda [--analytic-iterations N] [-o REPORT_DIR]
 
 Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
 node and what to do). A missed ``--max-error`` budget is not a failure: exit 0, with
@@ -19,7 +20,7 @@ import sys
 
 from .errors import Mtlx2NeuralError
 
-SUBCOMMANDS = ("inspect", "convert", "render")
+SUBCOMMANDS = ("inspect", "convert", "render", "report")
 
 
 MAX_TEXELS_HELP = ("cap on the latent grid's longer side, in texels (default: the preset's: fast 256, "
@@ -125,7 +126,27 @@ def _parser() -> argparse.ArgumentParser:
     ren.add_argument("--fov", type=float, default=30.0, help="vertical field of view, degrees")
     ren.add_argument("--seed", type=int, default=0)
     ren.add_argument("--allow-missing-textures", action="store_true")
+    rep = sub.add_parser("report", help="HTML report of a neural layer: renders, FLIP, analytic baseline, "
+                                        "error versus cost, polar plots, training curves, latents, memory")
+    rep.add_argument("layer", help="the neural USD layer that `mtlx2neural ASSET` wrote (ASSET_neural.usda)")
+    rep.add_argument("-o", "--output", help="report folder (default: <layer stem>_report beside the layer)")
+    rep.add_argument("--analytic-iterations", type=int, default=300, metavar="N",
+                     help="Adam steps of the analytic (Lambert + GGX) baseline fit (default 300)")
+    rep.add_argument("--res", type=int, default=96, help="render width and height in pixels (default 96)")
+    rep.add_argument("--spp", type=int, default=8, help="samples per pixel of the renders (default 8)")
+    rep.add_argument("--material", action="append", help="only this material (prim path or name; repeatable)")
     return p
+
+
+def _report(args) -> int:
+    from .evaluate.report import write_report
+
+    r = write_report(args.layer, args.output, args.analytic_iterations, args.res, args.spp,
+                     materials=args.material)
+    for m in r["materials"]:
+        print(f"{m['material']}: HDR FLIP neural {m['flip']['neural']:.4f}, analytic {m['flip']['analytic']:.4f}")
+    print(f"wrote {r['html']}")
+    return 0
 
 
 def _render(args) -> int:
@@ -203,6 +224,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "render":
             return _render(args)
+        if args.command == "report":
+            return _report(args)
         return _convert(args)
     except Mtlx2NeuralError as exc:
         print(f"mtlx2neural: error: {exc}", file=sys.stderr)
