@@ -57,7 +57,8 @@ ABLATION = {
 OUT = ROOT / "benchmarks/results/fidelity"
 
 
-def train_and_measure(name: str, cfg) -> dict:
+def train_and_model(name: str, cfg):
+    """Compile case ``name``, build its stack and train it: (reference, stack, model, seconds)."""
     asset, material = CASES[name]
     src = find_material(asset, material)
     compiled = compile_material(src.document, src.material)
@@ -65,7 +66,11 @@ def train_and_measure(name: str, cfg) -> dict:
     stack = build_parameter_stack(compiled, resolution=latent_resolution(compiled, cfg))
     t = time.perf_counter()
     model = Trainer(ref, stack, cfg, tempfile.mkdtemp()).run(progress=False)
-    seconds = time.perf_counter() - t
+    return ref, stack, model, time.perf_counter() - t
+
+
+def train_and_measure(name: str, cfg) -> dict:
+    ref, stack, model, seconds = train_and_model(name, cfg)
     errors = compare(ref, model, texels=tuple(stack.resolution))
     tag = f"{name}_{cfg.decoder}_f{cfg.frames}_e{cfg.encoder_fraction:g}"
     OUT.mkdir(parents=True, exist_ok=True)
