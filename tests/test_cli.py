@@ -23,17 +23,7 @@ from mtlx2neural.cli import main
 
 STD_SURFACE = ("materialx", "resources", "Materials", "Examples", "StandardSurface")
 
-# A minimal valid MaterialX material; nothing in it depends on ../shared.
-SIMPLE_MTLX = """<?xml version="1.0"?>
-<materialx version="1.39">
-  <standard_surface name="SR_red" type="surfaceshader">
-    <input name="base_color" type="color3" value="0.8, 0.1, 0.1" />
-  </standard_surface>
-  <surfacematerial name="Red" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="SR_red" />
-  </surfacematerial>
-</materialx>
-"""
+from conftest import SIMPLE_MTLX  # noqa: E402  (a minimal material named Red)
 
 
 # ----------------------------------------------------------------------------- helpers

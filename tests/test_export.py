@@ -52,16 +52,7 @@ SAMPLE = ROOT / "samples" / "layered_spheres.usda"
 BASELINES = Path(__file__).resolve().parent / "baselines"
 TINY = preset("fast", iterations=30, batch=256)
 
-RED_MTLX = """<?xml version="1.0"?>
-<materialx version="1.39">
-  <standard_surface name="SR_red" type="surfaceshader">
-    <input name="base_color" type="color3" value="0.8, 0.1, 0.1" />
-  </standard_surface>
-  <surfacematerial name="Red" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="SR_red" />
-  </surfacematerial>
-</materialx>
-"""
+from conftest import SIMPLE_MTLX as RED_MTLX  # noqa: E402
 
 
 def sha(path: Path) -> str:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from conftest import shared_path
-from test_cli import SIMPLE_MTLX
+from conftest import SIMPLE_MTLX
 
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
