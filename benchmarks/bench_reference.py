@@ -22,8 +22,6 @@ import MaterialX as mx
 import torch
 
 import mtlx2neural as m2n
-from mtlx2neural.graph import compile_material
-from mtlx2neural.reference import ReferenceMaterial
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "materialx" / "resources" / "Materials"
 

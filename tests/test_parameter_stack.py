@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import OpenImageIO as oiio
-import pytest
-import torch
 
 import mtlx2neural as m2n
 from mtlx2neural.textures.colour import convert

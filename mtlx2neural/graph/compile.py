@@ -5,12 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import MaterialX as mx
-import torch
 
 from .bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
 from .evaluate import GraphEvaluator
 from .expand import expand_material
-from .ir import Const, IRGraph, Ref
+from .ir import Const, Input, IRGraph, Ref
 from .ops import OPS
 from .sources import FRAME_AXES, SPATIAL, UV_PRIMVARS, needs_conversion, texture, texture_colorspaces
 from ..errors import InputError
