@@ -35,15 +35,13 @@ a render picks levels stochastically from its level of detail, as the neural mod
 from __future__ import annotations
 
 import math
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from ..export.staging import Staging
 from ..model.latent import LatentPyramid
 
 CHANNELS = ("base_r", "base_g", "base_b", "roughness", "metalness", "specular", "slope_x", "slope_y")
@@ -244,28 +242,16 @@ def export_usd_preview(model: AnalyticMaterial, folder) -> dict:
     Returns ``{"usda": Path, "textures": {input: Path}, "ior": float}``.
     """
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
     maps = model.level_maps(0)
     images = {"diffuseColor": maps["base"], "roughness": maps["roughness"], "metallic": maps["metalness"],
               "normal": maps["normal"] * 0.5 + 0.5}
     f0 = float(np.clip(0.08 * maps["specular"].mean(), 1e-4, 0.5))
     ior = (1 + math.sqrt(f0)) / (1 - math.sqrt(f0))
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
-    tmp.chmod(0o755)
-    try:
+    with Staging(folder.parent) as st:
+        tmp = st.stage(folder)
         files = {}
         for name, img in images.items():
             files[name] = f"{name}.exr"
             _write_image(tmp / files[name], img)
         _author_usda(tmp / "analytic.usda", files, ior)
-        old = None
-        if folder.exists():
-            old = folder.parent / f".{folder.name}.old.{os.getpid()}"
-            os.replace(folder, old)
-        os.replace(tmp, folder)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return {"usda": folder / "analytic.usda", "textures": {k: folder / v for k, v in files.items()}, "ior": ior}

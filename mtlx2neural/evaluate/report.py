@@ -30,10 +30,7 @@ import csv
 import html
 import json
 import math
-import os
-import shutil
 import string
-import tempfile
 import time
 from importlib import resources
 from pathlib import Path
@@ -42,6 +39,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..export.staging import Staging
 
 COLOURS = {"reference": "#222222", "analytic": "#d95f02", "neural": "#1b9e77", "reference sampler": "#7570b3"}
 SECTIONS = ("Renders", "Error versus cost", "Polar plots", "Training curves", "Latent textures", "Memory")
@@ -327,10 +325,8 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
             raise InputError(f"{layer}: no neural material named {', '.join(materials)}; it holds {', '.join(prims)}")
         prims = chosen
     out = Path(out).resolve() if out else default_report_dir(layer)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    tmp.chmod(0o755)
-    try:
+    with Staging(out.parent) as st:  # the whole report folder appears at once, or not at all
+        tmp = st.stage(out)
         bodies, numbers = [], []
         for i, prim in enumerate(prims):
             b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed)
@@ -346,14 +342,4 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
             body=f"<ul>{toc}</ul>" + "".join(bodies))
         (tmp / "index.html").write_text(page)
         (tmp / "report.json").write_text(json.dumps(numbers, indent=2))
-        old = None
-        if out.exists():
-            old = out.parent / f".{out.name}.old.{os.getpid()}"
-            os.replace(out, old)
-        os.replace(tmp, out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return {"html": out / "index.html", "materials": numbers}
