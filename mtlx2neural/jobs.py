@@ -42,6 +42,7 @@ from pathlib import Path
 
 import torch
 
+from .atomic import atomic_path
 from .plan import DECODERS
 from .train.config import TrainConfig
 
@@ -107,9 +108,8 @@ def resolve_device(device: str) -> str:
 
 def write_summary(folder: Path, summary: dict) -> None:
     """Write ``folder/summary.json`` atomically."""
-    tmp = folder / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, folder / "summary.json")
+    with atomic_path(folder / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2))
 
 
 def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,

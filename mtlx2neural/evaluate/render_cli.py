@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..errors import InputError
 
 GEOMETRIES = ("sphere", "plane", "teapot")
@@ -65,29 +66,24 @@ def write_exr(path, img: np.ndarray) -> None:
     """Write a float32 [H, W, 3] image with OpenImageIO: a temporary file, then os.replace."""
     import OpenImageIO as oiio
 
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None or not out.open(str(tmp), oiio.ImageSpec(img.shape[1], img.shape[0], 3, "float")):
-        raise InputError(f"{path}: cannot write the image ({oiio.geterror()})")
-    try:
-        ok = out.write_image(np.ascontiguousarray(img, dtype=np.float32))
-    finally:
-        out.close()
-    if not ok:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"{path}: cannot write the image ({oiio.geterror()})")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), oiio.ImageSpec(img.shape[1], img.shape[0], 3, "float")):
+            raise InputError(f"{path}: cannot write the image ({oiio.geterror()})")
+        try:
+            ok = out.write_image(np.ascontiguousarray(img, dtype=np.float32))
+        finally:
+            out.close()
+        if not ok:
+            raise InputError(f"{path}: cannot write the image ({oiio.geterror()})")
 
 
 def write_png(path, img: np.ndarray) -> None:
     """:func:`.render.save_png` through a temporary file and os.replace."""
     from .render import save_png
 
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    save_png(tmp, img)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        save_png(tmp, img)
 
 
 def default_checkpoint(asset, material_name: str) -> Path:

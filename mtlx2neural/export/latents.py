@@ -17,12 +17,12 @@ what was clamped or kept. Every file is written under a temporary name and renam
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..atomic import atomic_path
 from ..errors import InputError
 from .fp16 import to_fp16
 
@@ -53,11 +53,10 @@ def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels:
     """Write ``images`` ([H_j, W_j, 4] float16, finest first) as the MIP levels of one EXR at ``path``."""
     import OpenImageIO as oiio
 
-    tmp = path.with_name(f"{path.stem}.tmp-{os.getpid()}{path.suffix}")
     out = oiio.ImageOutput.create(str(path))
     if out is None:
         raise OSError(f"{path}: OpenImageIO cannot write OpenEXR ({oiio.geterror()})")
-    try:
+    with atomic_path(path) as tmp:
         for j, img in enumerate(images):
             mode = "AppendMIPLevel" if j else "Create"
             if not out.open(str(tmp), _spec(img.shape[1], img.shape[0], group, channels), mode):
@@ -67,10 +66,6 @@ def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels:
         if not out.close():
             raise OSError(f"{path}: cannot finish the file ({out.geterror()})")
         del out  # OpenImageIO flushes a MIP-mapped EXR only when the writer is destroyed
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def write_latent_textures(levels: list[torch.Tensor], folder, stem: str = "latents") -> tuple[list[Path], list[str]]:

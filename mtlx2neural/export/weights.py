@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from ..atomic import atomic_path
 from ..errors import InputError
 from ..model.decoder import OUTPUT_OFFSET
 from .fp16 import to_fp16
@@ -81,12 +81,8 @@ def architecture(model) -> dict:
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
-    try:
+    with atomic_path(path) as tmp:
         tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def write_weights(model, folder, stem: str = "weights") -> tuple[dict, list[str]]:

@@ -17,12 +17,12 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
-import os
 import time
 from pathlib import Path
 
 import torch
 
+from ..atomic import atomic_path
 from ..model.neural_material import NeuralMaterial
 from ..textures.footprint import footprint_targets, sample_levels
 from ..textures.parameter_stack import ParameterStack
@@ -62,9 +62,8 @@ def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, wo_u):
 
 
 def _atomic_save(obj, path: Path) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 class Trainer:
@@ -119,13 +118,10 @@ class Trainer:
     def _write_curves(self) -> None:
         if not self.history:
             return
-        path = self.out_dir / "training_curves.csv"
-        tmp = path.with_suffix(".csv.tmp")
-        with open(tmp, "w", newline="") as f:
+        with atomic_path(self.out_dir / "training_curves.csv") as tmp, open(tmp, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(self.history[0]))
             w.writeheader()
             w.writerows(self.history)
-        os.replace(tmp, path)
 
     # -- one step ----------------------------------------------------------------------
     def _targets(self, wi, wo, uv, level):
