@@ -370,6 +370,28 @@ def test_latent_fetch_matches_pyramid(model_a, tmp_path_factory):
     assert np.abs(got - ref).max() <= 1e-5
 
 
+def test_fetch_then_eval_in_one_thread_matches_the_two_steps(model_a, tmp_path_factory):
+    """nmHarnessFetchEval (the renderer's path, used by the benchmarks) against fetch, then eval.
+
+    Tolerance 1e-5 relative (floor 1e-3): the same float32 operations in the same order, so only
+    the C++ compiler's contraction choices can differ."""
+    from mtlx2neural.model.latent import LatentPyramid
+
+    torch.manual_seed(12)
+    pyr = LatentPyramid(4, 6, channels=8, init_std=1.0)
+    _, spec, src = model_a
+    g = torch.Generator().manual_seed(3)
+    n = 4096
+    uv, lod, u = torch.rand(n, 2, generator=g), torch.rand(n, generator=g) * 3, torch.rand(n, generator=g)
+    _, wi, wo, _ = (t.numpy() for t in make_inputs(n, 8, seed=5))
+    cm = compiled("Test", src, spec, "FP32", tmp_path_factory)
+    levels = [lv.detach().numpy() for lv in pyr.levels]
+    two_steps = cm.eval(cm.fetch(levels, uv.numpy(), lod.numpy(), u.numpy()), wi, wo)
+    one = cm.fetch_eval(cm.pyramid(levels), uv.numpy(), lod.numpy(), u.numpy(), wi, wo)
+    assert np.abs(two_steps).max() > 0
+    assert (np.abs(one - two_steps) / np.maximum(np.abs(two_steps), 1e-3)).max() <= 1e-5
+
+
 # ------------------------------------------------------------------------------------------
 # Generation details
 # ------------------------------------------------------------------------------------------

@@ -53,6 +53,46 @@ def device(include: Path, defines: dict[str, str]):
         return dev
 
 
+def float_buffer(dev, a):
+    """A read-only structured buffer of ``a`` as float32 (one zero when empty)."""
+    import slangpy as spy
+
+    a = np.array(a, np.float32, copy=True).reshape(-1)
+    if a.size == 0:
+        a = np.zeros(1, np.float32)
+    return dev.create_buffer(usage=spy.BufferUsage.shader_resource, struct_size=4, data=a)
+
+
+def out_buffer(dev, n: int):
+    """A read-write float buffer of ``n`` elements."""
+    import slangpy as spy
+
+    usage = spy.BufferUsage.shader_resource | spy.BufferUsage.unordered_access
+    return dev.create_buffer(element_count=max(n, 1), struct_size=4, usage=usage)
+
+
+def pyramid_buffers(dev, levels: list[np.ndarray]) -> tuple[object, object]:
+    """(texels, level table) buffers of ``NMBufferLatents<C>`` for ``levels`` (each [C, H, W],
+    finest first): texels row-major (row 0 = top), C floats each; table rows (w, h, offset, 0)."""
+    import slangpy as spy
+
+    texels, table, off = [], [], 0
+    for lv in levels:
+        c, h, w = lv.shape
+        texels.append(np.ascontiguousarray(np.transpose(lv, (1, 2, 0)), np.float32).ravel())
+        table.append([w, h, off, 0])
+        off += h * w * c
+    lv_buf = dev.create_buffer(usage=spy.BufferUsage.shader_resource, struct_size=16,
+                               data=np.asarray(table, np.uint32).ravel())
+    return float_buffer(dev, np.concatenate(texels)), lv_buf
+
+
+def query_array(uv, lod, u) -> np.ndarray:
+    """[N, 4] float32 rows (u, v, lod, level-selection random number) for the fetch kernels."""
+    return np.concatenate([np.asarray(uv, np.float32), np.asarray(lod, np.float32)[:, None],
+                           np.asarray(u, np.float32)[:, None]], 1)
+
+
 class CpuMaterial:
     """A generated module ``source`` for material ``name``, compiled for one ``variant``.
 
@@ -86,6 +126,7 @@ class CpuMaterial:
         harness = Template(template("cpu_harness.slang.in")).substitute(
             module=self.module, net_type=net, net_init=init, channels=self.channels)
         mod = self.dev.load_module_from_source(f"m2n_harness_{variant}_{digest}", harness)
+        self._module, self._fetch_eval_kernel = mod, None
         self.kernel = self.dev.create_compute_kernel(self.dev.link_program([mod], [mod.entry_point("nmHarness")]))
         self.fetch_kernel = self.dev.create_compute_kernel(
             self.dev.link_program([mod], [mod.entry_point("nmHarnessFetch")]))
@@ -96,14 +137,10 @@ class CpuMaterial:
         self.run("eval", np.zeros((1, self.channels), np.float32), np.zeros((1, 3), np.float32))  # compile now
 
     def _buf(self, a: np.ndarray):
-        a = np.array(a, np.float32, copy=True).reshape(-1)
-        if a.size == 0:
-            a = np.zeros(1, np.float32)
-        return self.dev.create_buffer(usage=self.spy.BufferUsage.shader_resource, struct_size=4, data=a)
+        return float_buffer(self.dev, a)
 
     def _out(self, n: int):
-        usage = self.spy.BufferUsage.shader_resource | self.spy.BufferUsage.unordered_access
-        return self.dev.create_buffer(element_count=max(n, 1), struct_size=4, usage=usage)
+        return out_buffer(self.dev, n)
 
     def run(self, op: str, latent, wi, wo=None, u=None) -> np.ndarray:
         """[N, 8] float32 results: eval/albedo in [:, :3]; pdf in [:, 0]; sample: wo [:, :3],
@@ -135,21 +172,36 @@ class CpuMaterial:
     def fetch(self, levels: list[np.ndarray], uv, lod, u) -> np.ndarray:
         """Latents [N, C] from pyramid ``levels`` (each [C, H, W], finest first) at uv [N,2],
         level of detail lod [N] and level-selection random numbers u [N]."""
-        texels, table, off = [], [], 0
-        for lv in levels:
-            c, h, w = lv.shape
-            texels.append(np.ascontiguousarray(np.transpose(lv, (1, 2, 0)), np.float32).ravel())
-            table.append([w, h, off, 0])
-            off += h * w * c
         n = int(uv.shape[0])
         q = np.concatenate([uv, lod[:, None]], 1).astype(np.float32)
         uu = np.stack([u, np.zeros_like(u)], 1).astype(np.float32)
-        lv_buf = self.dev.create_buffer(usage=self.spy.BufferUsage.shader_resource, struct_size=16,
-                                        data=np.asarray(table, np.uint32).ravel())
+        texels, lv_buf = pyramid_buffers(self.dev, levels)
         out = self._out(self.channels * n)
         with _lock:
             self.fetch_kernel.dispatch(thread_count=[max(n, 1), 1, 1], vars={
-                "gTexels": self._buf(np.concatenate(texels)), "gLevels": lv_buf, "gNumLevels": len(levels),
+                "gTexels": texels, "gLevels": lv_buf, "gNumLevels": len(levels),
                 "gWi": self._buf(q), "gU": self._buf(uu), "gOut": out, "gCount": n,
                 "gLatent": self._dummy, "gWo": self._dummy, "gWeights": self.weights, "gOp": 0})
             return out.to_numpy().view(np.float32)[: self.channels * n].reshape(n, self.channels).copy()
+
+    def fetch_eval(self, pyramid, uv, lod, u, wi, wo) -> np.ndarray:
+        """eval [N, 3] after fetching each query's latent in the same thread, as a renderer does.
+
+        ``pyramid``: the (texels, table) buffers of :func:`pyramid_buffers` for this device
+        (:meth:`pyramid`), built once so that repeated calls time the shader, not the upload."""
+        n = int(wi.shape[0])
+        if self._fetch_eval_kernel is None:
+            self._fetch_eval_kernel = self.dev.create_compute_kernel(
+                self.dev.link_program([self._module], [self._module.entry_point("nmHarnessFetchEval")]))
+        out = self._out(3 * n)
+        with _lock:
+            self._fetch_eval_kernel.dispatch(thread_count=[max(n, 1), 1, 1], vars={
+                "gTexels": pyramid[0], "gLevels": pyramid[1], "gNumLevels": pyramid[2],
+                "gQuery": self._buf(query_array(uv, lod, u)), "gWi": self._buf(wi), "gWo": self._buf(wo),
+                "gOut": out, "gCount": n, "gWeights": self.weights, "gLatent": self._dummy,
+                "gU": self._dummy, "gOp": 0})
+            return out.to_numpy().view(np.float32)[: 3 * n].reshape(n, 3).copy()
+
+    def pyramid(self, levels: list[np.ndarray]) -> tuple:
+        """Upload latent ``levels`` (each [C, H, W], finest first) for :meth:`fetch_eval`."""
+        return (*pyramid_buffers(self.dev, levels), len(levels))
