@@ -190,17 +190,28 @@ def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 9
     view's azimuth/elevation and ``distance`` bounding radii (default geometry:
     the sphere). Both renders of a view share its seed.
     """
-    out = []
+    return compare_many(reference, {"neural": model}, texels, views, res, spp, geometry, lights, distance)["neural"]
+
+
+def compare_many(reference, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
+                 geometry=None, lights=None, distance: float = 4.0) -> dict:
+    """:func:`compare` for several models (``{label: model}``) against one reference render per
+    view: ``{label: [per-view dict with "reference", "neural" (that model's render) and errors]}``."""
+    out = {label: [] for label in models}
     for i, view in enumerate(views):
         if geometry is None and lights is None:
-            ref = render(reference_fn(reference), view, res, spp, texels, seed=i)
-            test = render(neural_fn(model), view, res, spp, texels, seed=i)
+            def draw(fn, view=view, i=i):
+                return render(fn, view, res, spp, texels, seed=i)
         else:
             scene = (geometry if geometry is not None else Sphere(), Camera(view.azimuth, view.elevation, distance),
                      lights if lights is not None else [DirectionalLight(view.light, view.intensity)])
-            ref = render_scene(reference_fn(reference), *scene, res, spp, texels, seed=i)
-            test = render_scene(neural_fn(model), *scene, res, spp, texels, seed=i)
-        out.append({"view": view, "reference": ref, "neural": test, **image_errors(ref, test)})
+
+            def draw(fn, scene=scene, i=i):
+                return render_scene(fn, *scene, res, spp, texels, seed=i)
+        ref = draw(reference_fn(reference))
+        for label, model in models.items():
+            test = draw(neural_fn(model))
+            out[label].append({"view": view, "reference": ref, "neural": test, **image_errors(ref, test)})
     return out
 
 
