@@ -146,6 +146,76 @@ def evals_per_second(fn, n: int = 16384, repeats: int = 3, seed: int = 0) -> flo
     return n / max(best, 1e-9)
 
 
+def _cost_row(r: dict) -> str:
+    flip = "-" if r["flip"] is None else f"{r['flip']:.4f}"
+    rate = "-" if r["rate"] is None else f"{r['rate']:.3g}"
+    return (f'<tr><td class="l">{html.escape(r["model"])}</td><td>{flip}</td><td>{rate}</td>'
+            f'<td class="l">{html.escape(r["note"])}</td></tr>')
+
+
+def _mtlx_source(summary: dict):
+    """The summary's material as a MaterialSource (for MaterialX's own shader), or None."""
+    from ..scene import find_material
+
+    for name in (summary.get("material"), summary.get("mtlx_material")):
+        if name:
+            try:
+                return find_material(summary["source"], name)
+            except InputError:
+                continue
+    return None
+
+
+def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: dict) -> dict:
+    """Rows (model, mean HDR FLIP or None, evals/s or None, note) for the reference, the analytic
+    baseline and every decoder size of the error budget, with the harness used.
+
+    Costs come from :func:`.shader_cost.shader_rates` (generated shaders on slangpy's CPU device;
+    sizes other than the trained one are timed with seeded weights, as cost does not depend on
+    them), else from torch ``eval``. FLIP: measured here for the reference (0), the analytic fit
+    and the trained decoder; for the other sizes, the conversion's budget run (``summary.json``,
+    same views at the conversion's spp) when it tried them, else unknown."""
+    from ..plan import DECODERS
+    from .shader_cost import shader_available, shader_rates
+
+    sizes = {trained: neural}
+    for d in DECODERS:
+        if d != trained:
+            torch.manual_seed(0)
+            sizes[d] = type(neural)(tuple(neural.latents.levels[0].shape[1:]), in_dim=0,
+                                    latent_dim=neural.decoder.latent_dim, frames=neural.decoder.frames, decoder=d)
+            with torch.no_grad():
+                for a, b in zip(sizes[d].latents.levels, neural.latents.levels):
+                    a.copy_(b)
+    budget = (summary.get("budget") or {}).get("flip_by_decoder", {})
+    ok, why = shader_available()
+    if ok:
+        rates = shader_rates(sizes, analytic, _mtlx_source(summary))
+        harness = "generated shaders, slangpy CPU"
+        how = ("Evaluations per second of the code a renderer runs, on slangpy's CPU device (FP32): MaterialX's own "
+               "Slang for the reference, codegen/slang/AnalyticMaterial.slang for the analytic fit and each decoder's "
+               "generated module, the last two including their texture-pyramid fetch. CPU figures rank the models; "
+               "they do not predict GPU times.")
+    else:
+        rates = {"reference": evals_per_second(lambda wi, wo, uv: reference.eval(wi, wo, uv)),
+                 "analytic": evals_per_second(analytic.eval), trained: evals_per_second(neural.eval)}
+        harness = "torch, CPU"
+        how = f"Shader harness unavailable ({why}): evaluations per second of the torch models instead."
+    rows = [{"model": "reference", "flip": 0.0, "rate": rates.get("reference"),
+             "note": rates.get("reference_note", "MaterialX's generated code")},
+            {"model": "analytic (Lambert + GGX)", "flip": flip["analytic"], "rate": rates.get("analytic"),
+             "note": "fitted for this report"}]
+    for d in sizes:
+        if d == trained:
+            f, note = flip["neural"], "the exported model"
+        elif d in budget:
+            f, note = float(budget[d]), "FLIP from the conversion's error-budget run"
+        else:
+            f, note = None, "not trained (convert with --max-error to train every size)"
+        rows.append({"model": f"neural {d}", "flip": f, "rate": rates.get(d), "note": note})
+    return {"harness": harness, "how": how, "rows": rows}
+
+
 def polar_slices(reference, analytic, neural, theta_i_deg: float = 45.0, steps: int = 179):
     """(theta_o [rad], {model: luminance f*cos}, {sampler: pdf}) in the plane of incidence at uv (0.5, 0.5)."""
     lum = torch.tensor([0.2126, 0.7152, 0.0722])
@@ -243,8 +313,8 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
                             f"{c}</figcaption></figure>" for k, c in figs))
     flip = {"analytic": float(np.mean([e["flip"] for e in res_a])), "neural": float(np.mean([e["flip"] for e in res_n])),
             "reference": 0.0}
-    speed = {"reference": evals_per_second(lambda wi, wo, uv: reference.eval(wi, wo, uv)),
-             "analytic": evals_per_second(analytic.eval), "neural": evals_per_second(neural.eval)}
+    trained = str(summary.get("decoder") or "neural")
+    cost = cost_table(summary, reference, analytic, neural, trained, flip)
     theta, brdf, pdf = polar_slices(reference, analytic, neural)
     curves_svg = "<p>No training_curves.csv.</p>"
     curves = folder / "training_curves.csv"
@@ -266,12 +336,12 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
                        f"{4 * j}-{4 * j + 2}, {chain[0].shape[1]}x{chain[0].shape[0]}, "
                        f"{len(chain)} levels</figcaption></figure>")
     weight_bytes = weights.stat().st_size
-    numbers = {"material": prim, "flip": flip, "evals_per_second": speed, "latent_bytes": latent_bytes,
+    e = html.escape
+    numbers = {"material": prim, "flip": flip, "cost": cost, "latent_bytes": latent_bytes,
                "weight_bytes": weight_bytes, "analytic_fit_seconds": round(fit_seconds, 2),
                "analytic_final_loss": analytic.final_loss}
-    cost_rows = "".join(f'<tr><td class="l">{k}</td><td>{flip[k]:.4f}</td><td>{speed[k]:.3g}</td></tr>'
-                        for k in ("reference", "analytic", "neural"))
-    e = html.escape
+    cost_rows = "".join(_cost_row(r) for r in cost["rows"])
+    points = [(r["model"], r["rate"], r["flip"]) for r in cost["rows"] if r["rate"] and r["flip"] is not None]
     body = f"""
 <h2 id="material-{index}">{e(summary.get('material', prim))} <small>({e(prim)})</small></h2>
 <p class="note">Source {e(str(summary.get('source')))}; decoder {e(str(summary.get('decoder')))}, {summary.get('steps')}
@@ -283,9 +353,10 @@ final log-L1 {analytic.final_loss:.4f}.</p>
 against the reference render.</p>
 <div class="grid">{''.join(rows)}</div>
 <h3>Error versus cost</h3>
-<table><tr><th class="l">model</th><th>mean HDR FLIP</th><th>evals/s (torch, CPU)</th></tr>{cost_rows}</table>
-<div class="plots">{svg_scatter([(k, speed[k], flip[k]) for k in speed], "evaluations per second (torch, CPU)",
-                                 "mean HDR FLIP")}</div>
+<p class="note">{e(cost["how"])}</p>
+<table><tr><th class="l">model</th><th>mean HDR FLIP</th><th>evals/s ({e(cost["harness"])})</th><th class="l">note</th></tr>
+{cost_rows}</table>
+<div class="plots">{svg_scatter(points, f"evaluations per second ({cost['harness']})", "mean HDR FLIP")}</div>
 <h3>Polar plots</h3>
 <p class="note">Plane of incidence at uv (0.5, 0.5), wi 45 degrees from the normal (coming from the left); radius
 log1p(x/0.01), normalised.</p>
