@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import time
 from pathlib import Path
 
 import numpy as np
@@ -38,16 +37,6 @@ def directions(n: int, seed: int) -> np.ndarray:
     return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
 
 
-def best_time(fn, repeats: int) -> float:
-    fn()  # warm-up (and compilation)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=16384)
@@ -58,6 +47,7 @@ def main():
     from mtlx2neural.codegen import as_spec, generate_slang
     from mtlx2neural.codegen.cpu import CpuMaterial
     from mtlx2neural.evaluate.mtlx_oracle import mtlx_slang_eval, oracle_available
+    from mtlx2neural.evaluate.shader_cost import best_time
     from mtlx2neural.model.neural_material import NeuralMaterial
     from mtlx2neural.scene import load_asset
 

@@ -12,13 +12,11 @@ MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
   under the procedural sky (``EnvironmentMap.sky``, 64 spp: the whole lobe is lit at once, as in
   a renderer) and under each view's directional light (32 spp: one highlight per point);
   one reference render per view and lighting, shared by the models (``render.compare_many``).
-- **Shader evals/s**, every model in the same harness, slangpy's CPU device: the reference is
-  MaterialX's own generated Slang for the material (``evaluate.mtlx_oracle``; it shades twice
-  per query, lit and unlit, so its rate is doubled, and samples its textures at one uv); the
-  neural models are their generated FP32 modules and the analytic baseline
-  ``codegen/slang/AnalyticMaterial.slang``, each fetching its latent/channel pyramid (stochastic
-  level, bilinear) and evaluating in one thread (``fetch_eval``). Best of 3 dispatches of
-  16,384 random (uv, lod, wi, wo) queries, buffer uploads included for all.
+- **Shader evals/s**, every model in the same harness, slangpy's CPU device
+  (``evaluate.shader_cost.shader_rates``): MaterialX's own generated Slang for the reference,
+  the generated FP32 modules for the neural models and ``codegen/slang/AnalyticMaterial.slang``
+  for the analytic baseline, the last two fetching their pyramids. Best of 3 dispatches of
+  16,384 random (uv, lod, wi, wo) queries.
 - torch ``eval`` throughput (65,536 queries) for reference: not the product.
 """
 
@@ -28,7 +26,6 @@ import argparse
 import os
 import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -39,68 +36,17 @@ from bench_fidelity import CASES, TEXTURED, train_and_model  # noqa: E402
 from mtlx2neural.evaluate.analytic import fit_analytic  # noqa: E402
 from mtlx2neural.evaluate.lighting import EnvironmentMap  # noqa: E402
 from mtlx2neural.evaluate.render import compare_many  # noqa: E402
+from mtlx2neural.evaluate.shader_cost import best_time, random_queries, shader_rates  # noqa: E402
+from mtlx2neural.scene import find_material  # noqa: E402
 from mtlx2neural.train.config import preset  # noqa: E402
-from mtlx2neural.train.directions import half_difference_pairs  # noqa: E402
 
 DECODERS = ("2x16", "2x32", "3x64")
 
 
-def best_of(fn, repeats: int = 3) -> float:
-    fn()  # warm-up (and compilation)
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
-
-
-def queries(n: int, levels: int, seed: int = 0):
-    """(wi, wo, uv, lod, u) float32 NumPy: directions uniform in half/difference angles."""
-    g = torch.Generator().manual_seed(seed)
-    wi, wo = half_difference_pairs(n, g)
-    uv = torch.rand(n, 2, generator=g)
-    lod = torch.rand(n, generator=g) * max(levels - 1, 0)
-    u = torch.rand(n, generator=g)
-    return [t.numpy().astype(np.float32) for t in (wi, wo, uv, lod, u)]
-
-
 def torch_rate(fn, n: int = 65536) -> float:
-    wi, wo, uv, _, _ = (torch.from_numpy(a) for a in queries(n, 1))
+    wi, wo, uv = (torch.from_numpy(a) for a in random_queries(n, 1)[:3])
     with torch.no_grad():
-        return n / best_of(lambda: fn(wi, wo, uv))
-
-
-def shader_rates(name: str, models: dict, analytic, n: int = 16384) -> dict:
-    """Evaluations/s per label in the slangpy CPU harness (module docstring); None if unavailable."""
-    from mtlx2neural.codegen import generate_slang
-    from mtlx2neural.codegen.analytic import CpuAnalytic, decoded_levels
-    from mtlx2neural.codegen.cpu import CpuMaterial, slangpy_available
-    from mtlx2neural.codegen.spec import as_spec
-    from mtlx2neural.evaluate.mtlx_oracle import OracleError, mtlx_slang_eval, oracle_available
-    from mtlx2neural.scene import find_material
-
-    rates = dict.fromkeys(["reference", "analytic", *models], None)
-    if not slangpy_available()[0]:
-        return rates
-    for label, model in models.items():
-        levels = [lv.detach().numpy() for lv in model.latents.levels]
-        wi, wo, uv, lod, u = queries(n, len(levels))
-        cm = CpuMaterial(generate_slang(model, f"Trade{label}"), f"Trade{label}", as_spec(model), "FP32")
-        pyr = cm.pyramid(levels)
-        rates[label] = n / best_of(lambda cm=cm, pyr=pyr: cm.fetch_eval(pyr, uv, lod, u, wi, wo))
-    am = CpuAnalytic()
-    levels = decoded_levels(analytic)
-    wi, wo, uv, lod, u = queries(n, len(levels))
-    pyr = am.pyramid(levels)
-    rates["analytic"] = n / best_of(lambda: am.fetch_eval(pyr, uv, lod, u, wi, wo))
-    if oracle_available()[0]:
-        src = find_material(*CASES[name])
-        try:
-            rates["reference"] = 2 * n / best_of(lambda: mtlx_slang_eval(src.document, src.material, wi, wo))
-        except OracleError as exc:
-            print(f"  ({name}: MaterialX oracle unavailable: {exc})", file=sys.stderr)
-    return rates
+        return n / best_time(lambda: fn(wi, wo, uv))
 
 
 def main():
@@ -135,7 +81,7 @@ def main():
         for light, kw in (("sky", {"lights": sky, "spp": 64}), ("directional", {"spp": 32})):
             for label, errs in compare_many(ref, everything, texels, **kw).items():
                 flips[label, light] = float(np.mean([e["flip"] for e in errs]))
-        shader = shader_rates(name, models, analytic)
+        shader = shader_rates(models, analytic, find_material(*CASES[name]))
         ref_torch = torch_rate(lambda a, b, c: ref.eval(a, b, c))
         rows = [("analytic", "analytic (Lambert + GGX)")] + [(d, f"neural {d}") for d in DECODERS] + \
             [("reference", "reference")]
