@@ -48,7 +48,6 @@ CASES = {
     "BrushedMetal": (TEXTURED, "/World/Looks/BrushedMetal"),
     "wood_tiled": (EXAMPLES / "standard_surface_wood_tiled.mtlx", None),
     "brick_procedural": (EXAMPLES / "standard_surface_brick_procedural.mtlx", None),
-    "brass_tiled": (EXAMPLES / "standard_surface_brass_tiled.mtlx", None),
 }
 ABLATION = {
     "full (encoder + 2 frames)": {},
@@ -85,7 +84,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--preset", default="fast")
     ap.add_argument("--decoders", default="2x16,2x32,3x64")
-    ap.add_argument("--cases", default=",".join(c for c in CASES if c != "brass_tiled"))
+    ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--iterations", type=int)
     ap.add_argument("--ablation", action="store_true")
     args = ap.parse_args()

@@ -1,9 +1,9 @@
 """The speed-for-accuracy trade: FLIP and shader evaluations/s for analytic, 2x16, 2x32, 3x64 and the reference.
 
 Run:  OMP_NUM_THREADS=1 python benchmarks/bench_tradeoff.py
-          [--cases Plastic,CarPaint,GlazedCeramic,wood_tiled,brass_tiled] [--iterations N] [--out FILE]
+          [--cases Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural] [--iterations N] [--out FILE]
 
-Per material (the cases of ``bench_fidelity.py``: the project samples and two textured
+Per material (the cases of ``bench_fidelity.py``: the four project samples and two textured
 MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
 ``evaluate.analytic.fit_analytic``, 1000 steps) and the neural model at each decoder size
 (``fast`` preset) are trained, then:
@@ -51,7 +51,7 @@ def torch_rate(fn, n: int = 65536) -> float:
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cases", default="Plastic,CarPaint,GlazedCeramic,wood_tiled,brass_tiled")
+    ap.add_argument("--cases", default="Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural")
     ap.add_argument("--analytic-iterations", type=int, default=1000)
     ap.add_argument("--iterations", type=int, help="training steps of the neural models (default: the preset's)")
     ap.add_argument("--out", type=Path, help="also write the table (Markdown) here")

@@ -1,11 +1,11 @@
 """Command line: a thin shell over the library API.
 
     mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64 | --max-error F]
-                      [--max-texels N] [--workers N|ray|ray://HOST:PORT] [--force] ...
-    mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N]
+                      [--max-texels N] [--texel-density D] [--workers N|ray|ray://HOST:PORT] [--force] ...
+    mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N] [--texel-density D]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
                        [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
-    mtlx2neural report OUT_neural.usda [--analytic-iterations N] [-o REPORT_DIR]
+    mtlx2neural report OUT_neural.usda [--analytic-iterations N] [--texel U,V ...] [-o REPORT_DIR]
 
 Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
 node and what to do). A missed ``--max-error`` budget is not a failure: exit 0, with
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
 from .errors import Mtlx2NeuralError
@@ -26,6 +27,23 @@ SUBCOMMANDS = ("inspect", "convert", "render", "report")
 MAX_TEXELS_HELP = ("cap on the latent grid's longer side, in texels (default: the preset's: fast 256, "
                    "balanced 1024, paper none; 0: no cap, the textures' own grid); a cap below the textures' "
                    "grid prefilters their finer detail, with a warning")
+
+
+TEXEL_DENSITY_HELP = ("latent texels per metre of surface (e.g. 512 = 5.12 texels/cm): each material's grid "
+                      "is scaled down to what its bound meshes' UVs need at this density (never up; "
+                      "--max-texels still caps it), with a warning when that loses texture detail; "
+                      "USD input only")
+
+
+def _density(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a texel density (a positive number of latent texels "
+                                         f"per metre, e.g. 512)")
+    return value
 
 
 def _texels(text: str) -> int:
@@ -79,6 +97,7 @@ def _parser() -> argparse.ArgumentParser:
     ins.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"],
                      help="settings the latent grid and the source hashes are shown for (default: fast)")
     ins.add_argument("--max-texels", type=_texels, metavar="N", help=MAX_TEXELS_HELP)
+    ins.add_argument("--texel-density", type=_density, metavar="D", help=TEXEL_DENSITY_HELP)
     conv = sub.add_parser("convert", help="train a neural material for every selected material (default command)")
     conv.add_argument("asset", help=".mtlx file or USD stage")
     conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input); "
@@ -93,6 +112,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="HDR FLIP budget (the summary's flip_mean): per material, train the smallest decoder "
                            "of 2x16, 2x32, 3x64 that meets it; when even 3x64 misses, keep the best and warn")
     conv.add_argument("--max-texels", type=_texels, metavar="N", help=MAX_TEXELS_HELP)
+    conv.add_argument("--texel-density", type=_density, metavar="D", help=TEXEL_DENSITY_HELP)
     conv.add_argument("--workers", type=_workers, metavar="N|ray|ray://HOST:PORT",
                       help="train materials in parallel: N local processes (1: in this process, with progress "
                            "bars; default: one per material up to the CPU count, or per GPU), 'ray' (a local "
@@ -135,14 +155,27 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--res", type=int, default=96, help="render width and height in pixels (default 96)")
     rep.add_argument("--spp", type=int, default=8, help="samples per pixel of the renders (default 8)")
     rep.add_argument("--material", action="append", help="only this material (prim path or name; repeatable)")
+    rep.add_argument("--texel", action="append", type=_uv, metavar="U,V",
+                     help="texture coordinate of the polar plots (repeatable; default 0.5,0.5)")
     return p
+
+
+def _uv(text: str) -> tuple[float, float]:
+    parts = text.split(",")
+    try:
+        u, v = (float(x) for x in parts)
+    except ValueError:
+        u = v = float("nan")
+    if not (math.isfinite(u) and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a texture coordinate: give U,V, e.g. 0.25,0.75")
+    return u, v
 
 
 def _report(args) -> int:
     from .evaluate.report import write_report
 
     r = write_report(args.layer, args.output, args.analytic_iterations, args.res, args.spp,
-                     materials=args.material)
+                     materials=args.material, texels_at=args.texel)
     for m in r["materials"]:
         print(f"{m['material']}: HDR FLIP neural {m['flip']['neural']:.4f}, analytic {m['flip']['analytic']:.4f}")
     print(f"wrote {r['html']}")
@@ -173,7 +206,8 @@ def _convert(args) -> int:
     try:
         summaries = convert_asset(args.asset, cfg, args.output, args.material, args.device, args.resume,
                                   not args.quiet, args.allow_missing_textures, force=args.force,
-                                  preset=args.preset, workers=args.workers, max_error=args.max_error)
+                                  preset=args.preset, workers=args.workers, max_error=args.max_error,
+                                  texel_density=args.texel_density)
     except TrainingInterrupted as exc:
         print(f"mtlx2neural: {exc}", file=sys.stderr)
         return 1
@@ -197,6 +231,8 @@ def _convert(args) -> int:
                   f"(tried {tried})")
         for w in s.get("warnings", []):
             print(f"  warning: {w}")
+        for n in s.get("latent", {}).get("notes", []):
+            print(f"  note: {n}")
         notes = s.get("export_notes", [])
         for note in notes[:3]:
             print(f"  fp16: {note}")
@@ -219,7 +255,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "inspect":
             from .inspect import format_report, inspect_asset
 
-            report = inspect_asset(args.asset, args.material, args.allow_missing_textures, _config(args))
+            report = inspect_asset(args.asset, args.material, args.allow_missing_textures, _config(args),
+                                   args.texel_density)
             print(json.dumps(report, indent=2) if args.json else format_report(report))
             return 0
         if args.command == "render":

@@ -5,9 +5,11 @@ Steps (the library behind the default command):
 1. select: the materials renderable geometry binds (:func:`mtlx2neural.scene.load_asset`;
    the others are reported as skipped, with the reason), or only ``material``;
 2. plan (:mod:`.plan`): compile each, decide its latent grid (1x1 when uniform; the
-   textures' grid, capped at ``cfg.max_resolution`` texels per side with a warning when
-   that loses detail), its source hash, and which materials are identical (same
-   name-free content hash): those train once and share the first one's result;
+   textures' grid, scaled down to what the bound meshes' UVs need at ``texel_density``
+   texels per metre and capped at ``cfg.max_resolution`` texels per side, with a warning
+   when that loses detail), the settings it trains with, its source hash, and which
+   materials are identical (same name-free content hash, grid included): those train
+   once and share the first one's result;
 3. reuse: a material whose ``summary.json`` carries the same source hash (document,
    texture bytes, settings: :mod:`.export.cache`) is not trained again (``force``
    retrains);
@@ -96,7 +98,8 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
     """The summary of ``src``, which reuses the result of ``plan.shared_with`` (trained in ``rep_folder``)."""
     folder.mkdir(parents=True, exist_ok=True)
     summary = {**rep_summary, "material": src.name, "mtlx_material": src.material, "source": src.source_file,
-               "bound_prims": list(src.bound_prims), "source_hash": plan.digest, "shared_with": plan.shared_with}
+               "bound_prims": list(src.bound_prims), "source_hash": plan.digest, "shared_with": plan.shared_with,
+               "latent": plan.latent_info()}
     summary.pop("cached", None)
     ckpt = folder / "checkpoint.pt"  # so that `render --material` finds it
     ckpt.unlink(missing_ok=True)
@@ -111,13 +114,15 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
 def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None, device: str = "cpu",
                   resume: bool = False, progress: bool = True, allow_missing_textures: bool = False,
                   force: bool = False, preset: str | None = None, usda=None, workers=None,
-                  max_error: float | None = None) -> Summaries:
+                  max_error: float | None = None, texel_density: float | None = None) -> Summaries:
     """Train (or reuse, or share) every selected material (or only ``material``), then export them.
 
     ``workers``: None (min(materials, CPUs or GPUs)), a number of local processes (1: this
     process), ``"ray"`` or ``"ray://host:port"`` (:mod:`.jobs`). ``max_error``: an HDR FLIP
     budget; each material gets the smallest decoder meeting it (``cfg.decoder`` is then
-    ignored). Returns one summary per material, with ``cached`` (True: reused, nothing
+    ignored). ``texel_density``: latent texels per metre of surface (``--texel-density``,
+    :mod:`.plan`); each material trains with its plan's settings. Returns one summary per
+    material, with ``latent`` (the plan's grid decision), ``cached`` (True: reused, nothing
     trained), ``shared_with`` (the material whose result it shares, else absent),
     ``warnings``, ``usd`` (the layer written) and ``export_notes`` (FP16 range-check
     notes) added. ``preset`` names the preset for ``neural:metrics:preset`` (default: the
@@ -127,7 +132,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
     scene = load_asset(asset)
     out = Path(out) if out else default_output(asset)
     sources = _select(scene, asset, material)
-    plans = plan_materials(sources, cfg, allow_missing_textures, max_error)
+    plans = plan_materials(sources, cfg, allow_missing_textures, max_error, texel_density, scene.asset)
     for p in plans:
         p.compiled = None  # the workers compile again (on their device); keep the parent small
     folders = [out / material_folder(p.name) for p in plans]
@@ -143,7 +148,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
                 print(f"{plan.name}: unchanged since the last run (source hash {plan.digest[:12]}): "
                       f"reusing {folder}", flush=True)
             continue
-        jobs.append(make_job(plan, folder, cfg, device=device, resume=resume, progress=progress,
+        jobs.append(make_job(plan, folder, plan.cfg, device=device, resume=resume, progress=progress,
                              allow_missing_textures=allow_missing_textures, max_error=max_error))
         job_plans.append(i)
 
@@ -170,7 +175,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
                       f"settings; content hash {plan.content[:12]}): trained once, sharing its result", flush=True)
         else:
             model, summary, cached = results[i]
-        summary = {**summary, "cached": cached}
+        summary = {**summary, "cached": cached, "latent": plan.latent_info()}
         trained.append((model, summary, folder))
         summaries.append(summary)
     summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []

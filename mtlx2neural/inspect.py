@@ -3,9 +3,10 @@
 For each material the scene selects: the prims bound to it, the lobes the
 compiler keeps and prunes (with reasons), approximations, spatial inputs and
 textures, and what a conversion with the given settings would decide
-(:mod:`.plan`): the latent grid (1x1 when uniform, the textures' native grid, or
-capped by ``--max-texels``), the source hash (``summary.json``'s cache key) and the
-name-free content hash, and "identical to X: trained once" for a material that would
+(:mod:`.plan`): the latent grid (1x1 when uniform, the textures' native grid, scaled
+down to what the scene's UV texel density needs with ``--texel-density``, or capped by
+``--max-texels``) with the metres of surface per UV unit measured on the bound meshes,
+the source hash (``summary.json``'s cache key) and the name-free content hash, and "identical to X: trained once" for a material that would
 share an earlier one's result. Materials the scene skips are listed with the reason.
 """
 
@@ -16,14 +17,19 @@ from .plan import plan_materials
 from .scene import load_asset
 
 
-def inspect_asset(path, material: str | None = None, allow_missing_textures: bool = False, cfg=None) -> dict:
+def inspect_asset(path, material: str | None = None, allow_missing_textures: bool = False, cfg=None,
+                  texel_density: float | None = None) -> dict:
     """JSON-friendly report of ``path`` (a .mtlx file or USD stage).
 
     ``cfg`` (default: the ``fast`` preset) is the training configuration the latent grid
-    and the hashes are computed for. Each material's entry adds ``latent`` (``grid`` [H, W],
-    ``kind`` uniform/native/capped, ``texture_grid`` [H, W] or None, ``max_texels``,
-    ``text``), ``source_hash``, ``content_hash``, ``identical_to`` (None, or the earlier
-    material whose result it would share) and ``warnings``.
+    and the hashes are computed for; ``texel_density`` (latent texels per metre of surface,
+    ``--texel-density``) lets the bound meshes' UV density bound the grid. Each material's
+    entry adds ``latent`` (:meth:`mtlx2neural.plan.MaterialPlan.latent_info`: ``grid``
+    [H, W], ``kind`` uniform/native/density/capped, ``texture_grid`` [H, W] or None,
+    ``max_texels``, ``text``, ``texel_density``, ``metres_per_uv``, ``density_texels``,
+    ``density_meshes``, ``density_skipped``, ``notes``), ``source_hash``, ``content_hash``,
+    ``identical_to`` (None, or the earlier material whose result it would share) and
+    ``warnings``.
     """
     from .train.config import preset
 
@@ -33,15 +39,14 @@ def inspect_asset(path, material: str | None = None, allow_missing_textures: boo
         {"material": name, "reason": reason} for name, reason in scene.skipped]}
     sources = [src for src in scene.materials
                if not material or material in (src.name, src.name.rsplit("/", 1)[-1], src.material)]
-    for plan in plan_materials(sources, cfg, allow_missing_textures):
+    for plan in plan_materials(sources, cfg, allow_missing_textures, texel_density=texel_density,
+                               asset=scene.asset):
         src = plan.source
         info = plan.compiled.describe()
         info["material"] = src.name
         info["source"] = src.source_file
         info["bound_prims"] = list(src.bound_prims)
-        info["latent"] = {"grid": list(plan.grid), "kind": plan.grid_kind, "max_texels": cfg.max_resolution,
-                          "texture_grid": list(plan.texture_grid) if plan.texture_grid else None,
-                          "text": plan.grid_text()}
+        info["latent"] = plan.latent_info()
         info["source_hash"], info["content_hash"] = plan.digest, plan.content
         info["identical_to"] = plan.shared_with
         info["warnings"] = list(plan.warnings)
@@ -79,12 +84,29 @@ def format_report(report: dict) -> str:
             lines.append("  spatially uniform: a single latent code suffices")
         if "latent" in m:
             lines.append(f"  latent grid: {m['latent']['text']}")
+            lines += _density_lines(m["latent"])
             lines.append(f"  source hash: {m['source_hash'][:12]}  (content {m['content_hash'][:12]})")
             if m["identical_to"]:
                 lines.append(f"  identical to {m['identical_to']}: trained once (same compiled graph, textures "
                              f"and settings), this material shares its result")
             lines += [f"  warning: {w}" for w in m["warnings"]]
+            lines += [f"  note: {n}" for n in m["latent"].get("notes", [])]
     if report["skipped"]:
         lines.append("\nskipped:")
         lines += [f"  {s['material']}: {s['reason']}" for s in report["skipped"]]
     return "\n".join(lines)
+
+
+def _density_lines(latent: dict) -> list[str]:
+    """The texel density's measure: metres per UV unit (per mesh when several) and the prims left out."""
+    meshes, lines = latent.get("density_meshes") or [], []
+    if latent.get("metres_per_uv") is not None:
+        unit = f"metersPerUnit {latent['meters_per_unit']:g}" + (
+            "" if latent["meters_per_unit_authored"] else ", unauthored: USD's default, centimetres")
+        lines.append(f"  texel density: {latent['metres_per_uv']:.4g} m of surface per UV unit ({unit}) x "
+                     f"{latent['texel_density']:g} texels/m = {latent['density_texels']} texels per UV unit: "
+                     f"{latent['kind']} grid")
+        if len(meshes) > 1:
+            lines += [f"    {k['prim']}: {k['metres_per_uv']:.4g} m per UV unit" for k in meshes]
+    lines += [f"    not measured: {k['prim']}: {k['reason']}" for k in latent.get("density_skipped") or []]
+    return lines

@@ -246,6 +246,8 @@ class MaterialJob:
     """HDR FLIP budget (None: train ``cfg.decoder``)."""
     warnings: list[str] = field(default_factory=list)
     """Planning warnings (a capped grid): recorded in the summary's ``warnings`` and ``notes``."""
+    latent: dict | None = None
+    """The plan's grid decision (:meth:`mtlx2neural.plan.MaterialPlan.latent_info`): the summary's ``latent``."""
     threads: int | None = None
     """torch threads in the worker (None: leave torch's default)."""
     ship: bool = False
@@ -274,7 +276,7 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
     src = plan.source
     return MaterialJob(src.name, src.material, src.source_file, list(src.bound_prims),
                        mx.writeToXmlString(src.document), str(folder), cfg, plan.digest, plan.content,
-                       tuple(plan.grid), warnings=list(plan.warnings), **options)
+                       tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(), **options)
 
 
 def run_job(job: MaterialJob) -> dict:
@@ -295,6 +297,8 @@ def run_job(job: MaterialJob) -> dict:
     if job.ship and job.checkpoint is not None:
         (folder / "checkpoint.pt").write_bytes(job.checkpoint)
     extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings)}
+    if job.latent is not None:
+        extra["latent"] = job.latent
     try:
         with _running():
             if job.max_error is None:

@@ -37,7 +37,8 @@ def report(tmp_path_factory):
                       device="cpu", workers=1)
     layer = Path(s[0]["usd"])
     out = d / "rep"
-    rc = main(["report", str(layer), "-o", str(out), "--analytic-iterations", "10", "--res", "24", "--spp", "1"])
+    rc = main(["report", str(layer), "-o", str(out), "--analytic-iterations", "10", "--res", "24", "--spp", "1",
+               "--texel", "0.5,0.5", "--texel", "0.25,0.75"])
     assert rc == 0
     return layer, out
 
@@ -52,7 +53,8 @@ def test_report_has_every_section_and_its_images(report):
     for name in images:
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     svgs = re.findall(r"<svg.*?</svg>", page, re.DOTALL)
-    assert len(svgs) == 4  # error versus cost, 2 polar plots, training curves
+    assert len(svgs) == 6  # error versus cost, 2 polar plots at each of the 2 texels, training curves
+    assert "uv (0.25, 0.75)" in page
     for s in svgs:
         ET.fromstring(s)
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".rep")]  # no temporary folders left
@@ -78,6 +80,12 @@ def test_report_numbers(report):
     assert m["weight_bytes"] == neural.stat().st_size
     exrs = sorted(neural.parent.glob("latents_*.exr"))
     assert m["latent_bytes"] == sum(lv.size * 2 for p in exrs for lv in read_mip_chain(p))
+
+
+def test_bad_texel_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["report", str(SAMPLE), "--texel", "0.5"])
+    assert e.value.code == 2 and "not a texture coordinate" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("kind", ["missing", "not_usd", "no_neural"])

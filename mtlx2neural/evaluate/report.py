@@ -8,9 +8,10 @@ exported files) the report compares three models against the MaterialX reference
 - renders of reference / analytic baseline / neural at :data:`.render.VIEWS`, with HDR FLIP
   maps (:func:`.render.compare`); the analytic baseline is fitted here
   (:func:`.analytic.fit_analytic`, ``analytic_iterations`` Adam steps);
-- error versus cost: mean HDR FLIP against evaluations per second, measured with torch on
-  the CPU (``eval`` of 16k direction pairs, best of 3; lower-right is better);
-- polar plots at the centre texel (uv 0.5, 0.5) in the plane of incidence, wi 45 degrees
+- error versus cost: mean HDR FLIP against evaluations per second for the reference, the
+  analytic fit and the decoders 2x16, 2x32 and 3x64 (:func:`cost_table`), measured as generated
+  shaders on slangpy's CPU device, or with torch when slangpy is missing (lower-right is better);
+- polar plots at chosen texels (default the centre, uv 0.5, 0.5) in the plane of incidence, wi 45 degrees
   off the normal: f*cos (luminance, log-compressed radius log1p(x/0.01), normalised) of
   the three models, and the sampling pdf (per steradian) of the neural sampler and of the
   reference's own sampler;
@@ -216,14 +217,16 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
     return {"harness": harness, "how": how, "rows": rows}
 
 
-def polar_slices(reference, analytic, neural, theta_i_deg: float = 45.0, steps: int = 179):
-    """(theta_o [rad], {model: luminance f*cos}, {sampler: pdf}) in the plane of incidence at uv (0.5, 0.5)."""
+def polar_slices(reference, analytic, neural, theta_i_deg: float = 45.0, steps: int = 179, uv=(0.5, 0.5)):
+    """(theta_o [rad], {model: luminance f*cos}, {sampler: pdf [1/sr]}) in the plane of incidence (x-z
+    of the local frame, wi at ``theta_i_deg`` on the -x side) at texture coordinate ``uv``; f*cos
+    includes the cosine, as ``eval`` does."""
     lum = torch.tensor([0.2126, 0.7152, 0.0722])
     t = torch.linspace(-math.pi / 2 + 0.01, math.pi / 2 - 0.01, steps)
     ti = math.radians(theta_i_deg)
     wi = torch.tensor([[-math.sin(ti), 0.0, math.cos(ti)]]).expand(steps, 3).contiguous()
     wo = torch.stack([t.sin(), torch.zeros_like(t), t.cos()], -1)
-    uv = torch.full((steps, 2), 0.5)
+    uv = torch.tensor([[float(uv[0]), float(uv[1])]]).expand(steps, 2).contiguous()
     with torch.no_grad():
         f = {"reference": reference.eval(wi, wo, uv), "analytic": analytic.eval(wi, wo, uv),
              "neural": neural.eval(wi, wo, uv)}
@@ -274,7 +277,7 @@ def _load_reference(summary: dict, folder: Path):
 
 
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,
-                     spp: int, seed: int) -> tuple[str, dict]:
+                     spp: int, seed: int, texels_at=((0.5, 0.5),)) -> tuple[str, dict]:
     """HTML of one material's report (images written into ``out``) and its numbers."""
     import mtlx2neural as m2n
 
@@ -315,7 +318,12 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
             "reference": 0.0}
     trained = str(summary.get("decoder") or "neural")
     cost = cost_table(summary, reference, analytic, neural, trained, flip)
-    theta, brdf, pdf = polar_slices(reference, analytic, neural)
+    polar = []
+    for u, v in texels_at:
+        theta, brdf, pdf = polar_slices(reference, analytic, neural, uv=(u, v))
+        polar.append(f'<p class="note">uv ({u:g}, {v:g})</p><div class="plots">'
+                     f'{svg_polar({k: (theta, x) for k, x in brdf.items()}, "f*cos (luminance)")}\n'
+                     f'{svg_polar({k: (theta, x) for k, x in pdf.items()}, "sampling pdf (1/sr)")}</div>')
     curves_svg = "<p>No training_curves.csv.</p>"
     curves = folder / "training_curves.csv"
     if curves.is_file():
@@ -358,10 +366,9 @@ against the reference render.</p>
 {cost_rows}</table>
 <div class="plots">{svg_scatter(points, f"evaluations per second ({cost['harness']})", "mean HDR FLIP")}</div>
 <h3>Polar plots</h3>
-<p class="note">Plane of incidence at uv (0.5, 0.5), wi 45 degrees from the normal (coming from the left); radius
-log1p(x/0.01), normalised.</p>
-<div class="plots">{svg_polar({k: (theta, v) for k, v in brdf.items()}, "f*cos (luminance)")}
-{svg_polar({k: (theta, v) for k, v in pdf.items()}, "sampling pdf (1/sr)")}</div>
+<p class="note">Plane of incidence, wi 45 degrees from the normal (coming from the left); radius log1p(x/0.01),
+normalised; at each chosen texel (<code>--texel U,V</code>).</p>
+{''.join(polar)}
 <h3>Training curves</h3>
 <div class="plots">{curves_svg}</div>
 <h3>Latent textures</h3>
@@ -381,10 +388,11 @@ def default_report_dir(layer) -> Path:
 
 
 def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96, spp: int = 8,
-                 seed: int = 0, materials: list[str] | None = None) -> dict:
+                 seed: int = 0, materials: list[str] | None = None, texels_at=None) -> dict:
     """Write ``out/index.html`` (default ``<layer stem>_report/`` beside the layer) and its PNGs.
 
-    ``materials`` restricts the report to these prim paths. Returns ``{"html": Path,
+    ``materials`` restricts the report to these prim paths; ``texels_at`` lists the (u, v)
+    texture coordinates of the polar plots (default the centre, (0.5, 0.5)). Returns ``{"html": Path,
     "materials": [per-material numbers]}``. Raises :class:`~mtlx2neural.errors.InputError` for a
     missing or invalid layer.
     """
@@ -400,7 +408,8 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
         tmp = st.stage(out)
         bodies, numbers = [], []
         for i, prim in enumerate(prims):
-            b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed)
+            b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed,
+                                    tuple(texels_at or ((0.5, 0.5),)))
             bodies.append(b)
             numbers.append(n)
         template = string.Template(resources.files(__package__).joinpath("report_template.html").read_text())

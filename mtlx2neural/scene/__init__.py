@@ -8,7 +8,8 @@ on as a self-contained MaterialX document without the standard libraries.
 
 Modules: ``loader`` (entry points), ``sources`` (result types, choosing by
 name), ``mtlx_file``, ``usd_stage``, ``usd_to_mtlx``, ``usd_values``,
-``usd_preview``, ``mtlx_refs``, ``binding``, ``mxlib``.
+``usd_preview``, ``mtlx_refs``, ``binding``, ``mxlib``, ``texel_density`` (metres of
+surface per UV unit of a material's meshes, for ``--texel-density``).
 """
 
 from .loader import find_material, load_asset
