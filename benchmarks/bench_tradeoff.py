@@ -18,6 +18,10 @@ MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
   for the analytic baseline, the last two fetching their pyramids. Best of 3 dispatches of
   16,384 random (uv, lod, wi, wo) queries.
 - torch ``eval`` throughput (65,536 queries) for reference: not the product.
+
+``--timing-only`` skips training and FLIP and times the shaders alone, with seeded weights and
+latents on each material's latent grid (a shader's cost does not depend on the values): a
+quick run for an otherwise idle machine, whose ratios are the ones to quote.
 """
 
 from __future__ import annotations
@@ -49,17 +53,56 @@ def torch_rate(fn, n: int = 65536) -> float:
         return n / best_time(lambda: fn(wi, wo, uv))
 
 
+def timing_only(names: list[str]) -> list[str]:
+    """The shader columns alone, untrained models on each case's latent grid (module docstring)."""
+    from mtlx2neural.convert import latent_resolution
+    from mtlx2neural.evaluate.analytic import AnalyticMaterial
+    from mtlx2neural.graph import compile_material
+    from mtlx2neural.model.neural_material import NeuralMaterial
+
+    lines = ["| material | latent grid | model | shader evals/s | vs reference |", "|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for name in names:
+        src = find_material(*CASES[name])
+        grid = latent_resolution(compile_material(src.document, src.material), preset("fast"))
+        torch.manual_seed(0)
+        models = {d: NeuralMaterial(grid, in_dim=0, decoder=d) for d in DECODERS}
+        analytic = AnalyticMaterial(grid)
+        with torch.no_grad():
+            for lv in analytic.maps.levels:
+                lv.normal_(0, 1)
+        rates = shader_rates(models, analytic, src)
+        for key in ("analytic", *DECODERS, "reference"):
+            r, ref = rates[key], rates["reference"]
+            label = {"analytic": "analytic (Lambert + GGX)", "reference": "reference (MaterialX Slang)"}.get(
+                key, f"neural {key}")
+            row = (f"| {name} | {grid[1]}x{grid[0]} | {label} | {f'{r / 1e6:.3f} M' if r else '-'} | "
+                   f"{f'{r / ref:.2f}x' if r and ref else '-'} |")
+            print(row, flush=True)
+            lines.append(row)
+    return lines
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default="Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural")
     ap.add_argument("--analytic-iterations", type=int, default=1000)
     ap.add_argument("--iterations", type=int, help="training steps of the neural models (default: the preset's)")
     ap.add_argument("--out", type=Path, help="also write the table (Markdown) here")
+    ap.add_argument("--timing-only", action="store_true", help="shader evals/s only, no training (docstring)")
     args = ap.parse_args()
     if not TEXTURED.exists():
         import subprocess
 
         subprocess.run([sys.executable, str(TEXTURED.parents[1] / "make_textured_sample.py")], check=True)
+    if args.timing_only:
+        head = (f"machine: {platform.machine()}, {os.cpu_count()} cores, OMP_NUM_THREADS="
+                f"{os.environ.get('OMP_NUM_THREADS', '-')}; slangpy CPU device, FP32, 16,384 queries, best of 3")
+        print(head)
+        lines = [head, ""] + timing_only([c for c in args.cases.split(",") if CASES[c][0].exists()])
+        if args.out:
+            args.out.write_text("\n".join(lines) + "\n")
+        return
     lines = [f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
              f"{torch.get_num_threads()} threads; fast preset"
              + (f", {args.iterations} iterations" if args.iterations else ""), "",
