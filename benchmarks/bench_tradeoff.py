@@ -36,13 +36,14 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import CASES, TEXTURED, train_and_model  # noqa: E402
-from mtlx2neural.evaluate.analytic import fit_analytic  # noqa: E402
-from mtlx2neural.evaluate.lighting import EnvironmentMap  # noqa: E402
-from mtlx2neural.evaluate.render import compare_many  # noqa: E402
-from mtlx2neural.evaluate.shader_cost import best_time, random_queries, shader_rates  # noqa: E402
-from mtlx2neural.scene import find_material  # noqa: E402
-from mtlx2neural.train.config import preset  # noqa: E402
+from bench_fidelity import CASES, TEXTURED, train_and_model
+
+from mtlx2neural.evaluate.analytic import fit_analytic
+from mtlx2neural.evaluate.lighting import EnvironmentMap
+from mtlx2neural.evaluate.render import compare_many
+from mtlx2neural.evaluate.shader_cost import best_time, random_queries, shader_rates
+from mtlx2neural.scene import find_material
+from mtlx2neural.train.config import preset
 
 DECODERS = ("2x16", "2x32", "3x64")
 
@@ -125,14 +126,14 @@ def main():
             for label, errs in compare_many(ref, everything, texels, **kw).items():
                 flips[label, light] = float(np.mean([e["flip"] for e in errs]))
         shader = shader_rates(models, analytic, find_material(*CASES[name]))
-        ref_torch = torch_rate(lambda a, b, c: ref.eval(a, b, c))
+        ref_torch = torch_rate(ref.eval)
         rows = [("analytic", "analytic (Lambert + GGX)")] + [(d, f"neural {d}") for d in DECODERS] + \
             [("reference", "reference")]
         for key, label in rows:
             m = everything.get(key)
             rate = shader[key]
             speed = f"{rate / shader['reference']:.2f}x" if rate and shader["reference"] else "-"
-            tr = ref_torch if m is None else torch_rate(lambda a, b, c, m=m: m.eval(a, b, c))
+            tr = ref_torch if m is None else torch_rate(m.eval)
             sky_f, dir_f = (flips.get((key, "sky"), 0.0), flips.get((key, "directional"), 0.0))
             row = (f"| {name} | {label} | {sky_f:.3f} | {dir_f:.3f} | "
                    f"{f'{rate / 1e6:.2f} M' if rate else '-'} | {speed} | {tr / 1e6:.2f} M |")

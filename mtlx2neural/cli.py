@@ -5,7 +5,7 @@
     mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N] [--texel-density D]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
                        [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
-    mtlx2neural report OUT_neural.usda [--analytic-iterations N] [--texel U,V ...] [-o REPORT_DIR]
+    mtlx2neural report OUT_neural.usda [--analytic-iterations N] [--texel U,V ...] [--train-sizes] [-o REPORT_DIR]
 
 Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
 node and what to do). A missed ``--max-error`` budget is not a failure: exit 0, with
@@ -157,6 +157,9 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--material", action="append", help="only this material (prim path or name; repeatable)")
     rep.add_argument("--texel", action="append", type=_uv, metavar="U,V",
                      help="texture coordinate of the polar plots (repeatable; default 0.5,0.5)")
+    rep.add_argument("--train-sizes", action="store_true",
+                     help="train the decoder sizes (2x16, 2x32, 3x64) the conversion did not, with its settings, "
+                          "so that error versus cost shows every size (minutes per size)")
     return p
 
 
@@ -175,7 +178,7 @@ def _report(args) -> int:
     from .evaluate.report import write_report
 
     r = write_report(args.layer, args.output, args.analytic_iterations, args.res, args.spp,
-                     materials=args.material, texels_at=args.texel)
+                     materials=args.material, texels_at=args.texel, train_sizes=args.train_sizes)
     for m in r["materials"]:
         print(f"{m['material']}: HDR FLIP neural {m['flip']['neural']:.4f}, analytic {m['flip']['analytic']:.4f}")
     print(f"wrote {r['html']}")

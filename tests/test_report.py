@@ -38,7 +38,7 @@ def report(tmp_path_factory):
     layer = Path(s[0]["usd"])
     out = d / "rep"
     rc = main(["report", str(layer), "-o", str(out), "--analytic-iterations", "10", "--res", "24", "--spp", "1",
-               "--texel", "0.5,0.5", "--texel", "0.25,0.75"])
+               "--texel", "0.5,0.5", "--texel", "0.25,0.75", "--train-sizes"])
     assert rc == 0
     return layer, out
 
@@ -68,7 +68,9 @@ def test_report_numbers(report):
     # every model of the trade: the reference, the analytic fit and the three decoder sizes
     assert set(rows) == {"reference", "analytic (Lambert + GGX)", "neural 2x16", "neural 2x32", "neural 3x64"}
     assert rows["neural 3x64"]["flip"] == m["flip"]["neural"]  # the fast preset trains 3x64
-    assert rows["neural 2x16"]["flip"] is None  # not trained, and the report does not invent a value
+    # --train-sizes trained the other two sizes with the conversion's settings and measured them
+    assert all(math.isfinite(rows[f"neural {d}"]["flip"]) for d in ("2x16", "2x32"))
+    assert "--train-sizes" in rows["neural 2x16"]["note"]
     timed = [r["rate"] for k, r in rows.items() if k != "reference" or m["cost"]["harness"].startswith("torch")]
     assert all(v is not None and v > 0 for v in timed)
     if m["cost"]["harness"].startswith("generated"):

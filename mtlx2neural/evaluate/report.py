@@ -167,7 +167,7 @@ def _mtlx_source(summary: dict):
     return None
 
 
-def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: dict) -> dict:
+def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: dict, train_sizes=None) -> dict:
     """Rows (model, mean HDR FLIP or None, evals/s or None, note) for the reference, the analytic
     baseline and every decoder size of the error budget, with the harness used.
 
@@ -175,20 +175,23 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
     sizes other than the trained one are timed with seeded weights, as cost does not depend on
     them), else from torch ``eval``. FLIP: measured here for the reference (0), the analytic fit
     and the trained decoder; for the other sizes, the conversion's budget run (``summary.json``,
-    same views at the conversion's spp) when it tried them, else unknown."""
+    same views at the conversion's spp) when it tried them; else, with ``train_sizes`` (a function
+    decoder -> (model, FLIP)), trained for the report with the conversion's settings; else unknown."""
     from ..plan import DECODERS
     from .shader_cost import shader_available, shader_rates
 
-    sizes = {trained: neural}
+    budget = (summary.get("budget") or {}).get("flip_by_decoder", {})
+    sizes, fresh = {trained: neural}, {}
     for d in DECODERS:
-        if d != trained:
+        if d != trained and d not in budget and train_sizes is not None:
+            sizes[d], fresh[d] = train_sizes(d)
+        elif d != trained:
             torch.manual_seed(0)
             sizes[d] = type(neural)(tuple(neural.latents.levels[0].shape[1:]), in_dim=0,
                                     latent_dim=neural.decoder.latent_dim, frames=neural.decoder.frames, decoder=d)
             with torch.no_grad():
                 for a, b in zip(sizes[d].latents.levels, neural.latents.levels):
                     a.copy_(b)
-    budget = (summary.get("budget") or {}).get("flip_by_decoder", {})
     ok, why = shader_available()
     if ok:
         rates = shader_rates(sizes, analytic, _mtlx_source(summary))
@@ -211,8 +214,10 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
             f, note = flip["neural"], "the exported model"
         elif d in budget:
             f, note = float(budget[d]), "FLIP from the conversion's error-budget run"
+        elif d in fresh:
+            f, note = fresh[d], "trained for this report with the conversion's settings (--train-sizes)"
         else:
-            f, note = None, "not trained (convert with --max-error to train every size)"
+            f, note = None, "not trained (report --train-sizes, or convert with --max-error, trains it)"
         rows.append({"model": f"neural {d}", "flip": f, "rate": rates.get(d), "note": note})
     return {"harness": harness, "how": how, "rows": rows}
 
@@ -277,7 +282,7 @@ def _load_reference(summary: dict, folder: Path):
 
 
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,
-                     spp: int, seed: int, texels_at=((0.5, 0.5),)) -> tuple[str, dict]:
+                     spp: int, seed: int, texels_at=((0.5, 0.5),), train_sizes: bool = False) -> tuple[str, dict]:
     """HTML of one material's report (images written into ``out``) and its numbers."""
     import mtlx2neural as m2n
 
@@ -317,7 +322,21 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     flip = {"analytic": float(np.mean([e["flip"] for e in res_a])), "neural": float(np.mean([e["flip"] for e in res_n])),
             "reference": 0.0}
     trained = str(summary.get("decoder") or "neural")
-    cost = cost_table(summary, reference, analytic, neural, trained, flip)
+
+    def train_size(decoder: str):
+        """Train ``decoder`` with the conversion's settings; (model, mean HDR FLIP as above)."""
+        import tempfile
+
+        from ..train.config import TrainConfig
+        from ..train.trainer import Trainer
+
+        cfg = TrainConfig(**{**summary["config"], "decoder": decoder, "compile": False})
+        with tempfile.TemporaryDirectory(prefix="m2n_report_") as tmp_dir:
+            model = Trainer(reference, stack, cfg, tmp_dir).run(progress=False)
+        return model, float(np.mean([e["flip"] for e in compare(reference, model, texels, res=res, spp=spp)]))
+
+    cost = cost_table(summary, reference, analytic, neural, trained, flip,
+                      train_size if train_sizes and "config" in summary else None)
     polar = []
     for u, v in texels_at:
         theta, brdf, pdf = polar_slices(reference, analytic, neural, uv=(u, v))
@@ -388,11 +407,12 @@ def default_report_dir(layer) -> Path:
 
 
 def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96, spp: int = 8,
-                 seed: int = 0, materials: list[str] | None = None, texels_at=None) -> dict:
+                 seed: int = 0, materials: list[str] | None = None, texels_at=None, train_sizes: bool = False) -> dict:
     """Write ``out/index.html`` (default ``<layer stem>_report/`` beside the layer) and its PNGs.
 
     ``materials`` restricts the report to these prim paths; ``texels_at`` lists the (u, v)
-    texture coordinates of the polar plots (default the centre, (0.5, 0.5)). Returns ``{"html": Path,
+    texture coordinates of the polar plots (default the centre, (0.5, 0.5)); ``train_sizes``
+    trains the decoder sizes whose FLIP the conversion did not measure (:func:`cost_table`). Returns ``{"html": Path,
     "materials": [per-material numbers]}``. Raises :class:`~mtlx2neural.errors.InputError` for a
     missing or invalid layer.
     """
@@ -409,7 +429,7 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
         bodies, numbers = [], []
         for i, prim in enumerate(prims):
             b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed,
-                                    tuple(texels_at or ((0.5, 0.5),)))
+                                    tuple(texels_at or ((0.5, 0.5),)), train_sizes)
             bodies.append(b)
             numbers.append(n)
         template = string.Template(resources.files(__package__).joinpath("report_template.html").read_text())

@@ -77,7 +77,7 @@ def shader_rates(neural: dict, analytic=None, mtlx_source=None, n: int = 16384, 
         ident = "Cost" + "".join(c if c.isalnum() else "_" for c in str(label))
         cm = CpuMaterial(generate_slang(model, ident), ident, as_spec(model), "FP32")
         pyr = cm.pyramid(levels)
-        rates[label] = n / best_time(lambda cm=cm, pyr=pyr: cm.fetch_eval(pyr, uv, lod, u, wi, wo), repeats)
+        rates[label] = n / best_time(lambda cm=cm, pyr=pyr, q=(uv, lod, u, wi, wo): cm.fetch_eval(pyr, *q), repeats)
     if analytic is not None:
         am = CpuAnalytic()
         levels = decoded_levels(analytic)
