@@ -1,7 +1,8 @@
 """The speed-for-accuracy trade: FLIP and shader evaluations/s for analytic, 2x16, 2x32, 3x64 and the reference.
 
 Run:  OMP_NUM_THREADS=1 python benchmarks/bench_tradeoff.py
-          [--cases Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural] [--iterations N] [--out FILE]
+          [--cases Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural] [--iterations N]
+          [--analytic-iterations N] [--out FILE] [--images DIR]
 
 Per material (the cases of ``bench_fidelity.py``: the four project samples and two textured
 MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
@@ -40,7 +41,7 @@ from bench_fidelity import CASES, TEXTURED, train_and_model
 
 from mtlx2neural.evaluate.analytic import fit_analytic
 from mtlx2neural.evaluate.lighting import EnvironmentMap
-from mtlx2neural.evaluate.render import compare_many
+from mtlx2neural.evaluate.render import compare_many, save_png
 from mtlx2neural.evaluate.shader_cost import best_time, random_queries, shader_rates
 from mtlx2neural.scene import find_material
 from mtlx2neural.train.config import preset
@@ -84,12 +85,23 @@ def timing_only(names: list[str]) -> list[str]:
     return lines
 
 
+def save_strip(path: Path, results: dict) -> None:
+    """One row per view: reference | analytic | its FLIP map | neural 3x64 | its FLIP map."""
+    rows = []
+    for a, n in zip(results["analytic"], results["3x64"]):
+        rows.append(np.concatenate([a["reference"], a["neural"], a["flip_map"] ** 2.2,
+                                    n["neural"], n["flip_map"] ** 2.2], 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_png(path, np.concatenate(rows))
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default="Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural")
     ap.add_argument("--analytic-iterations", type=int, default=1000)
     ap.add_argument("--iterations", type=int, help="training steps of the neural models (default: the preset's)")
     ap.add_argument("--out", type=Path, help="also write the table (Markdown) here")
+    ap.add_argument("--images", type=Path, help="write per-material render strips (PNG) into this folder")
     ap.add_argument("--timing-only", action="store_true", help="shader evals/s only, no training (docstring)")
     args = ap.parse_args()
     if not TEXTURED.exists():
@@ -123,8 +135,11 @@ def main():
         texels = tuple(stack.resolution)
         flips = {}
         for light, kw in (("sky", {"lights": sky, "spp": 64}), ("directional", {"spp": 32})):
-            for label, errs in compare_many(ref, everything, texels, **kw).items():
+            results = compare_many(ref, everything, texels, **kw)
+            for label, errs in results.items():
                 flips[label, light] = float(np.mean([e["flip"] for e in errs]))
+            if args.images:
+                save_strip(args.images / f"{name}_{light}.png", results)
         shader = shader_rates(models, analytic, find_material(*CASES[name]))
         ref_torch = torch_rate(ref.eval)
         rows = [("analytic", "analytic (Lambert + GGX)")] + [(d, f"neural {d}") for d in DECODERS] + \
