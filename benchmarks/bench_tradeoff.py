@@ -118,7 +118,8 @@ def main():
         return
     lines = [f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
              f"{torch.get_num_threads()} threads; fast preset"
-             + (f", {args.iterations} iterations" if args.iterations else ""), "",
+             + (f", {args.iterations} iterations" if args.iterations else "")
+             + f"; analytic fit {args.analytic_iterations} iterations", "",
              "| material | model | FLIP, sky | FLIP, directional | shader evals/s | vs reference | torch evals/s |",
              "|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
