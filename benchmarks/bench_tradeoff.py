@@ -11,7 +11,8 @@ MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
 
 - **FLIP**: mean HDR FLIP against the reference over the three fixed views (sphere, 96²),
   under the procedural sky (``EnvironmentMap.sky``, 64 spp: the whole lobe is lit at once, as in
-  a renderer) and under each view's directional light (32 spp: one highlight per point);
+  a renderer; light samples and the reference's BSDF samples combined by MIS, shared by every
+  model) and under each view's directional light (32 spp: one highlight per point);
   one reference render per view and lighting, shared by the models (``render.compare_many``).
 - **Shader evals/s**, every model in the same harness, slangpy's CPU device
   (``evaluate.shader_cost.shader_rates``): MaterialX's own generated Slang for the reference,

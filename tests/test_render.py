@@ -23,10 +23,12 @@ from mtlx2neural.evaluate.lighting import (
 )
 from mtlx2neural.evaluate.render import (
     VIEWS,
+    BsdfSampler,
     _lod,
     compare,
     image_errors,
     reference_fn,
+    reference_sampler,
     render,
     render_scene,
 )
@@ -110,6 +112,60 @@ def test_environment_pdf_integrates_to_one_and_matches_sampling():
     sun = torch.tensor([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
     near_sun = (ds @ sun) > math.cos(math.radians(6))
     assert near_sun.float().mean() > 0.2
+
+
+def _hemisphere_sampler(cosine: bool) -> BsdfSampler:
+    """Cosine-weighted or uniform hemisphere directions (local frame) with their densities."""
+    def pdf(wi, wo, *_):
+        z = wo[:, 2].clamp_min(0)
+        return torch.where(wo[:, 2] > 0, z / math.pi if cosine else torch.full_like(z, 0.5 / math.pi),
+                           torch.zeros_like(z))
+
+    def sample(wi, u, *_):
+        phi = 2 * math.pi * u[:, 0]
+        z = (1 - u[:, 1]).sqrt() if cosine else 1 - u[:, 1]
+        r = (1 - z * z).clamp_min(0).sqrt()
+        wo = torch.stack([r * phi.cos(), r * phi.sin(), z], -1)
+        return wo, pdf(wi, wo)
+
+    return BsdfSampler(sample, pdf)
+
+
+def test_mis_with_any_sampler_keeps_the_lambertian_plane_exact():
+    """Light + sampler directions with balance-heuristic weights: the plane's mean radiance is still
+    albedo / pi * E for a well-matched (cosine) and a mismatched (uniform) sampler, within 2 % as the
+    light-only test above (the two weights must sum to one, or the mean is off by far more)."""
+    sky = EnvironmentMap.sky()
+    expected = (ALBEDO / math.pi * sky.irradiance((0.0, 1.0, 0.0))).numpy()
+    for cosine in (True, False):
+        img = render_scene(lambert, Plane(), Camera(0, 90, distance=1.5), [sky], res=32, spp=16, seed=3,
+                           sampler=_hemisphere_sampler(cosine))
+        assert np.isfinite(img).all()
+        assert np.allclose(img.reshape(-1, 3).mean(0), expected, rtol=0.02), cosine
+
+
+def test_mis_with_the_reference_sampler_tames_a_clear_coat_under_the_sky():
+    """The CarPaint's roughness-0.08 coat reflects the sky: light samples alone find that lobe by
+    chance. On a plane that fills the frame (no silhouette noise), two seeds' renders differ far less
+    with the reference's sampler (measured 4.5x less at 4 spp; the test asks 2.5x). Common random
+    numbers still hold: half the material renders at exactly half. (That the weights keep the
+    estimate unbiased is the Lambertian test above; the reference's pdf is chi-square tested.)"""
+    ref = m2n.load_reference(SAMPLE, "/World/Looks/CarPaint")
+    sky = EnvironmentMap.sky()
+    cam = Camera(0, 60, distance=1.5)
+    smp = reference_sampler(ref)
+
+    def draw(seed, sampler=None, fn=reference_fn(ref)):
+        return render_scene(fn, Plane(), cam, [sky], res=24, spp=4, seed=seed, sampler=sampler)
+
+    def noise(a, b):
+        return float(np.abs(a - b).mean() / a.mean())
+
+    mis = draw(1, smp)
+    assert np.isfinite(mis).all() and (mis.sum(-1) > 0).all()
+    assert noise(mis, draw(2, smp)) < noise(draw(1), draw(2)) / 2.5
+    half = draw(1, smp, lambda *a: 0.5 * ref.eval(*a[:3]))
+    assert np.allclose(half, 0.5 * mis, rtol=1e-5, atol=1e-7)
 
 
 def test_hdr_environment_from_the_materialx_resources():

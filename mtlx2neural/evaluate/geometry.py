@@ -123,6 +123,10 @@ class Hits:
         return torch.stack([(w * self.tangent).sum(-1), (w * self.bitangent).sum(-1),
                             (w * self.normal).sum(-1)], -1)
 
+    def to_world(self, w: torch.Tensor) -> torch.Tensor:
+        """Shading-frame coordinates [P,3] -> world directions (the inverse of :meth:`to_local`)."""
+        return w[:, 0:1] * self.tangent + w[:, 1:2] * self.bitangent + w[:, 2:3] * self.normal
+
 
 def ray_cone_lod(hits: Hits, spread: float, texels: tuple[int, int]) -> torch.Tensor:
     """Level of detail [P] = log2(footprint in finest-level texels), >= 0 (module docstring)."""

@@ -106,7 +106,7 @@ def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int,
 
 
 def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 16,
-                 texels: tuple[int, int] = (1, 1), seed: int = 0) -> np.ndarray:
+                 texels: tuple[int, int] = (1, 1), seed: int = 0, sampler=None) -> np.ndarray:
     """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on ``geometry``.
 
     ``camera`` is a :class:`.geometry.Camera`, ``lights`` a sequence of
@@ -119,6 +119,15 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
     Light samples do not depend on the material, so two materials rendered
     with the same ``seed`` see the same rays, levels and light directions
     (common random numbers): their difference is the BRDF's, not the noise's.
+
+    ``sampler`` (a :class:`BsdfSampler`, e.g. :func:`reference_sampler`) adds one
+    direction sampled from it per environment map and pass, combined with the light
+    sample by multiple importance sampling (balance heuristic over the two densities).
+    The estimate stays unbiased for ``material`` whatever the sampler is, because the
+    environment's density covers every lit direction; a sharp lobe that light
+    sampling alone finds only by chance (a clear coat reflecting the sky) then
+    converges. The sampler's directions do not depend on ``material`` either, so
+    common random numbers hold with it too.
     No shadows; the background (misses) is black. ``wi`` points to the camera.
     """
     g = torch.Generator().manual_seed(seed)
@@ -131,6 +140,8 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
         lod = ray_cone_lod(hits, rays.spread, texels)
         u_level = torch.rand(npix, generator=g)
         light_u = [torch.rand(npix, 3, generator=g) if isinstance(li, EnvironmentMap) else None for li in lights]
+        bsdf_u = [torch.rand(npix, 2, generator=g) if isinstance(li, EnvironmentMap) and sampler is not None
+                  else None for li in lights]
         idx = hits.mask.nonzero()[:, 0]
         if len(idx) == 0:
             continue
@@ -138,13 +149,19 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
         wi = frame.to_local(-rays.dirs[idx])
         args = (frame.uv, lod[idx], u_level[idx])
         acc = torch.zeros(len(idx), 3)
-        for li, u in zip(lights, light_u):
+        for li, u, ub in zip(lights, light_u, bsdf_u):
             if isinstance(li, DirectionalLight):
                 wo = frame.to_local(li.vector().expand(len(idx), 3))
                 weight = li.rgb().expand(len(idx), 3)
             elif isinstance(li, EnvironmentMap):
-                d, weight, _ = li.sample(u[idx])
+                d, weight, pdf_light = li.sample(u[idx])
                 wo = frame.to_local(d)
+                if sampler is not None:
+                    # light sample's MIS weight; then the sampler's own direction
+                    with torch.no_grad():
+                        pdf_bsdf = sampler.pdf(wi, wo, *args)
+                    weight = weight * _balance(pdf_light, pdf_bsdf)[:, None]
+                    acc += _bsdf_sample(material, sampler, li, frame, wi, ub[idx], args)
             else:
                 raise TypeError(f"unsupported light {type(li).__name__}")
             with torch.no_grad():
@@ -153,6 +170,43 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
             acc += torch.where(ok, f * weight, torch.zeros_like(f))
         img[idx] += acc
     return (img / spp).view(res, res, 3).numpy().astype(np.float32)
+
+
+class BsdfSampler:
+    """What :func:`render_scene` needs of a direction sampler (local shading frame, solid angle).
+
+    ``sample(wi, u, uv, lod, u_level) -> (wo [N,3], pdf [N])`` from ``u`` [N,2] uniform, and
+    ``pdf(wi, wo, uv, lod, u_level) -> [N]``, the density of ``sample`` (0 where it never goes).
+    """
+
+    def __init__(self, sample, pdf):
+        self.sample, self.pdf = sample, pdf
+
+
+def reference_sampler(reference) -> BsdfSampler:
+    """The reference material's own importance sampler (its lobe mixture) as a :class:`BsdfSampler`."""
+    def sample(wi, u, uv, lod, u_level):
+        wo, _, pdf = reference.sample(wi, u, uv)
+        return wo, pdf
+
+    return BsdfSampler(sample, lambda wi, wo, uv, lod, u_level: reference.pdf(wi, wo, uv))
+
+
+def _balance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Balance-heuristic weight p / (p + q) of the strategy with density ``p``; 0 where both are 0."""
+    return torch.where(p > 0, p / (p + q).clamp_min(1e-30), torch.zeros_like(p))
+
+
+def _bsdf_sample(material, sampler, env, frame, wi, u, args) -> torch.Tensor:
+    """One sampler direction's MIS-weighted contribution f*cos * L * w / pdf [N,3] under ``env``."""
+    with torch.no_grad():
+        wo, pdf = sampler.sample(wi, u, *args)
+        d = frame.to_world(wo)
+        w = _balance(pdf, env.pdf(d))
+        f = material(wi, wo, *args)
+    ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0) & (pdf[:, None] > 0)
+    contrib = f * env.radiance(d) * (w / pdf.clamp_min(1e-30))[:, None]
+    return torch.where(ok & torch.isfinite(contrib), contrib, torch.zeros_like(contrib))
 
 
 def reference_fn(reference):
@@ -174,7 +228,7 @@ def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
 
 
 def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
-            geometry=None, lights=None, distance: float = 4.0) -> list[dict]:
+            geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> list[dict]:
     """Per view: reference and neural renders and their errors.
 
     ``spp`` sub-pixel samples make both renders converge to the pixel-filtered
@@ -188,15 +242,19 @@ def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 9
     default each view's directional light) the views are rendered by
     :func:`render_scene` with a perspective :class:`.geometry.Camera` at the
     view's azimuth/elevation and ``distance`` bounding radii (default geometry:
-    the sphere). Both renders of a view share its seed.
+    the sphere). Both renders of a view share its seed and, under environment maps,
+    the reference's BSDF samples (``mis``, see :func:`compare_many`).
     """
-    return compare_many(reference, {"neural": model}, texels, views, res, spp, geometry, lights, distance)["neural"]
+    return compare_many(reference, {"neural": model}, texels, views, res, spp, geometry, lights, distance,
+                        mis)["neural"]
 
 
 def compare_many(reference, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
-                 geometry=None, lights=None, distance: float = 4.0) -> dict:
+                 geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> dict:
     """:func:`compare` for several models (``{label: model}``) against one reference render per
-    view: ``{label: [per-view dict with "reference", "neural" (that model's render) and errors]}``."""
+    view: ``{label: [per-view dict with "reference", "neural" (that model's render) and errors]}``.
+    Under environment maps every render, the reference's included, also samples the reference's
+    BSDF (``mis``; :func:`render_scene`'s ``sampler``), so the models see the same directions."""
     out = {label: [] for label in models}
     for i, view in enumerate(views):
         if geometry is None and lights is None:
@@ -206,8 +264,10 @@ def compare_many(reference, models: dict, texels: tuple[int, int], views=VIEWS, 
             scene = (geometry if geometry is not None else Sphere(), Camera(view.azimuth, view.elevation, distance),
                      lights if lights is not None else [DirectionalLight(view.light, view.intensity)])
 
-            def draw(fn, scene=scene, i=i):
-                return render_scene(fn, *scene, res, spp, texels, seed=i)
+            sampler = reference_sampler(reference) if mis else None
+
+            def draw(fn, scene=scene, i=i, sampler=sampler):
+                return render_scene(fn, *scene, res, spp, texels, seed=i, sampler=sampler)
         ref = draw(reference_fn(reference))
         for label, model in models.items():
             test = draw(neural_fn(model))
