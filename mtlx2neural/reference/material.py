@@ -84,6 +84,16 @@ class ReferenceMaterial:
 
         return build(self.compiled.program.root)
 
+    def parameters_at(self, uv: torch.Tensor) -> dict:
+        """The spatially varying parameters at ``uv`` [N,2], ``{name: [N, width]}``: the material graph
+        evaluated once, to pass as ``params`` to several ``eval``/``pdf``/``sample`` calls at the same
+        points (``{}`` for a uniform material)."""
+        if not self.compiled.spatial_nodes:
+            return {}
+        ev = self.compiled.evaluator
+        env = ev.run(self.compiled.spatial_nodes, uv.to(self.device, self.dtype))
+        return {k: ev.value(inp, env) for k, inp, _ in self.compiled.varying_parameters()}
+
     def _covers(self, params: dict) -> bool:
         """Whether ``params`` overrides every spatially varying parameter (no graph evaluation needed)."""
         return bool(params) and all(k in params for k, _, _ in self.compiled.varying_parameters())

@@ -26,10 +26,22 @@ class TrainConfig:
     lr_end: float = 1e-4
     mollify_degrees: float = 10.0
     """Initial half-angle of the mollification cone; decays linearly to 0."""
+    mollify_min_degrees: float = 0.0
+    """Floor of the cone's half-angle once it has narrowed: the decoder then learns the BRDF
+    mollified at that scale, which keeps a near-specular lobe's energy (0: the paper's exact BRDF)."""
+    mollify_mis: bool = False
+    """Estimate the mollified targets by MIS (uniform in the cone plus the reference's sampler,
+    ``train.mollify.cone_mean``) instead of plain jittered directions: the mean over the cone, not
+    a sample of it, so a lobe much narrower than the cone still carries its energy."""
+    lobe_fraction: float = 0.0
+    """Share of each BRDF batch whose ``wo`` comes from the reference's sampler (spread over the
+    current cone) instead of uniform half/difference angles, so narrow lobes are trained on."""
     mollify_fraction: float = 0.1
     """Share of iterations over which mollification decays (paper: 20k of 300k)."""
     mollify_samples: int = 4
-    """Cone samples per target while mollifying (paper: 256)."""
+    """Cone samples per target while mollifying (paper: 256); with ``mollify_mis``, half of them
+    uniform in the cone and half from the reference's sampler (uniform materials; a textured one
+    takes one pair per footprint point)."""
     footprint_samples: int = 16
     """Cap on reference samples per footprint-filtered target."""
     level_rate: float = 1.0
@@ -50,9 +62,14 @@ PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
     # learning rate than the paper's 1e-3 (sample CarPaint, 3x64: HDR FLIP 0.45 at 1e-3,
     # 0.07 at 5e-3, 0.09 at 1e-2; BENCHMARKS.md).
-    "fast": TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3),
+    # fast and balanced keep a 2-degree mollification floor, estimated by MIS, with a quarter of the
+    # directions drawn near the reference's lobes: without it a sharp clear coat lost most of its
+    # grazing energy (CarPaint: albedo 0.27 instead of 0.89 at 5 degrees elevation; BENCHMARKS.md).
+    "fast": TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
+                        mollify_min_degrees=2.0, mollify_mis=True, lobe_fraction=0.25),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
-                            max_resolution=1024, compile=True),
+                            max_resolution=1024, compile=True, mollify_min_degrees=2.0, mollify_mis=True,
+                            lobe_fraction=0.25),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
                          mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
                          compile=True),

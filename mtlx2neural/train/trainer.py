@@ -5,9 +5,9 @@ Three phases over ``cfg.iterations`` steps:
 2. bake: the encoder runs over every texel of every level of the parameter pyramid;
 3. fine-tune: the baked latents are optimised directly (with the decoder and sampler).
 
-Each step draws (uv, level, wi, wo), a footprint-filtered (and, early on,
-mollified) reference target, and optimises the log-L1 BRDF loss plus the
-sampler's KL loss against the current neural BRDF (latents detached).
+Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes), a
+footprint-filtered and mollified reference target (the cone narrows, then stays at
+a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss against the current neural BRDF (latents detached).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
 """
@@ -29,6 +29,7 @@ from ..textures.parameter_stack import ParameterStack
 from .config import TrainConfig
 from .directions import cone_jitter, half_difference_pairs
 from .losses import log_l1
+from .mollify import cone_mean, lobe_directions
 
 UNIFORM_PDF = 1.0 / (2.0 * math.pi)
 GRAD_CLIP = 10.0  # global gradient-norm cap
@@ -124,15 +125,26 @@ class Trainer:
             w.writerows(self.history)
 
     # -- one step ----------------------------------------------------------------------
-    def _targets(self, wi, wo, uv, level):
+    def mollify_angle(self) -> float:
+        """This step's mollification cone half-angle (radians): a linear decay from ``mollify_degrees``
+        over ``mollify_fraction`` of the run, never below ``mollify_min_degrees``."""
         cfg = self.cfg
         frac = self.step / max(1.0, cfg.iterations * cfg.mollify_fraction)
-        angle = math.radians(cfg.mollify_degrees) * max(0.0, 1.0 - frac)
+        return math.radians(max(cfg.mollify_degrees * max(0.0, 1.0 - frac), cfg.mollify_min_degrees))
+
+    def _targets(self, wi, wo, uv, level):
+        cfg = self.cfg
+        angle = self.mollify_angle()
         if self.textured:
+            if cfg.mollify_mis:
+                return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
+                                         cone=angle)
             wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
             return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen)
         if angle <= 0:
             return self._reference_eval(wi, wo)
+        if cfg.mollify_mis:
+            return cone_mean(self.ref, wi, wo, angle, max(1, cfg.mollify_samples // 2), self.gen)
         k = cfg.mollify_samples
         wo_k = cone_jitter(wo, angle, k, self.gen)
         return self._reference_eval(wi.repeat_interleave(k, 0), wo_k).view(-1, k, 3).mean(1)
@@ -175,6 +187,12 @@ class Trainer:
         level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
             else torch.zeros(b, dtype=torch.long, device=dev)
         wi, wo = half_difference_pairs(b, g, dev)
+        n_lobe = int(round(cfg.lobe_fraction * b))
+        if n_lobe > 0:  # the first rows' wo near the reference's lobes (uv, levels and wi are random already)
+            with torch.no_grad():
+                ws, ok = lobe_directions(self.ref, wi[:n_lobe], self.mollify_angle(), g,
+                                         uv[:n_lobe] if self.textured else None)
+            wo = torch.cat([torch.where(ok[:, None], ws, wo[:n_lobe]), wo[n_lobe:]])
         with torch.no_grad():
             target = self._targets(wi, wo, uv, level)
         latent = self._latent(uv, level)
