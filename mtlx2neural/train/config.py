@@ -62,14 +62,15 @@ PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
     # learning rate than the paper's 1e-3 (sample CarPaint, 3x64: HDR FLIP 0.45 at 1e-3,
     # 0.07 at 5e-3, 0.09 at 1e-2; BENCHMARKS.md).
-    # fast and balanced keep a 2-degree mollification floor, estimated by MIS, with a quarter of the
+    # fast and balanced keep a 1-degree mollification floor, estimated by MIS, with a tenth of the
     # directions drawn near the reference's lobes: without it a sharp clear coat lost most of its
-    # grazing energy (CarPaint: albedo 0.27 instead of 0.89 at 5 degrees elevation; BENCHMARKS.md).
+    # grazing energy (CarPaint: albedo 0.19 instead of 0.81 at 5 degrees elevation). More lobe
+    # directions overshoot at grazing angles (BENCHMARKS.md has the sweep).
     "fast": TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
-                        mollify_min_degrees=2.0, mollify_mis=True, lobe_fraction=0.25),
+                        mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
-                            max_resolution=1024, compile=True, mollify_min_degrees=2.0, mollify_mis=True,
-                            lobe_fraction=0.25),
+                            max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
+                            lobe_fraction=0.1),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
                          mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
                          compile=True),
