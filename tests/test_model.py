@@ -9,8 +9,8 @@ import torch
 import mtlx2neural as m2n
 from mtlx2neural.model.decoder import BrdfDecoder
 from mtlx2neural.model.latent import LatentPyramid, level_shapes
-from mtlx2neural.textures.grid_lookup import bilinear_periodic
 from mtlx2neural.model.networks import SamplerNet
+from mtlx2neural.textures.grid_lookup import bilinear_periodic
 from mtlx2neural.train.losses import log_l1
 
 from conftest import random_dirs

@@ -155,7 +155,8 @@ def test_mis_with_the_reference_sampler_tames_a_clear_coat_under_the_sky():
     cam = Camera(0, 60, distance=1.5)
     smp = reference_sampler(ref)
 
-    def draw(seed, sampler=None, fn=reference_fn(ref)):
+    def draw(seed, sampler=None, fn=None):
+        fn = reference_fn(ref) if fn is None else fn
         return render_scene(fn, Plane(), cam, [sky], res=24, spp=4, seed=seed, sampler=sampler)
 
     def noise(a, b):

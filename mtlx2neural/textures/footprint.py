@@ -44,16 +44,15 @@ def samples_for_level(level: int, max_samples: int, texel_ratio: tuple[float, fl
 
 def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
                       level: torch.Tensor, max_samples: int = 64,
-                      generator: torch.Generator | None = None, cone: float = 0.0) -> torch.Tensor:
+                      generator: torch.Generator | None = None, point_eval=None) -> torch.Tensor:
     """Footprint-averaged reference values [N,3] (f * cos, linear RGB) for each query.
 
     ``reference`` is a :class:`~mtlx2neural.reference.ReferenceMaterial` of the same
-    compiled material as ``stack``; ``level`` [N] holds integer MIP levels. With ``cone``
-    (radians) > 0 each point's value is also averaged over that cone of outgoing directions
-    (:func:`mtlx2neural.train.mollify.cone_mean`, one stratified pair per point).
+    compiled material as ``stack``; ``level`` [N] holds integer MIP levels. ``point_eval(wi, wo,
+    uv=... or params=...)`` replaces ``reference.eval`` at each point (the trainer passes its
+    cone-mollified value, :func:`mtlx2neural.train.mollify.cone_mean`).
     """
-    from ..train.mollify import cone_mean
-
+    point_eval = reference.eval if point_eval is None else point_eval
     n = wi.shape[0]
     h, w = stack.resolution
     native = stack.texel_ratio == (1.0, 1.0)
@@ -68,10 +67,7 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
         wi_k, wo_k = wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0)
         where = {"params": stack.sample(pts, 0)} if native else {"uv": pts}
-        if cone > 0:
-            vals = cone_mean(reference, wi_k, wo_k, cone, 1, generator, **where)
-        else:
-            vals = reference.eval(wi_k, wo_k, **where)
+        vals = point_eval(wi_k, wo_k, **where)
         out[idx] = vals.view(m, s, 3).mean(1)
     return out
 

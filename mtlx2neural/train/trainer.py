@@ -7,7 +7,8 @@ Three phases over ``cfg.iterations`` steps:
 
 Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes), a
 footprint-filtered and mollified reference target (the cone narrows, then stays at
-a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss against the current neural BRDF (latents detached).
+a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's
+KL loss against the current neural BRDF (latents detached).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
 """
@@ -136,9 +137,12 @@ class Trainer:
         cfg = self.cfg
         angle = self.mollify_angle()
         if self.textured:
-            if cfg.mollify_mis:
+            if cfg.mollify_mis and angle > 0:  # the cone mean at every footprint point, one pair each
+                def point_eval(wi_p, wo_p, **where):
+                    return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, **where)
+
                 return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
-                                         cone=angle)
+                                         point_eval)
             wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
             return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen)
         if angle <= 0:
@@ -187,7 +191,7 @@ class Trainer:
         level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
             else torch.zeros(b, dtype=torch.long, device=dev)
         wi, wo = half_difference_pairs(b, g, dev)
-        n_lobe = int(round(cfg.lobe_fraction * b))
+        n_lobe = round(cfg.lobe_fraction * b)
         if n_lobe > 0:  # the first rows' wo near the reference's lobes (uv, levels and wi are random already)
             with torch.no_grad():
                 ws, ok = lobe_directions(self.ref, wi[:n_lobe], self.mollify_angle(), g,
