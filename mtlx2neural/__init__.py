@@ -10,7 +10,7 @@ Public API (see DESIGN.md):
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def load_reference(path, material: str | None = None, device: str = "cpu", allow_missing_textures: bool = False):

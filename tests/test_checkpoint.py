@@ -88,9 +88,29 @@ def test_unbaked_checkpoint_warns(tmp_path):
 def test_frameless_ablation_round_trips(tmp_path):
     torch.manual_seed(0)
     m = NeuralMaterial((4, 4), 3, 8, frames=0, decoder="2x16")
-    torch.save({"model": m.state_dict(), "config": {}}, tmp_path / "checkpoint.pt")
+    torch.save({"model": m.state_dict(), "config": {"analytic_cosine": True}}, tmp_path / "checkpoint.pt")
     back = load_checkpoint(tmp_path)
     assert back.decoder.frames == 0 and back.decoder.frame_layer is None
     wi = torch.nn.functional.normalize(torch.rand(64, 3) + 0.1, dim=-1)
     uv = torch.rand(64, 2)
     assert torch.equal(back.eval(wi, wi, uv), m.eval(wi, wi, uv))
+
+
+def test_checkpoint_from_before_the_analytic_cosine_keeps_its_learned_cosine(tmp_path):
+    """A config without ``analytic_cosine`` is a model whose network learned f * cos itself: loading it
+    must not multiply by the cosine a second time; a current config's model does multiply."""
+    torch.manual_seed(0)
+    old = NeuralMaterial((2, 2), 3, analytic_cosine=False).train(False)
+    cfg = {k: v for k, v in dataclasses.asdict(TrainConfig()).items() if k != "analytic_cosine"}
+    torch.save({"model": old.state_dict(), "config": cfg}, tmp_path / "checkpoint.pt")
+    back = load_checkpoint(tmp_path)
+    assert back.decoder.analytic_cosine is False
+    wi = torch.nn.functional.normalize(torch.rand(32, 3) + 0.1, dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(32, 3) + 0.1, dim=-1)
+    uv = torch.rand(32, 2)
+    with torch.no_grad():
+        assert torch.equal(back.eval(wi, wo, uv), old.eval(wi, wo, uv))
+        new = NeuralMaterial((2, 2), 3)  # the default: the cosine is analytic
+        new.load_state_dict(old.state_dict())
+        # Same weights, so the two differ by exactly the factor wo.z (float32 rounding: 1e-6 relative).
+        torch.testing.assert_close(new.eval(wi, wo, uv), old.eval(wi, wo, uv) * wo[:, 2:3], rtol=1e-6, atol=0)

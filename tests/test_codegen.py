@@ -2,8 +2,8 @@
 
 Models: seeded NeuralMaterials whose renderer-side weights are redrawn with a larger spread
 (so outputs span ~1e-3 .. 1e3 and the proxy lobes vary); model A is the default architecture
-(8 latent channels, 2 learned frames, decoder 2x16), model B has no frames, 4 channels and an
-albedo head. Inputs: 65536 random (latent ~ N(0,1), wi, wo on the sphere with 90% moved to
+(8 latent channels, 2 learned frames, decoder 2x16, the cosine analytic), model B has no frames,
+4 channels, an albedo head and a learned cosine (``analytic_cosine=False``, mtlx2neural 0.1 models). Inputs: 65536 random (latent ~ N(0,1), wi, wo on the sphere with 90% moved to
 the upper hemisphere, u uniform).
 
 Tolerances (relative errors use max(|reference|, floor) in the denominator):
@@ -59,9 +59,10 @@ pytestmark = pytest.mark.skipif(not OK, reason=f"slangpy CPU device unavailable:
 N = 65536
 
 
-def make_model(seed=7, decoder="2x16", frames=2, latent_dim=8, albedo=False):
+def make_model(seed=7, decoder="2x16", frames=2, latent_dim=8, albedo=False, analytic_cosine=True):
     torch.manual_seed(seed)
-    m = NeuralMaterial((1, 1), in_dim=0, latent_dim=latent_dim, frames=frames, decoder=decoder, albedo_head=albedo)
+    m = NeuralMaterial((1, 1), in_dim=0, latent_dim=latent_dim, frames=frames, decoder=decoder, albedo_head=albedo,
+                       analytic_cosine=analytic_cosine)
     with torch.no_grad():
         for name, mod in m.named_modules():
             if isinstance(mod, torch.nn.Linear) and not name.startswith("encoder"):
@@ -311,12 +312,13 @@ def test_extremes_are_finite(model_a, variant, tmp_path_factory):
 # ------------------------------------------------------------------------------------------
 
 def test_frameless_albedo_head_model(tmp_path_factory):
-    m = make_model(seed=3, frames=0, latent_dim=4, albedo=True)
+    m = make_model(seed=3, frames=0, latent_dim=4, albedo=True, analytic_cosine=False)
     spec, src = as_spec(m), generate_slang(m, "Frameless")
+    assert not spec.analytic_cosine and "max(wo.z, 0.0)" not in src
     lat, wi, wo, u = make_inputs(8192, 4, seed=5)
     L, WI, WO, _ = np_inputs((lat, wi, wo, u))
-    e64, _, _ = torch_ops(make_model(seed=3, frames=0, latent_dim=4, albedo=True).double(), lat.double(),
-                          wi.double(), wo.double(), u.double())
+    e64, _, _ = torch_ops(make_model(seed=3, frames=0, latent_dim=4, albedo=True, analytic_cosine=False).double(),
+                          lat.double(), wi.double(), wo.double(), u.double())
     cm = compiled("Frameless", src, spec, "FP32", tmp_path_factory)
     assert rel(cm.eval(L, WI, WO), e64, 1e-3).max() <= 1e-5
     with torch.no_grad():

@@ -99,7 +99,12 @@ def assert_round_trip(loaded, original, textured=False, lod=None, u_level=None, 
         wo_f, _, _ = original.sample(wi, u, **kw)
         # A random number within the rounding change of the lobe weight picks the other lobe.
         assert ((wo_l - wo_f).abs().amax(-1) < 1e-2).float().mean() >= 0.99
-        torch.testing.assert_close(original.pdf(wi, wo_l, **kw), pdf_l, rtol=1e-2, atol=1e-5)
+        # The pdf of a narrow lobe moves by more than its FP16-rounded parameters at a few directions
+        # (measured: 1 of 2048 at 1.8% on the sample CarPaint): 99.5% within 1%, all within 5%.
+        p_f, p_l = original.pdf(wi, wo_l, **kw), pdf_l
+        close = (p_f - p_l).abs() <= 1e-5 + 1e-2 * p_l.abs()
+        assert close.float().mean() >= 0.995, f"{(~close).sum()} of {close.numel()} pdfs beyond 1%"
+        torch.testing.assert_close(p_f, p_l, rtol=5e-2, atol=1e-5)
 
 
 def load_checkpoint_like(model):
@@ -114,9 +119,10 @@ def fake_summary(name: str, **extra) -> dict:
             "device": "cpu", "device_name": "cpu (test)", "train_seconds": 1.5, **extra}
 
 
-def random_model(resolution=(3, 5), channels=6, frames=2, seed=0) -> NeuralMaterial:
+def random_model(resolution=(3, 5), channels=6, frames=2, seed=0, analytic_cosine=True) -> NeuralMaterial:
     torch.manual_seed(seed)
-    m = NeuralMaterial(resolution, in_dim=2, latent_dim=channels, frames=frames, decoder="2x16")
+    m = NeuralMaterial(resolution, in_dim=2, latent_dim=channels, frames=frames, decoder="2x16",
+                       analytic_cosine=analytic_cosine)
     with torch.no_grad():
         for lv in m.latents.levels:
             lv.copy_(torch.randn(lv.shape))
@@ -191,7 +197,7 @@ def test_weights_binary_layout_and_range_check(tmp_path):
     arch = manifest["architecture"]
     assert arch["latent_channels"] == 6 and arch["frames"] == 2 and arch["decoder_hidden"] == [16, 16]
     assert arch["sampler_hidden"] == [32, 32, 32] and arch["activation"] == "relu"
-    assert arch["output_activation"] == "exp_minus_3" and arch["output_offset"] == 3.0
+    assert arch["output_activation"] == "exp_minus_3_cos" and arch["output_offset"] == 3.0  # analytic cosine
     assert arch["latent_resolution"] == [5, 3] and arch["levels"] == 4
     _, tensors = read_weights(tmp_path / "weights.json")
     assert tensors["decoder.net.0.weight"][0, 0] == 65504
@@ -227,6 +233,26 @@ def test_textured_round_trip_through_usd(tmp_path, frames):
     assert_round_trip(loaded, model, textured=True, lod=lod, u_level=u_level, n=n)
     assert loaded.albedo(directions(4, 1)[0], samples=16).shape == (4, 3)
     assert loaded.describe()["material"] == "/Materials/Red"
+
+
+def test_learned_cosine_model_round_trips_with_its_token(tmp_path):
+    """A model whose network learned f * cos (``analytic_cosine=False``, mtlx2neural 0.1) exports as
+    ``exp_minus_3`` and loads back without a second cosine; an unknown token is an input error."""
+    model = random_model((3, 5), channels=6, analytic_cosine=False)
+    asset = tmp_path / "thing.mtlx"
+    asset.write_text(RED_MTLX)
+    usda, _ = export_asset(asset, [(model, fake_summary("Red"), tmp_path / "thing_neural" / "Red")],
+                           tmp_path / "thing_neural", "fast")
+    loaded = m2n.load_neural(usda, "Red")
+    assert loaded.decoder.analytic_cosine is False
+    assert_round_trip(loaded, model, textured=True, n=512)
+    manifest = next((tmp_path / "thing_neural").rglob("weights.json"))
+    meta = json.loads(manifest.read_text())
+    assert meta["architecture"]["output_activation"] == "exp_minus_3"
+    meta["architecture"]["output_activation"] = "softplus"
+    manifest.write_text(json.dumps(meta))
+    with pytest.raises(m2n_input_error(), match="unknown decoder output_activation 'softplus'"):
+        m2n.load_neural(usda, "Red")
 
 
 # ----------------------------------------------------------------------------- a converted USD sample

@@ -9,6 +9,7 @@ import torch
 import mtlx2neural as m2n
 from mtlx2neural.model.decoder import BrdfDecoder
 from mtlx2neural.model.latent import LatentPyramid, level_shapes
+from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.model.networks import SamplerNet
 from mtlx2neural.textures.grid_lookup import bilinear_periodic
 from mtlx2neural.train.losses import log_l1
@@ -118,3 +119,23 @@ def test_tiny_model_learns_a_uniform_material():
     # A 2x16 decoder fits this two-lobe material well within 300 steps; halving the
     # held-out loss is a conservative bar (measured: ~0.2x).
     assert after < 0.5 * before, (before, after)
+
+
+def test_analytic_cosine_is_exact_at_the_horizon():
+    """With the analytic cosine the decoder is the network's f times max(0, wo.z): it vanishes at a
+    grazing light exactly as the reference's foreshortening does, and scales linearly near it (the
+    same network output at nearby directions: 1% tolerance for the network's own change over 0.1°)."""
+    from mtlx2neural.train.directions import grazing_directions
+
+    torch.manual_seed(0)
+    m = NeuralMaterial((1, 1), 0).train(False)
+    wi = torch.nn.functional.normalize(torch.tensor([[0.3, 0.1, 0.9]]), dim=-1).expand(3, 3)
+    z = torch.tensor([0.0, 2e-3, 4e-3])
+    wo = torch.stack([(1 - z * z).sqrt(), torch.zeros(3), z], -1)
+    with torch.no_grad():
+        f = m.decoder(m.latents.levels[0].reshape(1, -1).expand(3, -1), wi, wo)
+    assert torch.all(f[0] == 0)
+    torch.testing.assert_close(f[2] / f[1], torch.full((3,), 2.0), rtol=1e-2, atol=0)
+    g = grazing_directions(4096, 0.25, torch.Generator().manual_seed(1))
+    assert torch.allclose(g.norm(dim=-1), torch.ones(4096), atol=1e-6)
+    assert g[:, 2].min() > 0 and g[:, 2].max() <= 0.25 and abs(float(g[:, 2].mean()) - 0.125) < 0.01

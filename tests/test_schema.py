@@ -31,7 +31,7 @@ EXPECTED_ATTRS = {
     "neural:samplerLayers": ("int[]", None),
     "neural:encoderLayers": ("int[]", None),
     "neural:activation": ("token", "relu"),
-    "neural:outputActivation": ("token", "exp_minus_3"),
+    "neural:outputActivation": ("token", "exp_minus_3_cos"),
     "neural:latentTextures": ("asset[]", None),
     "neural:latentResolution": ("int2", None),
     "neural:weights": ("asset", None),

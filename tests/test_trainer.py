@@ -158,3 +158,30 @@ def test_compiled_losses_match_eager():
     for a, b in zip(eager, fast):
         torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-6)
     torch.testing.assert_close(grad_f, grad_e, rtol=1e-4, atol=1e-6)
+
+
+def test_grazing_rows_are_extra_and_half_of_them_near_the_lobes(carpaint, tmp_path):
+    """``grazing_fraction`` adds rows (the batch's half/difference rows stay), their viewer within
+    ~14 degrees of the horizon; with lobe directions on, half of those rows get ``wo`` from the
+    reference's sampler, which for the CarPaint's coat puts most of them near the mirror direction
+    (uniform half/difference ``wo`` land within 20 degrees of it in a few percent of rows)."""
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=1, batch=512, grazing_fraction=0.25, lobe_fraction=0.1, seed=3)
+    tr = Trainer(ref, stack, cfg, tmp_path)
+    seen = {}
+    real = tr._losses
+
+    def spy(decoder, sampler, latent, wi, wo, target, wo_u):
+        seen.update(wi=wi, wo=wo, target=target)
+        return real(decoder, sampler, latent, wi, wo, target, wo_u)
+
+    tr._losses = spy
+    tr.train_step()
+    wi, wo = seen["wi"], seen["wo"]
+    assert wi.shape == (512 + 128, 3) and seen["target"].shape == (640, 3)
+    graze_wi, graze_wo = wi[512:], wo[512:]
+    assert bool((graze_wi[:, 2] > 0).all()) and bool((graze_wi[:, 2] <= 0.25 + 1e-6).all())
+    assert float((wi[:512, 2] <= 0.25).float().mean()) < 0.3  # the half/difference rows, mostly higher
+    mirror = graze_wi * torch.tensor([-1.0, -1.0, 1.0])
+    near = (graze_wo * mirror).sum(-1) > torch.cos(torch.tensor(0.35))
+    assert float(near[:64].float().mean()) > 0.5 and float(near[64:].float().mean()) < 0.2

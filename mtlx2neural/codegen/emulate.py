@@ -99,8 +99,10 @@ def output_activation(y: np.ndarray) -> np.ndarray:
 
 
 def decode16(spec16: NetworkSpec, lat, wi, wo, coopvec: bool = False) -> np.ndarray:
-    """f * cos [N, 3] of the FP16 path, without the horizon test."""
-    return output_activation(mlp16(spec16.decoder, decoder_inputs(spec16, lat, wi, wo), coopvec))
+    """f * cos [N, 3] of the FP16 path, without the horizon test (the cosine max(0, wo.z) multiplied
+    in float32 when the spec's ``analytic_cosine``)."""
+    y = output_activation(mlp16(spec16.decoder, decoder_inputs(spec16, lat, wi, wo), coopvec))
+    return (y * np.maximum(wo[:, 2:3], 0).astype(np.float32)).astype(np.float32) if spec16.analytic_cosine else y
 
 
 def albedo16(spec16: NetworkSpec, lat, wi, coopvec: bool = False) -> np.ndarray:

@@ -220,13 +220,16 @@ def _mlp_coop(layers, entries, x: str) -> list[str]:
 
 
 _RGB = "return float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]));"
+_RGB_COS = ("return float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]))"
+            " * max(wo.z, 0.0);")  # analytic_cosine: the network predicts f, the cosine is exact
 
 
 def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layout: dict | None) -> str:
     p, c = ctx.p, ctx.c
     lat = f"NMLatent<{c}> lat"
     kinds = {  # network -> (signature args, inputs call (fp32 frame weights placeholder), output)
-        "decoder": ("decode", "float3", "float3 wi, float3 wo", f"{p}_decoderInputs({{fw}}(), lat, wi, wo, x)", _RGB,
+        "decoder": ("decode", "float3", "float3 wi, float3 wo", f"{p}_decoderInputs({{fw}}(), lat, wi, wo, x)",
+                    _RGB_COS if spec32.analytic_cosine else _RGB,
                     spec32.decoder_inputs),
         "albedo": ("albedo", "float3", "float3 wi", f"{p}_albedoInputs({{fw}}(), lat, wi, x)", _RGB,
                    3 * max(ctx.frames, 1) + c),

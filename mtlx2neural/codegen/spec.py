@@ -41,6 +41,7 @@ class NetworkSpec:
     sampler: list[Layer]
     albedo: list[Layer] | None = None
     notes: list[str] = field(default_factory=list)  # FP16 range-check notes
+    analytic_cosine: bool = True      # the decoder's RGB times max(0, wo.z) (model.decoder)
 
     @property
     def decoder_hidden(self) -> list[int]:
@@ -88,8 +89,9 @@ def _layers(state: dict, prefix: str) -> list[Layer]:
             for i in idx]
 
 
-def spec_from_state(state: dict) -> NetworkSpec:
-    """A spec from tensors named as in the model's state dict (torch tensors or arrays)."""
+def spec_from_state(state: dict, analytic_cosine: bool = True) -> NetworkSpec:
+    """A spec from tensors named as in the model's state dict (torch tensors or arrays);
+    ``analytic_cosine`` as the model's decoder (the state dict does not record it)."""
     state = {k: (v.detach().cpu().float().numpy() if hasattr(v, "detach") else np.asarray(v, np.float32))
              for k, v in state.items()}
     decoder, sampler = _layers(state, "decoder.net."), _layers(state, "sampler.net.")
@@ -106,22 +108,23 @@ def spec_from_state(state: dict) -> NetworkSpec:
         raise InputError(f"the decoder must output 3 values and the sampler 9, got {decoder[-1].shape[0]} "
                          f"and {sampler[-1].shape[0]}")
     albedo = _layers(state, "decoder.albedo.") or None
-    return NetworkSpec(c, frames, frame, decoder, sampler, albedo)
+    return NetworkSpec(c, frames, frame, decoder, sampler, albedo, analytic_cosine=bool(analytic_cosine))
 
 
 def spec_from_model(model) -> NetworkSpec:
     """The spec of a NeuralMaterial (float32 weights as trained)."""
-    return spec_from_state({k: v for k, v in model.state_dict().items() if k.startswith(("decoder.", "sampler."))})
+    return spec_from_state({k: v for k, v in model.state_dict().items() if k.startswith(("decoder.", "sampler."))},
+                           model.decoder.analytic_cosine)
 
 
 def spec_from_export(folder) -> NetworkSpec:
     """The spec of an export folder (``weights.json`` + ``weights.bin``: FP16 values)."""
-    from ..export.weights import read_weights
+    from ..export.weights import analytic_cosine_of, read_weights
 
     folder = Path(folder)
     manifest = folder / "weights.json" if folder.is_dir() else folder
-    _, tensors = read_weights(manifest)
-    return spec_from_state(tensors)
+    meta, tensors = read_weights(manifest)
+    return spec_from_state(tensors, analytic_cosine_of(meta["architecture"], manifest))
 
 
 def as_spec(model_or_export) -> NetworkSpec:

@@ -21,7 +21,7 @@ from ..model.neural_material import NeuralMaterial
 from .cache import FORMAT_VERSION
 from .latents import read_latent_textures
 from .usd_writer import API, NEURAL, VARIANT_SET, register_schema
-from .weights import read_weights
+from .weights import analytic_cosine_of, read_weights
 
 
 class ExportedNeuralMaterial(NeuralMaterial):
@@ -132,6 +132,7 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
     state["encoder.net.0.weight"] = torch.zeros(1, 1)  # not exported: build a placeholder encoder
     args = model_arguments(state, {"decoder": tuple(arch["decoder_hidden"])})
     args["in_dim"] = 0
+    args["analytic_cosine"] = analytic_cosine_of(arch, manifest_file)
     del state["encoder.net.0.weight"]
     try:
         model = ExportedNeuralMaterial(**args)

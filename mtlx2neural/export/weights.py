@@ -36,6 +36,22 @@ VERSION = 1
 ALIGN = 16
 LAYOUT = "row_major_fp16"
 PREFIXES = ("decoder.frame_layer.", "decoder.net.", "decoder.albedo.", "sampler.net.")
+# The decoder's output activation token (USD ``neural:outputActivation``) -> whether the cosine is analytic.
+OUTPUT_ACTIVATIONS = {"exp_minus_3_cos": True, "exp_minus_3": False}
+
+
+def output_activation_token(analytic_cosine: bool) -> str:
+    """``exp_minus_3_cos``: rgb = exp(min(x, 30) - 3) * max(0, wo.z); ``exp_minus_3``: without the cosine."""
+    return "exp_minus_3_cos" if analytic_cosine else "exp_minus_3"
+
+
+def analytic_cosine_of(arch: dict, where) -> bool:
+    """Whether the manifest architecture ``arch`` (read from ``where``) multiplies the decoder by the cosine."""
+    token = arch.get("output_activation")
+    if token not in OUTPUT_ACTIVATIONS:
+        raise InputError(f"{where}: unknown decoder output_activation {token!r} (this mtlx2neural reads "
+                         f"{', '.join(OUTPUT_ACTIVATIONS)}); re-export with this version")
+    return OUTPUT_ACTIVATIONS[token]
 
 
 def _hidden(seq: nn.Sequential | None) -> list[int]:
@@ -63,7 +79,7 @@ def architecture(model) -> dict:
         "encoder_hidden": _hidden(model.encoder.net),
         "albedo_head": dec.albedo is not None,
         "activation": "relu",
-        "output_activation": "exp_minus_3",
+        "output_activation": output_activation_token(dec.analytic_cosine),
         "output_offset": OUTPUT_OFFSET,
         "output_clamp": 30.0,
         "decoder_input": (f"[wi in frame 0..{dec.frames - 1} as (t, b, n), wo likewise, latent[{c}]] "
@@ -71,7 +87,8 @@ def architecture(model) -> dict:
                           f"[wi (3), wo (3), latent[{c}]] = {6 + c} values"),
         "frame_layer_output": "per frame: normal offset v0 (3), tangent offset v1 (3); "
                               "n = normalize(v0 + (0,0,1)), t = normalize(v1 + (1,0,0)), b = cross(n, t)",
-        "decoder_output": "rgb = exp(min(x, 30) - output_offset): f(wi, wo) * max(0, wo.z), linear RGB",
+        "decoder_output": ("rgb = exp(min(x, 30) - output_offset) * max(0, wo.z)" if dec.analytic_cosine
+                           else "rgb = exp(min(x, 30) - output_offset)") + ": f(wi, wo) * max(0, wo.z), linear RGB",
         "sampler_input": f"[wi (3), latent[{c}]] = {3 + c} values",
         "sampler_output": "alpha_x, alpha_y, rho, slope_spec (2), slope_diffuse (2), logit_spec, logit_diffuse",
         "proxy_type": "tilted_cosine_aniso_ggx",

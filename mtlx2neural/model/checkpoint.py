@@ -10,7 +10,9 @@ shapes where they are not in the config:
   material has ``in_dim = 0`` but a 1-wide layer, so a 1-wide encoder over a 1x1
   pyramid reads as uniform (the encoder is not used once the latents are baked);
 - ``frames``: the decoder's frame layer rows / 6; ``decoder``: its hidden widths;
-- ``albedo_head``: whether ``decoder.albedo.*`` weights are present.
+- ``albedo_head``: whether ``decoder.albedo.*`` weights are present;
+- ``analytic_cosine``: the config's, and False for a config without the key (checkpoints
+  made before the option, whose networks learned f * cos themselves).
 
 Config keys that NeuralMaterial's constructor also takes (and the shapes do not
 fix) are passed on; all other config keys (e.g. training-only settings) are ignored. The model is returned in eval mode on ``map_location``.
@@ -52,7 +54,8 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     frames = int(frame_w.shape[0]) // 6 if frame_w is not None else 0  # no frame layer: the frames=0 ablation
     hidden = tuple(_linear_widths(state, "decoder.net.")[:-1]) or config.get("decoder", "2x32")
     args = {"resolution": (h, w), "in_dim": in_dim, "latent_dim": latent_dim, "frames": frames,
-            "decoder": hidden, "albedo_head": any(k.startswith("decoder.albedo.") for k in state)}
+            "decoder": hidden, "albedo_head": any(k.startswith("decoder.albedo.") for k in state),
+            "analytic_cosine": bool(config.get("analytic_cosine", False))}
     # Forward compatibility: constructor options that only the config records (e.g. a decoder ablation).
     accepted = inspect.signature(NeuralMaterial).parameters
     args.update({k: v for k, v in config.items() if k in accepted and k not in args})

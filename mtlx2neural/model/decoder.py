@@ -10,8 +10,14 @@ an MLP with ReLU hidden layers whose 3 outputs pass through exp(x - 3).
 ``frames=0`` is the ablation without learned frames (the paper's Table 2):
 the MLP sees ``wi`` and ``wo`` in the local frame as they are.
 
-``forward`` returns f(wi, wo) * cos(wo) in linear RGB (the cosine is learned,
-as the reference's ``eval`` includes it), for directions in the local frame.
+``forward`` returns f(wi, wo) * cos(wo) in linear RGB, for directions in the
+local frame (z the geometric normal, as the reference's ``eval``). With
+``analytic_cosine`` (the default for new models) the network predicts f alone and
+the decoder multiplies by max(0, wo.z), so the foreshortening is exact: a learned
+cosine fell off too slowly at grazing light (3-4x too bright at 89 degrees, the
+terminator; BENCHMARKS.md). ``analytic_cosine=False`` is the original form, where
+the network learns f * cos itself; checkpoints and exports made before the option
+read as that.
 """
 
 from __future__ import annotations
@@ -25,9 +31,11 @@ OUTPUT_OFFSET = 3.0
 
 
 class BrdfDecoder(nn.Module):
-    def __init__(self, latent_dim: int = 8, frames: int = 2, hidden="2x32", albedo_head: bool = False):
+    def __init__(self, latent_dim: int = 8, frames: int = 2, hidden="2x32", albedo_head: bool = False,
+                 analytic_cosine: bool = True):
         super().__init__()
         self.latent_dim, self.frames = latent_dim, frames
+        self.analytic_cosine = bool(analytic_cosine)
         self.hidden = parse_hidden(hidden)
         self.frame_layer = nn.Linear(latent_dim, 6 * frames, bias=False) if frames > 0 else None
         per_dir = 3 * max(frames, 1)  # frames=0: the raw local direction
@@ -58,8 +66,10 @@ class BrdfDecoder(nn.Module):
         return [self.project(w, frame) for w in ws]
 
     def forward(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        """f(wi, wo) * max(0, wo.z) [N,3] (no horizon test on ``wi``: ``NeuralMaterial.eval`` applies it)."""
         x = torch.cat([*self._directions(latent, wi, wo), latent], -1)
-        return torch.exp(self.net(x).clamp(max=30.0) - OUTPUT_OFFSET)
+        y = torch.exp(self.net(x).clamp(max=30.0) - OUTPUT_OFFSET)
+        return y * wo[:, 2:3].clamp_min(0.0) if self.analytic_cosine else y
 
     def predict_albedo(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
         if self.albedo is None:

@@ -20,11 +20,11 @@ from . import proxy
 
 class NeuralMaterial(nn.Module):
     def __init__(self, resolution: tuple[int, int], in_dim: int, latent_dim: int = 8, frames: int = 2,
-                 decoder: str = "2x32", albedo_head: bool = False):
+                 decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True):
         super().__init__()
         self.latents = LatentPyramid(*resolution, channels=latent_dim)
         self.encoder = Encoder(in_dim, latent_dim)
-        self.decoder = BrdfDecoder(latent_dim, frames, decoder, albedo_head)
+        self.decoder = BrdfDecoder(latent_dim, frames, decoder, albedo_head, analytic_cosine)
         self.sampler = SamplerNet(latent_dim)
 
     def _latent(self, n, uv, lod, u_level, device):

@@ -27,6 +27,8 @@ import torch
 
 from .parameter_stack import ParameterStack
 
+SIGMA_TEXELS = 0.5  # the footprint's standard deviation, in level-k texels
+
 
 def sample_levels(n: int, num_levels: int, rate: float = 1.0, generator: torch.Generator | None = None,
                   device="cpu") -> torch.Tensor:
@@ -62,7 +64,7 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         s = samples_for_level(int(k), max_samples, stack.texel_ratio)
         m = idx.shape[0]
         # Gaussian offsets in uv: sigma = half a level-k texel, per axis.
-        sigma = torch.tensor([0.5 * 2 ** k / w, 0.5 * 2 ** k / h], dtype=uv.dtype, device=uv.device)
+        sigma = torch.tensor([SIGMA_TEXELS * 2 ** k / w, SIGMA_TEXELS * 2 ** k / h], dtype=uv.dtype, device=uv.device)
         offsets = torch.randn(m, s, 2, generator=generator, dtype=uv.dtype).to(uv.device) * sigma
         pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
         wi_k, wo_k = wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0)
@@ -74,4 +76,4 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
 
 def footprint_sigma_texels(level: int) -> float:
     """Standard deviation of the level-``level`` footprint, in level-0 texels."""
-    return 0.5 * math.pow(2.0, level)
+    return SIGMA_TEXELS * math.pow(2.0, level)

@@ -18,6 +18,9 @@ class TrainConfig:
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
     """Latent channels."""
+    analytic_cosine: bool = True
+    """The decoder predicts f and multiplies by max(0, wo.z) itself (``model.decoder``); False: the
+    network learns f * cos, as models made before this option did."""
     encoder_fraction: float = 0.6
     """Share of iterations for phase 1 (encoder end to end); the rest fine-tunes baked latents.
     0 skips the encoder: latents start from noise and are optimised directly (ablation)."""
@@ -33,6 +36,11 @@ class TrainConfig:
     """Estimate the mollified targets by MIS (uniform in the cone plus the reference's sampler,
     ``train.mollify.cone_mean``) instead of plain jittered directions: the mean over the cone, not
     a sample of it, so a lobe much narrower than the cone still carries its energy."""
+    grazing_fraction: float = 0.0
+    """Extra BRDF rows per step, as a share of ``batch``, whose ``wi`` (the viewer) is uniform in
+    azimuth with cos(theta_i) uniform in (0, 0.25], within ~14 degrees of the horizon: half/difference
+    pairs rarely land there, and a coat's Fresnel darkens the base within a few degrees of it (the
+    rim). Extra rather than in place of half/difference rows, which the specular lobes need."""
     lobe_fraction: float = 0.0
     """Share of each BRDF batch whose ``wo`` comes from the reference's sampler (spread over the
     current cone) instead of uniform half/difference angles, so narrow lobes are trained on."""
@@ -66,11 +74,13 @@ PRESETS = {
     # directions drawn near the reference's lobes: without it a sharp clear coat lost most of its
     # grazing energy (CarPaint: albedo 0.19 instead of 0.81 at 5 degrees elevation). More lobe
     # directions overshoot at grazing angles (BENCHMARKS.md has the sweep).
+    # Both also add a tenth of rows with the viewer near the horizon: with the analytic cosine they
+    # halved the CarPaint's directional-light error (rim 2-3x too bright; BENCHMARKS.md).
     "fast": TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
-                        mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1),
+                        mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, grazing_fraction=0.1),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
-                            lobe_fraction=0.1),
+                            lobe_fraction=0.1, grazing_fraction=0.1),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
                          mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
                          compile=True),

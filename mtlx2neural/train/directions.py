@@ -38,6 +38,16 @@ def half_difference_pairs(n: int, generator: torch.Generator | None = None, devi
     return wi, wo
 
 
+def grazing_directions(n: int, max_cos: float = 0.25, generator: torch.Generator | None = None,
+                       device="cpu") -> torch.Tensor:
+    """``n`` directions [n,3] near the horizon: azimuth uniform, cos(theta) = z uniform in (0, max_cos]."""
+    u = torch.rand(n, 2, generator=generator).to(device)
+    z = (max_cos * (1.0 - u[:, 0])).clamp_min(1e-4)  # 1 - u is in (0, 1]: never exactly on the horizon
+    r = (1.0 - z * z).sqrt()
+    phi = 2 * math.pi * u[:, 1]
+    return torch.stack([r * phi.cos(), r * phi.sin(), z], -1)
+
+
 def _cosine(u):
     phi = 2 * math.pi * u[:, 0]
     r = u[:, 1].sqrt()

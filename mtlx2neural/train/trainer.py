@@ -5,7 +5,8 @@ Three phases over ``cfg.iterations`` steps:
 2. bake: the encoder runs over every texel of every level of the parameter pyramid;
 3. fine-tune: the baked latents are optimised directly (with the decoder and sampler).
 
-Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes), a
+Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes and a
+share of wi near the horizon), a
 footprint-filtered and mollified reference target (the cone narrows, then stays at
 a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's
 KL loss against the current neural BRDF (latents detached).
@@ -28,12 +29,14 @@ from ..model.neural_material import NeuralMaterial
 from ..textures.footprint import footprint_targets, sample_levels
 from ..textures.parameter_stack import ParameterStack
 from .config import TrainConfig
-from .directions import cone_jitter, half_difference_pairs
+from .directions import cone_jitter, grazing_directions, half_difference_pairs
 from .losses import log_l1
 from .mollify import cone_mean, lobe_directions
 
 UNIFORM_PDF = 1.0 / (2.0 * math.pi)
 GRAD_CLIP = 10.0  # global gradient-norm cap
+GRAZING_MAX_COS = 0.25  # cfg.grazing_fraction's viewers: within ~14 degrees of the horizon
+GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
 
 
 class TrainingInterrupted(Exception):
@@ -76,7 +79,8 @@ class Trainer:
         self.textured = stack.levels[0].shape[0] > 0
         torch.manual_seed(cfg.seed)  # the model's initial weights
         self.model = NeuralMaterial(stack.resolution if self.textured else (1, 1), stack.levels[0].shape[0],
-                                    cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head).to(self.device)
+                                    cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head,
+                                    cfg.analytic_cosine).to(self.device)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
         self.step = 0
         self.baked = False
@@ -186,17 +190,24 @@ class Trainer:
 
     def train_step(self) -> dict:
         cfg, g, dev = self.cfg, self.gen, self.device
-        b = cfg.batch
+        n_graze = round(cfg.grazing_fraction * cfg.batch)
+        b = cfg.batch + n_graze
         uv = torch.rand(b, 2, generator=g).to(dev)
         level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
             else torch.zeros(b, dtype=torch.long, device=dev)
         wi, wo = half_difference_pairs(b, g, dev)
-        n_lobe = round(cfg.lobe_fraction * b)
-        if n_lobe > 0:  # the first rows' wo near the reference's lobes (uv, levels and wi are random already)
+        if n_graze > 0:  # extra rows whose viewer is near the horizon (their wo stays as drawn, above it)
+            wi = torch.cat([wi[:cfg.batch], grazing_directions(n_graze, GRAZING_MAX_COS, g, dev)])
+        # Rows whose wo is redrawn near the reference's lobes (uv, levels and wi are random already):
+        # the first of the batch, and a share of the grazing rows (the coat's spike at a low viewer).
+        n_lobe = round(cfg.lobe_fraction * cfg.batch)
+        rows = torch.cat([torch.arange(n_lobe, device=dev),
+                          cfg.batch + torch.arange(round(GRAZING_LOBE_SHARE * n_graze) if n_lobe else 0, device=dev)])
+        if len(rows) > 0:
             with torch.no_grad():
-                ws, ok = lobe_directions(self.ref, wi[:n_lobe], self.mollify_angle(), g,
-                                         uv[:n_lobe] if self.textured else None)
-            wo = torch.cat([torch.where(ok[:, None], ws, wo[:n_lobe]), wo[n_lobe:]])
+                ws, ok = lobe_directions(self.ref, wi[rows], self.mollify_angle(), g,
+                                         uv[rows] if self.textured else None)
+            wo = wo.index_copy(0, rows, torch.where(ok[:, None], ws, wo[rows]))
         with torch.no_grad():
             target = self._targets(wi, wo, uv, level)
         latent = self._latent(uv, level)
