@@ -217,15 +217,20 @@ def test_frameless_model_exports_without_frame_layer(tmp_path):
     assert manifest["tensors"][0]["name"] == "decoder.net.0.weight" and manifest["architecture"]["frames"] == 0
 
 
+def _export_red(model, tmp_path):
+    """Export ``model`` as the material Red of a one-material .mtlx: (the layer, load_neural of it)."""
+    asset = tmp_path / "thing.mtlx"
+    asset.write_text(RED_MTLX)
+    usda, _ = export_asset(asset, [(model, fake_summary("Red"), tmp_path / "thing_neural" / "Red")],
+                           tmp_path / "thing_neural", "fast")
+    return usda, m2n.load_neural(usda, "Red")
+
+
 @pytest.mark.parametrize("frames", [2, 0])
 def test_textured_round_trip_through_usd(tmp_path, frames):
     """A multi-level, non-power-of-two pyramid: load_neural reproduces eval/sample/pdf at random uv and lod."""
     model = random_model((3, 5), channels=6, frames=frames)
-    asset = tmp_path / "thing.mtlx"
-    asset.write_text(RED_MTLX)
-    usda, _ = export_asset(asset, [(model, fake_summary("Red"), tmp_path / "thing_neural" / "Red")],
-                                  tmp_path / "thing_neural", "fast")
-    loaded = m2n.load_neural(usda, "Red")
+    usda, loaded = _export_red(model, tmp_path)
     n = 2048
     g = torch.Generator().manual_seed(9)
     lod = torch.rand(n, generator=g) * 4
@@ -239,11 +244,7 @@ def test_learned_cosine_model_round_trips_with_its_token(tmp_path):
     """A model whose network learned f * cos (``analytic_cosine=False``, mtlx2neural 0.1) exports as
     ``exp_minus_3`` and loads back without a second cosine; an unknown token is an input error."""
     model = random_model((3, 5), channels=6, analytic_cosine=False)
-    asset = tmp_path / "thing.mtlx"
-    asset.write_text(RED_MTLX)
-    usda, _ = export_asset(asset, [(model, fake_summary("Red"), tmp_path / "thing_neural" / "Red")],
-                           tmp_path / "thing_neural", "fast")
-    loaded = m2n.load_neural(usda, "Red")
+    usda, loaded = _export_red(model, tmp_path)
     assert loaded.decoder.analytic_cosine is False
     assert_round_trip(loaded, model, textured=True, n=512)
     manifest = next((tmp_path / "thing_neural").rglob("weights.json"))
