@@ -40,7 +40,10 @@ class TrainConfig:
     """Extra BRDF rows per step, as a share of ``batch``, whose ``wi`` (the viewer) is uniform in
     azimuth with cos(theta_i) uniform in (0, 0.25], within ~14 degrees of the horizon: half/difference
     pairs rarely land there, and a coat's Fresnel darkens the base within a few degrees of it (the
-    rim). Extra rather than in place of half/difference rows, which the specular lobes need."""
+    rim). Extra rather than in place of half/difference rows, which the specular lobes need; with
+    ``lobe_fraction`` half of them take ``wo`` near the reference's lobes. Off in every preset: 0.1
+    cut the CarPaint's directional-light error by a quarter but cost the textured materials' sky
+    error (GlazedCeramic 0.113 -> 0.130; BENCHMARKS.md)."""
     lobe_fraction: float = 0.0
     """Share of each BRDF batch whose ``wo`` comes from the reference's sampler (spread over the
     current cone) instead of uniform half/difference angles, so narrow lobes are trained on."""
@@ -74,13 +77,11 @@ PRESETS = {
     # directions drawn near the reference's lobes: without it a sharp clear coat lost most of its
     # grazing energy (CarPaint: albedo 0.19 instead of 0.81 at 5 degrees elevation). More lobe
     # directions overshoot at grazing angles (BENCHMARKS.md has the sweep).
-    # Both also add a tenth of rows with the viewer near the horizon: with the analytic cosine they
-    # halved the CarPaint's directional-light error (rim 2-3x too bright; BENCHMARKS.md).
     "fast": TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
-                        mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, grazing_fraction=0.1),
+                        mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
-                            lobe_fraction=0.1, grazing_fraction=0.1),
+                            lobe_fraction=0.1),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
                          mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
                          compile=True),
