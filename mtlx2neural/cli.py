@@ -4,7 +4,7 @@
                       [--max-texels N] [--texel-density D] [--workers N|ray|ray://HOST:PORT] [--force] ...
     mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N] [--texel-density D]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
-                       [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] -o OUT.exr
+                       [--geometry sphere|plane|teapot|FILE.obj] [--env sky|FILE.hdr] [--mis own|none] -o OUT.exr
     mtlx2neural report OUT_neural.usda [--analytic-iterations N] [--texel U,V ...] [--train-sizes] [-o REPORT_DIR]
 
 Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
@@ -140,6 +140,9 @@ def _parser() -> argparse.ArgumentParser:
     ren.add_argument("--env", default="sky", help="'sky' (procedural) or a lat-long .hdr/.exr environment map")
     ren.add_argument("--res", type=int, default=256, help="image width and height in pixels")
     ren.add_argument("--spp", type=int, default=16, help="samples per pixel (one light sample each)")
+    ren.add_argument("--mis", default="own", choices=["own", "none"],
+                     help="own (default): also one sample of the model's own BSDF sampler per pass, combined "
+                          "by MIS; none: light samples only, every random number shared between models")
     ren.add_argument("--azimuth", type=float, default=30.0, help="degrees; 0 looks from +z, 90 from +x")
     ren.add_argument("--elevation", type=float, default=20.0, help="degrees above the horizon")
     ren.add_argument("--distance", type=float, default=4.0, help="camera distance in bounding-sphere radii")
@@ -190,8 +193,8 @@ def _render(args) -> int:
 
     s = render_asset(args.asset, args.output, args.material, args.model, args.checkpoint, args.geometry,
                      args.env, args.res, args.spp, args.azimuth, args.elevation, args.distance, args.fov,
-                     args.seed, args.allow_missing_textures)
-    print(f"{s['material']} ({s['model']}): {s['geometry']} under {s['env']}, {s['res']}x{s['res']}, "
+                     args.seed, args.allow_missing_textures, args.mis)
+    print(f"{s['material']} ({s['model']}): {s['geometry']} under {s['env']} (MIS: {s['mis']}), {s['res']}x{s['res']}, "
           f"{s['spp']} spp in {s['seconds']} s; wrote {s['exr']} and {s['png']}")
     return 0
 

@@ -192,6 +192,11 @@ def reference_sampler(reference) -> BsdfSampler:
     return BsdfSampler(sample, lambda wi, wo, uv, lod, u_level: reference.pdf(wi, wo, uv))
 
 
+def neural_sampler(model) -> BsdfSampler:
+    """A neural material's learned sampler (its analytic proxy) as a :class:`BsdfSampler`."""
+    return BsdfSampler(model.sample_direction, model.pdf)
+
+
 def _balance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     """Balance-heuristic weight p / (p + q) of the strategy with density ``p``; 0 where both are 0."""
     return torch.where(p > 0, p / (p + q).clamp_min(1e-30), torch.zeros_like(p))

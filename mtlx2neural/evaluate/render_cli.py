@@ -96,12 +96,18 @@ def default_checkpoint(asset, material_name: str) -> Path:
 def render_asset(asset, output, material: str | None = None, model: str = "reference", checkpoint=None,
                  geometry: str = "sphere", env: str | None = "sky", res: int = 256, spp: int = 16,
                  azimuth: float = 30.0, elevation: float = 20.0, distance: float = 4.0, fov: float = 30.0,
-                 seed: int = 0, allow_missing_textures: bool = False) -> dict:
+                 seed: int = 0, allow_missing_textures: bool = False, mis: str = "own") -> dict:
     """Render ``material`` of ``asset`` with the reference or neural ``model``; write ``output`` (.exr)
-    and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError."""
+    and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError.
+
+    ``mis="own"`` adds, per pass, one direction from the model's own sampler (the reference's lobe
+    mixture, or the neural model's learned proxy) to the environment's light sample, combined by
+    the balance heuristic: a sharp coat reflecting the sky converges instead of sparkling. The
+    two models then draw different BSDF directions, so their renders share only the light
+    samples; ``mis="none"`` (light samples only) keeps every random number common to both."""
     from ..scene import find_material
     from .geometry import Camera
-    from .render import neural_fn, reference_fn, render_scene
+    from .render import neural_fn, neural_sampler, reference_fn, reference_sampler, render_scene
 
     output = Path(output)
     if output.suffix.lower() != ".exr":
@@ -110,6 +116,8 @@ def render_asset(asset, output, material: str | None = None, model: str = "refer
         raise InputError(f"{output.parent}: the output folder does not exist")
     if model not in ("reference", "neural"):
         raise InputError(f"unknown model '{model}': use reference or neural")
+    if mis not in ("own", "none"):
+        raise InputError(f"unknown --mis '{mis}': use own (the model's sampler) or none (light samples only)")
     if res < 1 or spp < 1:
         raise InputError(f"--res and --spp must be positive (got {res}, {spp})")
     if distance <= 1.0 or not 0.0 < fov < 180.0:
@@ -122,18 +130,21 @@ def render_asset(asset, output, material: str | None = None, model: str = "refer
         ck = Path(checkpoint) if checkpoint else default_checkpoint(asset, src.name)
         net = load_checkpoint(ck)
         fn, texels = neural_fn(net), tuple(int(s) for s in net.latents.levels[0].shape[1:])
+        sampler = neural_sampler(net)
     else:
         from ..graph import compile_material
         from ..reference import ReferenceMaterial
 
         compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
-        fn, texels, ck = reference_fn(ReferenceMaterial(compiled)), (1, 1), None
+        ref = ReferenceMaterial(compiled)
+        fn, texels, ck, sampler = reference_fn(ref), (1, 1), None, reference_sampler(ref)
     t0 = time.time()
-    img = render_scene(fn, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed)
+    img = render_scene(fn, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed,
+                       sampler=sampler if mis == "own" else None)
     seconds = time.time() - t0
     png = output.with_suffix(".png")
     write_exr(output, img)
     write_png(png, img)
     return {"material": src.name, "model": model, "checkpoint": str(ck) if ck else None, "exr": str(output),
-            "png": str(png), "geometry": geometry, "env": env or "sky", "res": res, "spp": spp,
+            "png": str(png), "geometry": geometry, "env": env or "sky", "mis": mis, "res": res, "spp": spp,
             "seconds": round(seconds, 2), "mean": float(np.mean(img))}
