@@ -220,8 +220,7 @@ def _mlp_coop(layers, entries, x: str) -> list[str]:
 
 
 _RGB = "return float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]));"
-_RGB_COS = ("return float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]))"
-            " * max(wo.z, 0.0);")  # analytic_cosine: the network predicts f, the cosine is exact
+_RGB_COS = _RGB[:-1] + " * max(wo.z, 0.0);"  # analytic_cosine: the network predicts f, the cosine is exact
 
 
 def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layout: dict | None) -> str:

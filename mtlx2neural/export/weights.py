@@ -42,7 +42,7 @@ OUTPUT_ACTIVATIONS = {"exp_minus_3_cos": True, "exp_minus_3": False}
 
 def output_activation_token(analytic_cosine: bool) -> str:
     """``exp_minus_3_cos``: rgb = exp(min(x, 30) - 3) * max(0, wo.z); ``exp_minus_3``: without the cosine."""
-    return "exp_minus_3_cos" if analytic_cosine else "exp_minus_3"
+    return next(token for token, cos in OUTPUT_ACTIVATIONS.items() if cos == bool(analytic_cosine))
 
 
 def analytic_cosine_of(arch: dict, where) -> bool:

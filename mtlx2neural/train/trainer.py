@@ -5,11 +5,11 @@ Three phases over ``cfg.iterations`` steps:
 2. bake: the encoder runs over every texel of every level of the parameter pyramid;
 3. fine-tune: the baked latents are optimised directly (with the decoder and sampler).
 
-Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes and a
-share of wi near the horizon), a
-footprint-filtered and mollified reference target (the cone narrows, then stays at
-a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's
-KL loss against the current neural BRDF (latents detached).
+Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes and,
+with ``grazing_fraction``, extra rows with wi near the horizon), a footprint-filtered
+and mollified reference target (the cone narrows, then stays at a floor;
+``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
+against the current neural BRDF (latents detached).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
 """
@@ -201,8 +201,8 @@ class Trainer:
         # Rows whose wo is redrawn near the reference's lobes (uv, levels and wi are random already):
         # the first of the batch, and a share of the grazing rows (the coat's spike at a low viewer).
         n_lobe = round(cfg.lobe_fraction * cfg.batch)
-        rows = torch.cat([torch.arange(n_lobe, device=dev),
-                          cfg.batch + torch.arange(round(GRAZING_LOBE_SHARE * n_graze) if n_lobe else 0, device=dev)])
+        n_graze_lobe = round(GRAZING_LOBE_SHARE * n_graze) if n_lobe else 0
+        rows = torch.cat([torch.arange(n_lobe, device=dev), cfg.batch + torch.arange(n_graze_lobe, device=dev)])
         if len(rows) > 0:
             with torch.no_grad():
                 ws, ok = lobe_directions(self.ref, wi[rows], self.mollify_angle(), g,
