@@ -2,7 +2,7 @@
 
 Run:  OMP_NUM_THREADS=1 python benchmarks/bench_tradeoff.py
           [--cases Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural] [--iterations N]
-          [--analytic-iterations N] [--out FILE] [--images DIR]
+          [--analytic-iterations N] [--decoders 2x16,2x32,3x64] [--seed N] [--out FILE] [--images DIR]
 
 Per material (the cases of ``bench_fidelity.py``: the four project samples and two textured
 MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
@@ -86,10 +86,10 @@ def timing_only(names: list[str]) -> list[str]:
     return lines
 
 
-def save_strip(path: Path, results: dict) -> None:
-    """One row per view: reference | analytic | its FLIP map | neural 3x64 | its FLIP map."""
+def save_strip(path: Path, results: dict, neural: str = "3x64") -> None:
+    """One row per view: reference | analytic | its FLIP map | neural ``neural`` | its FLIP map."""
     rows = []
-    for a, n in zip(results["analytic"], results["3x64"]):
+    for a, n in zip(results["analytic"], results[neural]):
         rows.append(np.concatenate([a["reference"], a["neural"], a["flip_map"] ** 2.2,
                                     n["neural"], n["flip_map"] ** 2.2], 1))
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -101,6 +101,9 @@ def main():
     ap.add_argument("--cases", default="Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural")
     ap.add_argument("--analytic-iterations", type=int, default=1000)
     ap.add_argument("--iterations", type=int, help="training steps of the neural models (default: the preset's)")
+    ap.add_argument("--decoders", default=",".join(DECODERS),
+                    help="neural sizes to train (3x64 is the one the analytic ratio is quoted against)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of every training and of the analytic fit")
     ap.add_argument("--out", type=Path, help="also write the table (Markdown) here")
     ap.add_argument("--images", type=Path, help="write per-material render strips (PNG) into this folder")
     ap.add_argument("--timing-only", action="store_true", help="shader evals/s only, no training (docstring)")
@@ -119,20 +122,25 @@ def main():
         return
     lines = [f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
              f"{torch.get_num_threads()} threads; fast preset"
-             + (f", {args.iterations} iterations" if args.iterations else "")
+             + (f", {args.iterations} iterations" if args.iterations else "") + f", seed {args.seed}"
              + f"; analytic fit {args.analytic_iterations} iterations", "",
              "| material | model | FLIP, sky | FLIP, directional | shader evals/s | vs reference | torch evals/s |",
              "|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     sky = [EnvironmentMap.sky()]
+    decoders = tuple(d for d in DECODERS if d in args.decoders.split(","))
+    if not decoders:
+        ap.error(f"--decoders: choose from {', '.join(DECODERS)}")
+    largest = decoders[-1]
     for name in args.cases.split(","):
         if not CASES[name][0].exists():
             print(f"  ({name}: {CASES[name][0]} is missing; skipped)", file=sys.stderr)
             continue
         models = {}
-        for dec in DECODERS:
-            ref, stack, models[dec], _ = train_and_model(name, preset("fast", decoder=dec, iterations=args.iterations))
-        analytic = fit_analytic(ref, stack, iterations=args.analytic_iterations, batch=4096, seed=0)
+        for dec in decoders:
+            cfg = preset("fast", decoder=dec, iterations=args.iterations, seed=args.seed)
+            ref, stack, models[dec], _ = train_and_model(name, cfg)
+        analytic = fit_analytic(ref, stack, iterations=args.analytic_iterations, batch=4096, seed=args.seed)
         everything = {"analytic": analytic, **models}
         texels = tuple(stack.resolution)
         flips = {}
@@ -141,10 +149,10 @@ def main():
             for label, errs in results.items():
                 flips[label, light] = float(np.mean([e["flip"] for e in errs]))
             if args.images:
-                save_strip(args.images / f"{name}_{light}.png", results)
+                save_strip(args.images / f"{name}_{light}.png", results, largest)
         shader = shader_rates(models, analytic, find_material(*CASES[name]))
         ref_torch = torch_rate(ref.eval)
-        rows = [("analytic", "analytic (Lambert + GGX)")] + [(d, f"neural {d}") for d in DECODERS] + \
+        rows = [("analytic", "analytic (Lambert + GGX)")] + [(d, f"neural {d}") for d in decoders] + \
             [("reference", "reference")]
         for key, label in rows:
             m = everything.get(key)
@@ -156,8 +164,8 @@ def main():
                    f"{f'{rate / 1e6:.2f} M' if rate else '-'} | {speed} | {tr / 1e6:.2f} M |")
             print(row, flush=True)
             lines.append(row)
-        ratio = [flips["analytic", lt] / flips["3x64", lt] for lt in ("sky", "directional")]
-        note = f"  {name}: analytic / 3x64 FLIP = {ratio[0]:.2f}x (sky), {ratio[1]:.2f}x (directional)"
+        ratio = [flips["analytic", lt] / flips[largest, lt] for lt in ("sky", "directional")]
+        note = f"  {name}: analytic / {largest} FLIP = {ratio[0]:.2f}x (sky), {ratio[1]:.2f}x (directional)"
         print(note, flush=True)
         lines.append(f"<!-- {note.strip()} -->")
     if args.out:
