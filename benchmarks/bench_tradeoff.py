@@ -2,7 +2,7 @@
 
 Run:  OMP_NUM_THREADS=1 python benchmarks/bench_tradeoff.py
           [--cases Plastic,CarPaint,GlazedCeramic,BrushedMetal,wood_tiled,brick_procedural] [--iterations N]
-          [--analytic-iterations N] [--decoders 2x16,2x32,3x64] [--seed N] [--out FILE] [--images DIR]
+          [--analytic-iterations N] [--decoders 2x16,2x32,3x64] [--seed N] [--set FIELD=VALUE ...] [--out FILE] [--images DIR]
 
 Per material (the cases of ``bench_fidelity.py``: the four project samples and two textured
 MaterialX examples), the analytic baseline (Lambert + GGX, 8 fitted channels,
@@ -29,6 +29,7 @@ quick run for an otherwise idle machine, whose ratios are the ones to quote.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import platform
 import sys
@@ -45,7 +46,7 @@ from mtlx2neural.evaluate.lighting import EnvironmentMap
 from mtlx2neural.evaluate.render import compare_many, save_png
 from mtlx2neural.evaluate.shader_cost import best_time, random_queries, shader_rates
 from mtlx2neural.scene import find_material
-from mtlx2neural.train.config import preset
+from mtlx2neural.train.config import TrainConfig, preset
 
 DECODERS = ("2x16", "2x32", "3x64")
 
@@ -86,6 +87,20 @@ def timing_only(names: list[str]) -> list[str]:
     return lines
 
 
+def config_overrides(items: list[str], ap: argparse.ArgumentParser) -> dict:
+    """``FIELD=VALUE`` strings as TrainConfig overrides, each value parsed as its field's type."""
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in fields or not value:
+            ap.error(f"--set {item}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
+        default = getattr(TrainConfig(), key)
+        kind = type(default) if default is not None else int
+        out[key] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
+    return out
+
+
 def save_strip(path: Path, results: dict, neural: str = "3x64") -> None:
     """One row per view: reference | analytic | its FLIP map | neural ``neural`` | its FLIP map."""
     rows = []
@@ -104,6 +119,8 @@ def main():
     ap.add_argument("--decoders", default=",".join(DECODERS),
                     help="neural sizes to train (3x64 is the one the analytic ratio is quoted against)")
     ap.add_argument("--seed", type=int, default=0, help="seed of every training and of the analytic fit")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a TrainConfig field of the fast preset (a sweep), e.g. level_rate=0.5")
     ap.add_argument("--out", type=Path, help="also write the table (Markdown) here")
     ap.add_argument("--images", type=Path, help="write per-material render strips (PNG) into this folder")
     ap.add_argument("--timing-only", action="store_true", help="shader evals/s only, no training (docstring)")
@@ -123,6 +140,7 @@ def main():
     lines = [f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
              f"{torch.get_num_threads()} threads; fast preset"
              + (f", {args.iterations} iterations" if args.iterations else "") + f", seed {args.seed}"
+             + "".join(f", {o}" for o in args.set)
              + f"; analytic fit {args.analytic_iterations} iterations", "",
              "| material | model | FLIP, sky | FLIP, directional | shader evals/s | vs reference | torch evals/s |",
              "|---|---|---|---|---|---|---|"]
@@ -132,13 +150,14 @@ def main():
     if not decoders:
         ap.error(f"--decoders: choose from {', '.join(DECODERS)}")
     largest = decoders[-1]
+    overrides = config_overrides(args.set, ap)
     for name in args.cases.split(","):
         if not CASES[name][0].exists():
             print(f"  ({name}: {CASES[name][0]} is missing; skipped)", file=sys.stderr)
             continue
         models = {}
         for dec in decoders:
-            cfg = preset("fast", decoder=dec, iterations=args.iterations, seed=args.seed)
+            cfg = preset("fast", decoder=dec, iterations=args.iterations, seed=args.seed, **overrides)
             ref, stack, models[dec], _ = train_and_model(name, cfg)
         analytic = fit_analytic(ref, stack, iterations=args.analytic_iterations, batch=4096, seed=args.seed)
         everything = {"analytic": analytic, **models}
