@@ -1,6 +1,6 @@
 """Command line: a thin shell over the library API.
 
-    mtlx2neural ASSET [-o OUT] [--preset fast|balanced|paper] [--decoder 2x16|2x32|3x64 | --max-error F]
+    mtlx2neural ASSET [-o OUT] [--preset fast|standard|balanced|paper] [--decoder 2x16|2x32|3x64 | --max-error F]
                       [--max-texels N] [--texel-density D] [--workers N|ray|ray://HOST:PORT] [--force] ...
     mtlx2neural inspect ASSET [--material M] [--json] [--preset P] [--max-texels N] [--texel-density D]
     mtlx2neural render ASSET [--material M] [--model reference|neural] [--checkpoint PATH]
@@ -20,11 +20,12 @@ import math
 import sys
 
 from .errors import Mtlx2NeuralError
+from .train.config import PRESETS
 
 SUBCOMMANDS = ("inspect", "convert", "render", "report")
 
 
-MAX_TEXELS_HELP = ("cap on the latent grid's longer side, in texels (default: the preset's: fast 256, "
+MAX_TEXELS_HELP = ("cap on the latent grid's longer side, in texels (default: the preset's: fast and standard 256, "
                    "balanced 1024, paper none; 0: no cap, the textures' own grid); a cap below the textures' "
                    "grid prefilters their finer detail, with a warning")
 
@@ -94,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
     ins.add_argument("--json", action="store_true", help="print JSON instead of text")
     ins.add_argument("--allow-missing-textures", action="store_true",
                      help="use an image node's declared default when its file is missing")
-    ins.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"],
+    ins.add_argument("--preset", default="fast", choices=list(PRESETS),
                      help="settings the latent grid and the source hashes are shown for (default: fast)")
     ins.add_argument("--max-texels", type=_texels, metavar="N", help=MAX_TEXELS_HELP)
     ins.add_argument("--texel-density", type=_density, metavar="D", help=TEXEL_DENSITY_HELP)
@@ -102,9 +103,10 @@ def _parser() -> argparse.ArgumentParser:
     conv.add_argument("asset", help=".mtlx file or USD stage")
     conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input); "
                                              "the USD layer is written beside it as <folder>.usda")
-    conv.add_argument("--preset", default="fast", choices=["fast", "balanced", "paper"],
-                      help="training settings: fast (minutes per material on a CPU), balanced, paper (the "
-                           "paper's 300k steps; a GPU); default: fast")
+    conv.add_argument("--preset", default="fast", choices=list(PRESETS),
+                      help="training settings: fast (minutes per material on a CPU: previews), standard (8x fast's "
+                           "steps: the CPU's quality setting), balanced (a GPU), paper (the paper's 300k "
+                           "steps; a GPU); default: fast")
     conv.add_argument("--decoder", choices=["2x16", "2x32", "3x64"],
                       help="force this decoder size for every material (default: the preset's; "
                            "conflicts with --max-error)")

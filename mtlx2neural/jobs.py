@@ -210,7 +210,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     if not met:
         warning = (f"HDR FLIP budget {max_error} not met: even the largest decoder, {DECODERS[-1]}, reaches "
                    f"{flips[DECODERS[-1]]:.4f}; kept {decoder} ({flips[decoder]:.4f}). Train longer "
-                   f"(--preset balanced, --iterations) or relax --max-error")
+                   f"(--preset standard on a CPU, balanced on a GPU, or --iterations) or relax --max-error")
         summary["warnings"] = list(summary.get("warnings", [])) + [warning]
         summary["notes"] = [warning] + list(summary.get("notes", []))
     write_summary(folder, summary)

@@ -343,6 +343,25 @@ def test_convert_trains_into_the_output_folder_and_leaves_the_input(tmp_path, ca
     assert after == before
 
 
+def test_every_preset_is_a_choice_and_overrides_apply(capsys):
+    """--preset takes every named preset (the choices come from PRESETS), the explicit flags
+    override its fields, and an unknown name is a usage error (argparse: exit 2)."""
+    import dataclasses
+
+    from mtlx2neural.cli import _config, _parser
+    from mtlx2neural.train.config import PRESETS
+
+    for name, cfg in PRESETS.items():
+        assert _config(_parser().parse_args(["convert", "a.usda", "--preset", name])) == cfg
+    args = _parser().parse_args(["convert", "a.usda", "--preset", "standard", "--iterations", "20", "--seed", "3"])
+    assert _config(args) == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
+    # standard is fast for longer: the same sampling and schedule shapes, 8x the steps.
+    assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations) == PRESETS["fast"]
+    with pytest.raises(SystemExit) as exc:
+        _parser().parse_args(["convert", "a.usda", "--preset", "nope"])
+    assert exc.value.code == 2 and "standard" in capsys.readouterr().err
+
+
 def test_convert_bad_input_is_exit_2(tmp_path, capsys):
     code, out, err = run_cli(capsys, tmp_path / "missing.usda", "--quiet")
     assert code == 2 and "missing.usda" in err and "Traceback" not in err
