@@ -29,6 +29,7 @@ from mtlx2neural.evaluate.render import (
     compare,
     image_errors,
     reference_fn,
+    sample_footprint_scale,
     reference_sampler,
     render,
     render_scene,
@@ -56,6 +57,39 @@ def test_lod_grows_with_texture_resolution():
     # One pixel spans 0.5/31 of UV: ~16 texels of a 1024 texture (lod ~4), less than one of a 16 texture.
     assert abs(float(_lod(uv, 32, (1024, 1024)).median()) - np.log2(1024 * 0.5 / 31)) < 0.1
     assert float(_lod(uv, 32, (16, 16)).max()) == 0.0
+
+
+def _ones(wi, wo, uv, lod, u):
+    return torch.ones(len(wi), 3)
+
+
+def _lod_echo(wi, wo, uv, lod, u):
+    """A material whose value is the level of detail it was asked for (grey)."""
+    return lod[:, None].expand(-1, 3).clone()
+
+
+@pytest.mark.parametrize("spp,shift", [(1, 0.0), (4, 1.0), (16, 2.0), (64, 3.0), (256, 3.0)])
+def test_each_sample_filters_its_share_of_the_pixel(spp, shift):
+    """Both renderers look textures up at the footprint of one of ``spp`` samples, not of the
+    whole pixel: the level of detail drops by log2 sqrt(spp), at most by 3 (pbrt-v4's 1/8
+    floor). A 16k-texel texture keeps every level above 3, so nothing is clamped at 0."""
+    assert sample_footprint_scale(spp) == max(0.125, 1 / math.sqrt(spp))
+    texels = (16384, 16384)
+    k = VIEWS[0].intensity
+    pixel = render(_lod_echo, VIEWS[0], res=16, spp=spp, texels=texels, footprint=1.0) / k
+    sample = render(_lod_echo, VIEWS[0], res=16, spp=spp, texels=texels) / k
+    hit = render(_ones, VIEWS[0], res=16, spp=spp, texels=texels)[..., 0] / k > 1 - 1e-5  # every sample hit
+    assert hit.mean() > 0.4
+    # float32 log2 of the same footprints: agreement to 1e-4 levels.
+    assert np.allclose(pixel[hit] - sample[hit], shift, atol=1e-4)
+    cam = Camera(0, 90)
+    light = [DirectionalLight((0.0, 1.0, 1.0), 1.0)]
+    pixel = render_scene(_lod_echo, Plane(), cam, light, res=16, spp=spp, texels=texels, footprint=1.0)
+    sample = render_scene(_lod_echo, Plane(), cam, light, res=16, spp=spp, texels=texels)
+    hit = render_scene(_ones, Plane(), cam, light, res=16, spp=spp, texels=texels)[..., 0] > 1 - 1e-5
+    assert hit.mean() > 0.3
+    # render_scene divides by spp after summing per pass: float32 sums of spp values ~7.
+    assert np.allclose(pixel[hit] - sample[hit], shift, atol=1e-3)
 
 
 # ----------------------------------------------------------------------------- render_scene, geometry, lighting

@@ -6,7 +6,8 @@ colour is ``material(wi, wo, uv, lod, u_level) * intensity`` with directions in
 the local shading frame, so a reference and a neural model are compared on the
 same geometry; ``spp`` jittered sub-pixel samples antialias both. The level of
 detail comes from the uv footprint of a pixel (finite differences between
-neighbouring pixels), in texels of the material's finest level.
+neighbouring pixels), in texels of the material's finest level, scaled to the
+footprint of one of the ``spp`` samples (:func:`sample_footprint_scale`).
 
 ``compare`` renders several fixed views and reports HDR FLIP (flip-evaluator),
 mean absolute error and relative MSE per view.
@@ -68,28 +69,44 @@ def _shade_points(res: int, view: View, jitter: torch.Tensor):
     return p, t, b, torch.stack([u, v], -1), hit, d
 
 
-def _lod(uv: torch.Tensor, res: int, texels: tuple[int, int]) -> torch.Tensor:
-    """log2 of a pixel's uv footprint in finest-level texels (finite differences, seam-aware)."""
+def sample_footprint_scale(spp: int) -> float:
+    """The share of a pixel's footprint that one of ``spp`` jittered samples filters over:
+    max(1/8, 1/sqrt(spp)), pbrt-v4's scale of camera-ray differentials.
+
+    The jittered samples already average the pixel (a box), so a prefiltered material
+    looked up at the whole pixel's level of detail is filtered twice and renders blurrier
+    than the point-sampled reference it is compared with (the GlazedCeramic's grout lines,
+    BENCHMARKS.md); the spacing between samples is what each lookup has to filter. 1 at
+    1 spp (a real-time renderer's single lookup), 1/8 from 64 spp on."""
+    return max(0.125, 1.0 / math.sqrt(max(spp, 1)))
+
+
+def _lod(uv: torch.Tensor, res: int, texels: tuple[int, int], scale: float = 1.0) -> torch.Tensor:
+    """log2 of ``scale`` times a pixel's uv footprint in finest-level texels (finite
+    differences, seam-aware), >= 0."""
     g = uv.view(res, res, 2)
     du = torch.diff(g, dim=1, append=g[:, -1:]).abs()
     dv = torch.diff(g, dim=0, append=g[-1:]).abs()
     du = torch.minimum(du, 1 - du)
     dv = torch.minimum(dv, 1 - dv)
-    scale = torch.tensor([texels[1], texels[0]], dtype=uv.dtype)
-    foot = torch.maximum((du * scale).amax(-1), (dv * scale).amax(-1)).reshape(-1)
+    texel = torch.tensor([texels[1], texels[0]], dtype=uv.dtype)
+    foot = torch.maximum((du * texel).amax(-1), (dv * texel).amax(-1)).reshape(-1) * scale
     return torch.log2(foot.clamp_min(1.0))
 
 
 def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int, int] = (1, 1),
-           seed: int = 0) -> np.ndarray:
-    """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on the sphere."""
+           seed: int = 0, footprint: float | None = None) -> np.ndarray:
+    """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on the sphere.
+
+    ``lod`` is log2 of ``footprint`` times the pixel's uv footprint in texels of ``texels``
+    (h, w); ``footprint`` defaults to :func:`sample_footprint_scale` of ``spp``."""
     g = torch.Generator().manual_seed(seed)
     light = torch.nn.functional.normalize(torch.tensor(view.light, dtype=torch.float32), dim=0)
     img = torch.zeros(res * res, 3)
     for _ in range(spp):
         jitter = torch.rand(2, generator=g)
         p, t, b, uv, hit, d = _shade_points(res, view, jitter)
-        lod = _lod(uv, res, texels)
+        lod = _lod(uv, res, texels, sample_footprint_scale(spp) if footprint is None else footprint)
         idx = hit.nonzero()[:, 0]
         n = p[idx]
 
@@ -106,15 +123,17 @@ def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int,
 
 
 def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 16,
-                 texels: tuple[int, int] = (1, 1), seed: int = 0, sampler=None) -> np.ndarray:
+                 texels: tuple[int, int] = (1, 1), seed: int = 0, sampler=None,
+                 footprint: float | None = None) -> np.ndarray:
     """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on ``geometry``.
 
     ``camera`` is a :class:`.geometry.Camera`, ``lights`` a sequence of
     :class:`.lighting.DirectionalLight` / :class:`.lighting.EnvironmentMap`.
     Each of the ``spp`` passes jitters every pixel's ray, intersects the
     geometry, picks the level of detail from the ray cone (``texels`` = the
-    material's finest level, (h, w)) and the latent level with one uniform per
-    pixel, and adds for every directional light ``f*cos(wo) * intensity`` and
+    material's finest level, (h, w); the cone's spread times ``footprint``, by
+    default :func:`sample_footprint_scale` of ``spp``) and the latent level with
+    one uniform per pixel, and adds for every directional light ``f*cos(wo) * intensity`` and
     for every environment map one light sample ``f*cos(wo) * L(wo) / pdf(wo)``.
     Light samples do not depend on the material, so two materials rendered
     with the same ``seed`` see the same rays, levels and light directions
@@ -131,13 +150,14 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
     No shadows; the background (misses) is black. ``wi`` points to the camera.
     """
     g = torch.Generator().manual_seed(seed)
+    scale = sample_footprint_scale(spp) if footprint is None else footprint
     centre, radius = geometry.bounds()
     npix = res * res
     img = torch.zeros(npix, 3)
     for _ in range(spp):
         rays = camera.rays(res, centre, radius, g)
         hits = geometry.intersect(rays)
-        lod = ray_cone_lod(hits, rays.spread, texels)
+        lod = ray_cone_lod(hits, rays.spread * scale, texels)
         u_level = torch.rand(npix, generator=g)
         light_u = [torch.rand(npix, 3, generator=g) if isinstance(li, EnvironmentMap) else None for li in lights]
         bsdf_u = [torch.rand(npix, 2, generator=g) if isinstance(li, EnvironmentMap) and sampler is not None
@@ -240,7 +260,8 @@ def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 9
     appearance: the reference point-samples full-resolution textures, so with few
     samples it aliases where a pixel covers many texels (a brushed-metal normal
     map at 4 spp adds ~0.05 HDR FLIP of pure aliasing), while the neural model is
-    prefiltered by its level of detail.
+    prefiltered by its level of detail, that of one sample's share of the pixel
+    (:func:`sample_footprint_scale`): the samples do the pixel's averaging.
 
     By default the orthographic sphere under each view's directional light
     (:func:`render`). With ``geometry`` and/or ``lights`` (a sequence of lights,
