@@ -89,13 +89,16 @@ def timing_only(names: list[str]) -> list[str]:
 
 def config_overrides(items: list[str], ap: argparse.ArgumentParser) -> dict:
     """``FIELD=VALUE`` strings as TrainConfig overrides, each value parsed as its field's type."""
-    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    own_flags = {"decoder", "iterations", "seed"}  # --decoders, --iterations, --seed
+    fields = [f.name for f in dataclasses.fields(TrainConfig) if f.name not in own_flags]
+    defaults = TrainConfig()
     out = {}
     for item in items:
         key, _, value = item.partition("=")
         if key not in fields or not value:
-            ap.error(f"--set {item}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
-        default = getattr(TrainConfig(), key)
+            ap.error(f"--set {item}: expected FIELD=VALUE with FIELD one of {', '.join(fields)} "
+                     f"({', '.join(sorted(own_flags))} have flags of their own)")
+        default = getattr(defaults, key)
         kind = type(default) if default is not None else int
         out[key] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
     return out

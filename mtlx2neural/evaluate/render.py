@@ -101,12 +101,13 @@ def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int,
     ``lod`` is log2 of ``footprint`` times the pixel's uv footprint in texels of ``texels``
     (h, w); ``footprint`` defaults to :func:`sample_footprint_scale` of ``spp``."""
     g = torch.Generator().manual_seed(seed)
+    scale = sample_footprint_scale(spp) if footprint is None else footprint
     light = torch.nn.functional.normalize(torch.tensor(view.light, dtype=torch.float32), dim=0)
     img = torch.zeros(res * res, 3)
     for _ in range(spp):
         jitter = torch.rand(2, generator=g)
         p, t, b, uv, hit, d = _shade_points(res, view, jitter)
-        lod = _lod(uv, res, texels, sample_footprint_scale(spp) if footprint is None else footprint)
+        lod = _lod(uv, res, texels, scale)
         idx = hit.nonzero()[:, 0]
         n = p[idx]
 

@@ -81,8 +81,8 @@ PRESETS = {
     # grazing energy (CarPaint: albedo 0.19 instead of 0.81 at 5 degrees elevation). More lobe
     # directions overshoot at grazing angles (BENCHMARKS.md has the sweep).
     "fast": _FAST,
-    # standard: fast's settings for 8x the steps, the CPU's quality setting (one thread: about 7 min
-    # for a uniform material, about 35 min for a 256² textured one). On the sample CarPaint (3x64,
+    # standard: fast's settings for 8x the steps, the CPU's quality setting (one thread: about 8 min
+    # for a uniform material, about 33 min for a 256² textured one). On the sample CarPaint (3x64,
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Training length").
     "standard": dataclasses.replace(_FAST, iterations=8000),
