@@ -101,8 +101,10 @@ def _parser() -> argparse.ArgumentParser:
     ins.add_argument("--texel-density", type=_density, metavar="D", help=TEXEL_DENSITY_HELP)
     conv = sub.add_parser("convert", help="train a neural material for every selected material (default command)")
     conv.add_argument("asset", help=".mtlx file or USD stage")
-    conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input); "
-                                             "the USD layer is written beside it as <folder>.usda")
+    conv.add_argument("-o", "--output", help="output folder (default: ASSET_neural next to the input; the USD "
+                                             "layer is written beside it as <folder>.usda), or the layer's path "
+                                             "(OUT.usda, .usd or .usdc; the folder is then OUT). Never the input, "
+                                             "a file it reads, or a file mtlx2neural did not write")
     conv.add_argument("--preset", default="fast", choices=list(PRESETS),
                       help="training settings: fast (minutes per material on a CPU: previews), standard (8x fast's "
                            "steps: the CPU's quality setting), balanced (a GPU), paper (the paper's 300k "
@@ -119,7 +121,10 @@ def _parser() -> argparse.ArgumentParser:
                       help="train materials in parallel: N local processes (1: in this process, with progress "
                            "bars; default: one per material up to the CPU count, or per GPU), 'ray' (a local "
                            "Ray cluster, or $RAY_ADDRESS) or 'ray://HOST:PORT' (needs mtlx2neural[ray])")
-    conv.add_argument("--iterations", type=int, metavar="N", help="training steps (overrides the preset)")
+    conv.add_argument("--iterations", type=int, metavar="N",
+                      help="training steps (overrides the preset; 0 needs --allow-untrained)")
+    conv.add_argument("--allow-untrained", action="store_true",
+                      help="accept --iterations 0: export the untrained network (for pipeline tests)")
     conv.add_argument("--batch", type=int, metavar="N", help="samples per batch (overrides the preset)")
     conv.add_argument("--frames", type=int, metavar="N", help="learned shading frames (default 2; 0: none)")
     conv.add_argument("--material", help="only this material (prim path, prim name or MaterialX name)")
@@ -202,7 +207,7 @@ def _render(args) -> int:
 
 
 def _convert(args) -> int:
-    from .convert import convert_asset, default_output
+    from .convert import convert_asset, resolve_output
     from .errors import InputError
     from .train.trainer import TrainingInterrupted
 
@@ -211,18 +216,21 @@ def _convert(args) -> int:
                          f"one size, --max-error picks the smallest of 2x16, 2x32, 3x64 that meets the budget. "
                          f"Give one of them.")
     cfg = _config(args)
+    layout = resolve_output(args.asset, args.output)
     try:
         summaries = convert_asset(args.asset, cfg, args.output, args.material, args.device, args.resume,
                                   not args.quiet, args.allow_missing_textures, force=args.force,
                                   preset=args.preset, workers=args.workers, max_error=args.max_error,
-                                  texel_density=args.texel_density)
+                                  texel_density=args.texel_density, allow_untrained=args.allow_untrained)
     except TrainingInterrupted as exc:
         print(f"mtlx2neural: {exc}", file=sys.stderr)
         return 1
-    except OSError as exc:  # the export could not write its files; nothing partial was left
-        print(f"mtlx2neural: error: cannot write the output ({exc}); nothing was exported", file=sys.stderr)
+    except OSError as exc:  # writing failed after the up-front checks (disk full...); nothing partial was left
+        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"mtlx2neural: error: cannot write the output{where} ({exc.strerror or exc}); the previous export, "
+              f"if any, is unchanged", file=sys.stderr)
         return 1
-    out = args.output or default_output(args.asset)
+    out = layout.folder
     for s in summaries:
         if s.get("shared_with"):
             how = f"identical to {s['shared_with']} (same graph, textures and settings): trained once, shared"
@@ -250,7 +258,9 @@ def _convert(args) -> int:
         print(f"{k['material']}: skipped ({k['reason']})")
     print(f"wrote {out} (checkpoints, training curves, summaries, latent EXRs, weights)")
     if summaries:
-        print(f"wrote {summaries[0]['usd']} (USD layer with the neural materials)")
+        kept = getattr(summaries, "kept", [])
+        also = f"; kept from earlier runs: {', '.join(kept)}" if kept else ""
+        print(f"wrote {summaries[0]['usd']} (USD layer with the neural materials{also})")
     return 0
 
 

@@ -2,6 +2,10 @@
 
 Steps (the library behind the default command):
 
+0. check every setting and the device (:func:`mtlx2neural.train.config.validate_config`,
+   :func:`mtlx2neural.jobs.check_device`), then, once the materials are selected, every
+   path the run will write (:mod:`.export.outputs`): nothing is trained for a run that
+   could not finish or would overwrite the input;
 1. select: the materials renderable geometry binds (:func:`mtlx2neural.scene.load_asset`;
    the others are reported as skipped, with the reason), or only ``material``;
 2. plan (:mod:`.plan`): compile each, decide its latent grid (1x1 when uniform; the
@@ -24,35 +28,34 @@ Steps (the library behind the default command):
    ``OUT/<material>/neural/`` (a shared material gets its own copy) and the neural USD
    layer ``OUT.parent/<OUT name>.usda``.
 
-``OUT`` defaults to ``<asset folder>/<asset stem>_neural``; the input is never modified.
+``OUT`` defaults to ``<asset folder>/<asset stem>_neural`` (``-o`` may also name the
+layer: ``OUT.usda``); the input is never modified. One run at a time holds ``OUT``
+(:mod:`.export.lock`). A ``--material`` run updates that material in an existing layer
+and keeps the others (the layer's record lists them, with their source hashes).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
-import re
 import shutil
+import warnings
 from pathlib import Path
 
+from . import __version__
 from .errors import InputError
 from .export import export_asset
 from .export.cache import cached_summary
-from .export.usd_writer import register_schema
-from .jobs import held_out_error, make_job, resolve_device, run_jobs, write_summary  # noqa: F401 (API)
-from .model.checkpoint import load_checkpoint
+from .export.lock import output_lock
+from .export.outputs import (OutputLayout, check_output, default_output, material_folder,  # noqa: F401 (API)
+                             material_folders, prepare_folder, resolve_output)
+from .export.usd_writer import KeptMaterials, register_schema
+from .jobs import BUDGET_FOLDER, check_device, held_out_error, make_job, run_jobs, write_summary  # noqa: F401
+from .model.checkpoint import checkpoint_file, load_checkpoint, read_checkpoint, resume_conflicts
 from .plan import latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
 from .scene import load_asset
-from .train.config import PRESETS, TrainConfig
-
-
-def default_output(asset) -> Path:
-    asset = Path(asset).resolve()
-    return asset.parent / f"{asset.stem}_neural"
-
-
-def material_folder(name: str) -> str:
-    """A file-system-safe folder name for a material path or name."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name.strip("/")) or "material"
+from .scene.dependencies import input_files
+from .train.config import PRESETS, TrainConfig, validate_config
 
 
 def preset_name(cfg: TrainConfig) -> str:
@@ -89,9 +92,11 @@ def _reuse(folder: Path, digest: str):
 
 class Summaries(list):
     """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
-    left out (``{"material", "reason"}``; only when no ``material`` was named)."""
+    left out (``{"material", "reason"}``; only when no ``material`` was named), and ``kept``: the
+    materials an existing layer kept from earlier runs (a ``--material`` run)."""
 
     skipped: list[dict]
+    kept: list[str]
 
 
 def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict:
@@ -111,11 +116,61 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
     return summary
 
 
+def _check_resume(plans, folders, max_error) -> None:
+    """Before training: every checkpoint a ``--resume`` run would continue is readable and was
+    trained with the same network shape (else :class:`InputError` naming it and the difference)."""
+    for plan, folder in zip(plans, folders):
+        if plan.shared_with:
+            continue
+        sizes = [folder / BUDGET_FOLDER / d for d in ("2x16", "2x32", "3x64")] if max_error is not None else [folder]
+        for place in sizes:
+            f = checkpoint_file(place)
+            if not f.is_file():
+                continue
+            remedy = "delete it to start that material afresh, or run without --resume"
+            ck = read_checkpoint(f, "cpu", remedy)
+            settings = dataclasses.asdict(plan.cfg)
+            if max_error is not None:
+                settings["decoder"] = place.name
+            diff = resume_conflicts(ck, settings, tuple(plan.grid))
+            if diff:
+                raise InputError(f"{f}: --resume cannot continue this checkpoint, whose network differs from "
+                                 f"this run's ({'; '.join(diff)}). Rerun with the checkpoint's settings, or "
+                                 f"without --resume (--force retrains from scratch)")
+
+
+def _kept_materials(layout: OutputLayout, record, names, material) -> KeptMaterials | None:
+    """With ``--material``, the previous layer's other materials whose files are still there."""
+    if record is None or material is None:
+        return None
+    entries = {}
+    for name, entry in record.materials.items():
+        if name in names:
+            continue
+        folder = (layout.layer.parent / entry.get("folder", "")).resolve()
+        if entry.get("folder") and (folder / "neural" / "weights.json").is_file():
+            entries[name] = entry
+        else:
+            warnings.warn(f"{layout.layer}: dropping {name} from the layer: its exported files are gone "
+                          f"({folder / 'neural'})", stacklevel=3)
+    return KeptMaterials(layout.layer, entries)
+
+
 def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None, device: str = "cpu",
                   resume: bool = False, progress: bool = True, allow_missing_textures: bool = False,
                   force: bool = False, preset: str | None = None, usda=None, workers=None,
-                  max_error: float | None = None, texel_density: float | None = None) -> Summaries:
+                  max_error: float | None = None, texel_density: float | None = None,
+                  allow_untrained: bool = False) -> Summaries:
     """Train (or reuse, or share) every selected material (or only ``material``), then export them.
+
+    ``out``: the output folder, or the layer's path when it ends in ``.usda``/``.usd``/``.usdc``
+    (:func:`mtlx2neural.export.outputs.resolve_output`; default ``<asset stem>_neural``);
+    ``usda`` overrides the layer's path. Every setting, device and output path is checked
+    before any training (:class:`InputError` otherwise): the outputs never touch the input
+    or the files it reads, nor files this tool did not write (:mod:`.export.outputs`); one
+    run at a time holds the output folder (:mod:`.export.lock`). With ``material``, an
+    existing layer keeps its other materials. ``iterations = 0`` (an untrained network)
+    needs ``allow_untrained``.
 
     ``workers``: None (min(materials, CPUs or GPUs)), a number of local processes (1: this
     process), ``"ray"`` or ``"ray://host:port"`` (:mod:`.jobs`). ``max_error``: an HDR FLIP
@@ -126,16 +181,49 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
     trained), ``shared_with`` (the material whose result it shares, else absent),
     ``warnings``, ``usd`` (the layer written) and ``export_notes`` (FP16 range-check
     notes) added. ``preset`` names the preset for ``neural:metrics:preset`` (default: the
-    preset ``cfg`` equals, else "custom"); ``usda`` overrides the layer's path.
+    preset ``cfg`` equals, else "custom").
     """
+    # 1. options, before reading anything
+    validate_config(cfg, allow_untrained)
+    device = check_device(device)
     register_schema()  # before USD's schema registry is first built
+    # 2. the scene and the materials to convert
     scene = load_asset(asset)
-    out = Path(out) if out else default_output(asset)
     sources = _select(scene, asset, material)
+    # 3. where everything goes, checked against the files the input reads (nothing written yet)
+    layout = resolve_output(asset, out)
+    if usda:
+        layout = OutputLayout(layout.folder, Path(os.path.abspath(usda)))
+    names = material_folders([s.name for s in sources])
+    folders = [layout.folder / names[s.name] for s in sources]
+    record = check_output(layout, scene.asset, input_files(scene.asset, [*scene.materials, *sources]), folders)
+    # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
     plans = plan_materials(sources, cfg, allow_missing_textures, max_error, texel_density, scene.asset)
     for p in plans:
         p.compiled = None  # the workers compile again (on their device); keep the parent small
-    folders = [out / material_folder(p.name) for p in plans]
+    if resume:
+        _check_resume(plans, folders, max_error)
+    keep = _kept_materials(layout, record, {s.name for s in sources}, material)
+    # 5. the output folder: writable, ours, and held by this run alone
+    prepare_folder(layout, scene.asset, __version__)
+    with output_lock(layout.folder):
+        summaries, trained = _train_and_share(plans, folders, cfg, device, resume, progress,
+                                              allow_missing_textures, force, workers, max_error)
+        summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
+        if cfg.iterations == 0:
+            for s in summaries:
+                s.setdefault("warnings", []).append("exported untrained (--iterations 0 --allow-untrained)")
+        layer, exported = export_asset(scene.asset, trained, layout.folder, preset or preset_name(cfg),
+                                       layout.layer, keep=keep, tool_version=__version__)
+    for s, e in zip(summaries, exported):
+        s["usd"], s["export_notes"] = str(layer), e.notes
+    summaries.kept = sorted(keep.entries) if keep else []
+    return summaries
+
+
+def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
+                     max_error) -> tuple[Summaries, list[tuple]]:
+    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder) per plan)."""
     results: dict[int, tuple] = {}  # plan index -> (model or None, summary, cached)
     jobs, job_plans = [], []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
@@ -164,7 +252,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
         i = job_plans[k]
         results[i] = (load_checkpoint(folders[i]), s, False)
     first = {p.name: i for i, p in reversed(list(enumerate(plans)))}
-    trained, summaries = [], Summaries()
+    summaries, trained = Summaries(), []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
         if plan.shared_with:
             j = first[plan.shared_with]
@@ -178,8 +266,4 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
         summary = {**summary, "cached": cached, "latent": plan.latent_info()}
         trained.append((model, summary, folder))
         summaries.append(summary)
-    summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
-    layer, exported = export_asset(scene.asset, trained, out, preset or preset_name(cfg), usda)
-    for s, e in zip(summaries, exported):
-        s["usd"], s["export_notes"] = str(layer), e.notes
-    return summaries
+    return summaries, trained

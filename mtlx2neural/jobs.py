@@ -43,7 +43,9 @@ from pathlib import Path
 import torch
 
 from .atomic import atomic_path
+from .errors import InputError
 from .plan import DECODERS
+from .progress import progress_bar
 from .train.config import TrainConfig
 
 # ----------------------------------------------------------------------------- the error budget
@@ -104,6 +106,26 @@ def resolve_device(device: str) -> str:
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     return device
+
+
+def check_device(device: str) -> str:
+    """``device`` resolved (:func:`resolve_device`), or :class:`~mtlx2neural.errors.InputError`
+    when it is not ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` of a GPU this machine has."""
+    try:
+        d = torch.device(resolve_device(device))
+    except (RuntimeError, TypeError):
+        d = None
+    if d is None or d.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {device!r}: not a device mtlx2neural trains on; give cpu, cuda, cuda:N or auto")
+    if d.type == "cuda":
+        if not torch.cuda.is_available():
+            build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "no CUDA (a CPU build)"
+            raise InputError(f"--device {device}: CUDA is not available on this machine (torch {torch.__version__} "
+                             f"has {build}); use --device cpu, or auto to take a GPU when there is one")
+        if d.index is not None and d.index >= torch.cuda.device_count():
+            raise InputError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s), "
+                             f"numbered from 0")
+    return str(d)
 
 
 def write_summary(folder: Path, summary: dict) -> None:
@@ -463,17 +485,16 @@ def _run_pool(jobs, n: int, report) -> list[dict]:
 
 
 class _PoolBars:
-    """One tqdm bar per pool job (phase, loss, ETA), fed by the workers through a queue."""
+    """One progress bar per pool job (phase, loss, ETA; log lines off a terminal: :mod:`.progress`),
+    fed by the workers through a queue."""
 
     def __init__(self, jobs, ctx):
         import threading
 
-        from tqdm import tqdm
-
         self.manager = ctx.Manager()
         self.queue = self.manager.Queue()
-        self.bars = [tqdm(total=j.cfg.iterations, desc=j.name.rsplit("/", 1)[-1], position=i, unit="it",
-                          dynamic_ncols=True, leave=True) for i, j in enumerate(jobs)]
+        self.bars = [progress_bar(j.cfg.iterations, desc=j.name.rsplit("/", 1)[-1], position=i)
+                     for i, j in enumerate(jobs)]
         self.thread = threading.Thread(target=self._drain, daemon=True)
         self.thread.start()
 
@@ -507,8 +528,6 @@ def _run_ray(jobs, address: str, report) -> list[dict]:
     try:
         import ray
     except ImportError:
-        from .errors import InputError
-
         raise InputError(f"--workers {address} needs Ray: pip install 'mtlx2neural[ray]' "
                          f"(or give a number of local processes)") from None
     started = not ray.is_initialized()

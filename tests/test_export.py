@@ -273,7 +273,7 @@ def converted(tmp_path_factory):
 def test_output_layout(converted):
     assert [s["cached"] for s in converted["summaries"]] == [False, False]
     assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
-    for name in ("World_Looks_CarPaint", "World_Looks_Plastic"):
+    for name in ("World.Looks.CarPaint", "World.Looks.Plastic"):
         files = sorted(p.name for p in (converted["out"] / name / "neural").iterdir())
         shader = "NeuralMaterial_" + name.rsplit("_", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
         assert files == sorted(["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json",
@@ -286,7 +286,7 @@ def test_output_layout(converted):
 @pytest.mark.parametrize("material", ["/World/Looks/CarPaint", "Plastic"])
 def test_load_neural_reproduces_the_trained_model(converted, material):
     loaded = m2n.load_neural(converted["usda"], material)
-    folder = converted["out"] / ("World_Looks_" + material.rsplit("/", 1)[-1])
+    folder = converted["out"] / ("World.Looks." + material.rsplit("/", 1)[-1])
     assert_round_trip(loaded, load_checkpoint(folder))
 
 
@@ -320,12 +320,12 @@ def test_neural_layer_composes_binds_and_switches(converted):
     assert prim.GetAttribute("neural:metrics:preset").Get() == "fast"
     assert tuple(prim.GetAttribute("neural:latentResolution").Get()) == (1, 1)
     textures = prim.GetAttribute("neural:latentTextures").Get()
-    assert [t.path for t in textures] == [f"./layered_spheres_neural/World_Looks_CarPaint/neural/latents_{k}.exr"
+    assert [t.path for t in textures] == [f"./layered_spheres_neural/World.Looks.CarPaint/neural/latents_{k}.exr"
                                           for k in (0, 1)]
     assert all(Path(t.resolvedPath).is_file() for t in textures)
     src = mat.ComputeSurfaceSource("neural")[0]
     assert src.GetPath() == "/World/Looks/CarPaint/NeuralBSDF" and src.GetShaderId() == "NeuralBSDF"
-    assert src.GetInput("weights").Get().path.endswith("World_Looks_CarPaint/neural/weights.bin")
+    assert src.GetInput("weights").Get().path.endswith("World.Looks.CarPaint/neural/weights.bin")
     assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == "/World/Looks/CarPaint/Surface"
     vset.SetVariantSelection("original")  # the input's Material, unchanged
     assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == "/World/Looks/CarPaint/Surface"
@@ -414,7 +414,7 @@ def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path
     shutil.copyfile(SAMPLE, asset)
     first = convert_asset(asset, TINY, material="Plastic", progress=False, device="cpu")
     assert first[0]["cached"] is False
-    weights = tmp_path / "layered_spheres_neural" / "World_Looks_Plastic" / "neural" / "weights.bin"
+    weights = tmp_path / "layered_spheres_neural" / "World.Looks.Plastic" / "neural" / "weights.bin"
     trained = weights.read_bytes()
 
     def no_training(self, progress=True):

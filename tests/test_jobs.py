@@ -236,21 +236,21 @@ def test_identical_materials_train_once_and_unbound_ones_are_skipped(three_stage
             "content hash") in out
     assert "/World/Looks/C: skipped (not bound" in out
     out_dir = three_stage.parent / "three_neural"
-    a = json.loads((out_dir / "World_Looks_A" / "summary.json").read_text())
-    b = json.loads((out_dir / "World_Looks_B" / "summary.json").read_text())
+    a = json.loads((out_dir / "World.Looks.A" / "summary.json").read_text())
+    b = json.loads((out_dir / "World.Looks.B" / "summary.json").read_text())
     assert "shared_with" not in a and b["shared_with"] == "/World/Looks/A"
     assert b["material"] == "/World/Looks/B" and b["content_hash"] == a["content_hash"]
     assert b["source_hash"] != a["source_hash"]  # the cache key names the material
     assert b["steps"] == a["steps"] and b["flip_mean"] == a["flip_mean"]
-    assert not (out_dir / "World_Looks_C").exists()
+    assert not (out_dir / "World.Looks.C").exists()
     usda = three_stage.parent / "three_neural.usda"
     wi = torch.tensor([[0.0, 0.6, 0.8], [0.3, 0.1, 0.95]])
     wo = torch.tensor([[0.0, -0.6, 0.8], [-0.5, 0.2, 0.84]])
     wi, wo = torch.nn.functional.normalize(wi, dim=-1), torch.nn.functional.normalize(wo, dim=-1)
     with torch.no_grad():  # B's exported files are its own copies of A's
         torch.testing.assert_close(m2n.load_neural(usda, "B").eval(wi, wo), m2n.load_neural(usda, "A").eval(wi, wo))
-    assert (out_dir / "World_Looks_B" / "neural" / "weights.bin").read_bytes() == \
-        (out_dir / "World_Looks_A" / "neural" / "weights.bin").read_bytes()
+    assert (out_dir / "World.Looks.B" / "neural" / "weights.bin").read_bytes() == \
+        (out_dir / "World.Looks.A" / "neural" / "weights.bin").read_bytes()
 
     runs.clear()  # again: A is reused, B shares it again, nothing trains
     assert main([str(three_stage), "--workers", "1", "--quiet", *CLI_TINY]) == 0
@@ -351,7 +351,7 @@ def test_ray_local_cluster_runs_the_same_jobs(tmp_path, capsys):
         assert m2n.load_neural(tmp_path / "three_neural.usda", "C").usd_info["material"] == "/World/Looks/C"
         # A ray:// address ships the files back with the result (this cluster stands in for a remote one:
         # an initialised Ray is used as it is).
-        folder = tmp_path / "three_neural" / "World_Looks_A"
+        folder = tmp_path / "three_neural" / "World.Looks.A"
         shutil.rmtree(folder)
         shipped = convert_asset(asset, TINY, material="A", device="cpu", workers="ray://remote.invalid:10001")
     finally:

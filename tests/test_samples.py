@@ -38,6 +38,6 @@ def test_textured_sample_is_layered_textured_and_trainable(tmp_path, capsys):
     code = main([str(stage), "--iterations", "10", "--batch", "256", "--quiet", "--device", "cpu",
                  "-o", str(tmp_path / "out")])
     assert code == 0, capsys.readouterr().err
-    for name in ("World_Looks_GlazedCeramic", "World_Looks_BrushedMetal"):
+    for name in ("World.Looks.GlazedCeramic", "World.Looks.BrushedMetal"):
         summary = json.loads((tmp_path / "out" / name / "summary.json").read_text())
         assert summary["steps"] == 10 and summary["varying_channels"] > 0

@@ -304,7 +304,7 @@ def test_convert_trains_the_planned_grid(tmp_path, capsys):
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "warning: /World/Looks/A: latent grid 16x16 from the scene's texel density" in out
-    summary = json.loads((tmp_path / "scene_neural" / "World_Looks_A" / "summary.json").read_text())
+    summary = json.loads((tmp_path / "scene_neural" / "World.Looks.A" / "summary.json").read_text())
     p = plan(asset, 8.0, preset("fast", iterations=20, batch=256))[0]
     assert summary["resolution"] == [16, 16] and summary["source_hash"] == p.digest
     assert summary["latent"]["kind"] == "density" and summary["config"]["max_resolution"] == 16

@@ -14,6 +14,7 @@ temporary files and renamed into place, so a failed run leaves no partial file.
 from __future__ import annotations
 
 import os
+import re
 import time
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from ..atomic import atomic_path
 from ..errors import InputError
+from ..export.outputs import default_output, material_folder
 
 GEOMETRIES = ("sphere", "plane", "teapot")
 TEAPOT = Path("resources") / "Geometry" / "teapot.obj"
@@ -87,10 +89,12 @@ def write_png(path, img: np.ndarray) -> None:
 
 
 def default_checkpoint(asset, material_name: str) -> Path:
-    """Where ``mtlx2neural ASSET`` puts the checkpoint of ``material_name``."""
-    from ..convert import default_output, material_folder
-
-    return default_output(asset) / material_folder(material_name) / "checkpoint.pt"
+    """Where ``mtlx2neural ASSET`` puts the checkpoint of ``material_name`` (or, when only that
+    exists, where mtlx2neural 0.2 put it: the name with every run of other characters as ``_``)."""
+    out = default_output(asset)
+    current = out / material_folder(material_name) / "checkpoint.pt"
+    legacy = out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", material_name.strip("/")) or "material") / "checkpoint.pt"
+    return legacy if legacy.is_file() and not current.is_file() else current
 
 
 def render_asset(asset, output, material: str | None = None, model: str = "reference", checkpoint=None,

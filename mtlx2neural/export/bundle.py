@@ -28,7 +28,7 @@ from pathlib import Path
 from ..codegen import write_material_shader
 from .latents import write_latent_textures
 from .staging import Staging
-from .usd_writer import ExportedMaterial, write_neural_layer
+from .usd_writer import ExportedMaterial, KeptMaterials, write_neural_layer
 from .weights import write_weights
 
 EXPORT_FOLDER = "neural"
@@ -64,10 +64,13 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
     return m
 
 
-def export_asset(asset, trained: list[tuple], out, preset: str, usda=None) -> tuple[Path, list[ExportedMaterial]]:
+def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep: KeptMaterials | None = None,
+                 tool_version: str = "") -> tuple[Path, list[ExportedMaterial]]:
     """Export every ``(model, summary, material folder)`` of ``trained`` and write the layer.
 
-    ``usda`` defaults to :func:`layer_path` of ``out``. Returns (layer path, exported materials).
+    ``usda`` defaults to :func:`layer_path` of ``out``. ``keep``: materials of the
+    previous layer at ``usda`` to carry over (:func:`~.usd_writer.write_neural_layer`).
+    Returns (layer path, exported materials).
     """
     usda = Path(usda).resolve() if usda else layer_path(out)
     exported = []
@@ -75,5 +78,5 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None) -> tu
         for model, summary, folder in trained:
             final = Path(folder).resolve() / EXPORT_FOLDER
             exported.append(export_material(model, summary, st.stage(final), final, preset))
-        write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda)
+        write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version)
     return usda, exported

@@ -23,6 +23,13 @@ variant set ``neuralMaterial`` (selected by default): the applied
 gives back exactly the input's Material (a variant cannot block an opinion authored
 outside it, so the neural opinions must not be authored outside). Asset paths are
 relative to the layer (``./...``).
+
+The layer records what it holds in its ``customLayerData`` under
+:data:`RECORD_KEY`: the input it was written for (``source``, relative to the
+layer), the tool version and, per material name, its prim, source hash and
+material folder. That record is how a later run recognises the layer as this
+tool's (:mod:`.outputs`) and how a ``--material`` run keeps the other materials:
+their prim specs are copied unchanged from the previous layer (``keep``).
 """
 
 from __future__ import annotations
@@ -38,6 +45,10 @@ NEURAL, ORIGINAL = "neural", "original"
 SHADER_ID = "NeuralBSDF"
 API = "NeuralMaterialAPI"
 MTLX_SCOPE = "/Materials"
+RECORD_KEY = "mtlx2neural"
+"""``customLayerData`` key of the layer's record (module docstring)."""
+LEGACY_DOC_PREFIX = "mtlx2neural neural materials for"
+"""How layers written before the record began their documentation string."""
 
 
 _schema_tried = False
@@ -165,10 +176,10 @@ def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> No
     material.GetPrim().SetCustomDataByKey("mtlx2neural:material", m.material)
 
 
-def _mtlx_prim_paths(materials) -> list[str]:
+def _mtlx_prim_paths(materials, reserved=()) -> list[str]:
     from pxr import Tf
 
-    names, paths = set(), []
+    names, paths = {p.rsplit("/", 1)[-1] for p in reserved}, []
     for m in materials:
         base = Tf.MakeValidIdentifier(m.name)
         name, i = base, 1
@@ -179,12 +190,43 @@ def _mtlx_prim_paths(materials) -> list[str]:
     return paths
 
 
-def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, anchor=None) -> Path:
+@dataclass
+class KeptMaterials:
+    """Materials of a previous layer to carry over unchanged (a ``--material`` run)."""
+
+    layer: Path
+    """The previous layer (at the same path as the new one, so its relative paths stay valid)."""
+    entries: dict[str, dict]
+    """Material name -> its record entry (``prim``, ``sourceHash``, ``folder``)."""
+
+
+def _copy_kept(old_path: Path, layer, kept: dict[str, dict]) -> None:
+    """Copy each kept material's prim spec from the previous layer (ancestors as ``over``)."""
+    from pxr import Sdf
+
+    old = Sdf.Layer.OpenAsAnonymous(str(old_path))  # not the registry's copy, which may be stale
+    for entry in kept.values():
+        path = Sdf.Path(entry["prim"])
+        if old is None or not old.GetPrimAtPath(path):
+            continue
+        parent = path.GetParentPath()
+        if parent != Sdf.Path.absoluteRootPath and not layer.GetPrimAtPath(parent):
+            Sdf.CreatePrimInLayer(layer, parent)
+            if str(parent) == MTLX_SCOPE:  # the .mtlx input's scope is defined, as the writer defines it
+                spec = layer.GetPrimAtPath(parent)
+                spec.specifier, spec.typeName = Sdf.SpecifierDef, "Scope"
+        Sdf.CopySpec(old, path, layer, path)
+
+
+def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, anchor=None,
+                       keep: KeptMaterials | None = None, tool_version: str = "") -> Path:
     """Write the neural layer for ``materials`` of ``asset`` to ``out_usda``.
 
     ``anchor`` is where the layer will finally live (default ``out_usda``): relative
     asset and sublayer paths are computed from its folder, so the layer can be written
-    into a staging folder first. Returns ``out_usda``. The input is only read.
+    into a staging folder first. ``keep``: materials of the previous layer at
+    ``anchor`` whose prim specs are copied over unchanged (those not in ``materials``).
+    Returns ``out_usda``. The input is only read.
     """
     from pxr import Sdf, Usd, UsdGeom, UsdShade
 
@@ -197,8 +239,9 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     is_mtlx = asset.suffix.lower() == ".mtlx"
+    kept = {k: v for k, v in (keep.entries if keep else {}).items() if k not in {m.name for m in materials}}
     if is_mtlx:
-        paths = _mtlx_prim_paths(materials)
+        paths = _mtlx_prim_paths(materials, [e["prim"] for e in kept.values()])
         stage = Usd.Stage.Open(layer)
         UsdGeom.Scope.Define(stage, MTLX_SCOPE)
         stage.SetDefaultPrim(stage.GetPrimAtPath(MTLX_SCOPE))
@@ -235,10 +278,17 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
             _api_attributes(material.GetPrim(), m, rel)
             _neural_shader(stage, material, m, rel)
     del stage  # a live stage would recompose (and warn) when the sublayer path becomes relative
+    if kept:
+        _copy_kept(keep.layer, layer, kept)
     if not is_mtlx:
         layer.subLayerPaths[0] = rel(asset)
-    layer.documentation = (f"mtlx2neural neural materials for {asset.name}: "
-                           + ", ".join(m.name for m in materials)
+    entries = {m.name: {"prim": str(p), "sourceHash": m.source_hash, "folder": rel(Path(m.folder).parent)}
+               for m, p in zip(materials, paths)}
+    entries.update(kept)
+    layer.customLayerData = {**dict(layer.customLayerData), RECORD_KEY: {
+        "formatVersion": FORMAT_VERSION, "tool": f"mtlx2neural {tool_version}".strip(), "source": rel(asset),
+        "materials": {k: entries[k] for k in sorted(entries)}}}
+    layer.documentation = (f"{LEGACY_DOC_PREFIX} {asset.name}: " + ", ".join(sorted(entries))
                            + f". Variant set '{VARIANT_SET}' on each Material: '{NEURAL}' (default) or '{ORIGINAL}'.")
     if not layer.Export(str(out_usda)):
         raise OSError(f"{out_usda}: cannot write the USD layer")

@@ -62,6 +62,39 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     return args
 
 
+def read_checkpoint(f, map_location="cpu", remedy: str = "retrain it") -> dict:
+    """The trainer's checkpoint dict in the file ``f``; :class:`InputError` naming the file when it
+    cannot be read (truncated, foreign, permission denied), with ``remedy`` as the advice."""
+    f = Path(f)
+    try:
+        ck = torch.load(f, map_location=map_location, weights_only=False)
+    except PermissionError:
+        raise InputError(f"{f}: cannot read the checkpoint: permission denied; fix its permissions, or "
+                         f"{remedy}") from None
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for truncated or foreign files
+        raise InputError(f"{f}: cannot read the checkpoint, it is truncated or not a checkpoint "
+                         f"({type(exc).__name__}: {exc}); {remedy}") from None
+    if not isinstance(ck, dict) or not isinstance(ck.get("model"), dict):
+        raise InputError(f"{f}: not a mtlx2neural checkpoint (expected a dict with a 'model' state dict); {remedy}")
+    return ck
+
+
+RESUME_FIELDS = ("decoder", "frames", "latent_dim", "albedo_head", "analytic_cosine")
+"""Settings a resumed run must share with its checkpoint: they fix the network's shape."""
+
+
+def resume_conflicts(ck: dict, settings: dict, grid: tuple[int, int]) -> list[str]:
+    """What differs between the checkpoint ``ck`` and a run with ``settings`` (a TrainConfig as a
+    dict) and latent ``grid`` (H, W): one ``"name: checkpoint X, this run Y"`` per difference."""
+    config, state = ck.get("config") or {}, ck["model"]
+    out = [f"{k}: checkpoint {config[k]!r}, this run {settings.get(k)!r}"
+           for k in RESUME_FIELDS if k in config and config[k] != settings.get(k)]
+    level0 = state.get("latents.levels.0")
+    if level0 is not None and tuple(level0.shape[1:]) != tuple(grid):
+        out.append(f"latent grid: checkpoint {level0.shape[2]}x{level0.shape[1]}, this run {grid[1]}x{grid[0]}")
+    return out
+
+
 def load_checkpoint(path, map_location="cpu") -> NeuralMaterial:
     """The NeuralMaterial saved at ``path`` (a ``checkpoint.pt`` or the folder holding one), in eval
     mode (``train(False)``: ``NeuralMaterial.eval`` is the BRDF).
@@ -74,13 +107,7 @@ def load_checkpoint(path, map_location="cpu") -> NeuralMaterial:
     if not f.is_file():
         raise InputError(f"{f}: no neural-material checkpoint there; train one with "
                          f"`mtlx2neural ASSET` or pass --checkpoint PATH")
-    try:
-        ck = torch.load(f, map_location=map_location, weights_only=False)
-    except Exception as exc:  # noqa: BLE001 - torch raises many types for truncated or foreign files
-        raise InputError(f"{f}: cannot read the checkpoint ({type(exc).__name__}: {exc}); "
-                         f"retrain or point --checkpoint at a complete checkpoint.pt") from None
-    if not isinstance(ck, dict) or not isinstance(ck.get("model"), dict):
-        raise InputError(f"{f}: not a mtlx2neural checkpoint (expected a dict with a 'model' state dict)")
+    ck = read_checkpoint(f, map_location, "retrain or point --checkpoint at a complete checkpoint.pt")
     state, config = ck["model"], ck.get("config") or {}
     try:
         model = NeuralMaterial(**model_arguments(state, config))

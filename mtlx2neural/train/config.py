@@ -100,3 +100,59 @@ def preset(name: str, **overrides) -> TrainConfig:
     if name not in PRESETS:
         raise ValueError(f"unknown preset '{name}': choose one of {', '.join(PRESETS)}")
     return dataclasses.replace(PRESETS[name], **{k: v for k, v in overrides.items() if v is not None})
+
+
+_COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples": 1, "checkpoint_every": 1,
+           "frames": 0, "iterations": 0}
+"""Integer settings and their smallest valid value."""
+_SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction")
+"""Settings that are a share of something, in [0, 1]."""
+_FLAGS = {"batch": "--batch", "frames": "--frames", "iterations": "--iterations", "decoder": "--decoder",
+          "max_resolution": "--max-texels", "seed": "--seed"}
+
+
+def validate_config(cfg: TrainConfig, allow_untrained: bool = False) -> None:
+    """Raise :class:`~mtlx2neural.errors.InputError` naming the first invalid setting of ``cfg``
+    (and the command-line flag that sets it), before any work.
+
+    ``iterations = 0`` would export an untrained network: refused unless ``allow_untrained``.
+    """
+    import math
+
+    from ..errors import InputError
+    from ..model.mlp import parse_hidden  # local: the CLI's parser imports this module, and mlp imports torch
+
+    def bad(name: str, why: str) -> InputError:
+        flag = _FLAGS.get(name)
+        return InputError(f"{flag + ' (' + name + ')' if flag else 'setting ' + name} = {getattr(cfg, name)!r}: "
+                          f"{why}")
+
+    for name, least in _COUNTS.items():
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < least:
+            raise bad(name, f"must be a whole number of at least {least}")
+    if cfg.iterations == 0 and not allow_untrained:
+        raise bad("iterations", "0 steps would export an untrained network; give at least 1, or pass "
+                                "--allow-untrained (allow_untrained=True) to export one on purpose")
+    for name in _SHARES:
+        v = getattr(cfg, name)
+        if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+            raise bad(name, "must be a share between 0 and 1")
+    for name in ("lr_start", "lr_end"):
+        v = getattr(cfg, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise bad(name, "must be a positive learning rate")
+    for name in ("mollify_degrees", "mollify_min_degrees", "level_rate"):
+        v = getattr(cfg, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise bad(name, "must be a finite number >= 0")
+    if cfg.max_resolution is not None and (not isinstance(cfg.max_resolution, int) or cfg.max_resolution < 1):
+        raise bad("max_resolution", "must be None (no cap) or at least 1 texel")
+    if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int) or not 0 <= cfg.seed < 2 ** 63:
+        raise bad("seed", "must be a whole number between 0 and 2^63 - 1")
+    try:
+        hidden = parse_hidden(cfg.decoder)
+    except (ValueError, TypeError, AttributeError):
+        hidden = ()
+    if not hidden or any(w < 1 for w in hidden):
+        raise bad("decoder", "must be hidden layers as LAYERSxWIDTH, e.g. 2x16, 2x32 or 3x64")

@@ -26,6 +26,7 @@ import torch
 
 from ..atomic import atomic_path
 from ..model.neural_material import NeuralMaterial
+from ..progress import progress_bar
 from ..textures.footprint import footprint_targets, sample_levels
 from ..textures.parameter_stack import ParameterStack
 from .config import TrainConfig
@@ -234,14 +235,12 @@ class Trainer:
                 "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
 
     def run(self, progress: bool = True, listener=None) -> NeuralMaterial:
-        """Train to ``cfg.iterations`` steps (from the current step), showing a tqdm bar when
-        ``progress``; ``listener(step, total, record)`` is called with every logged record
+        """Train to ``cfg.iterations`` steps (from the current step), showing progress when
+        ``progress`` (a bar on a terminal, periodic log lines otherwise: :mod:`mtlx2neural.progress`); ``listener(step, total, record)`` is called with every logged record
         (every 25 steps), e.g. to draw a parent process's bar for a pool worker."""
-        from tqdm import tqdm
-
         cfg = self.cfg
         switch = int(cfg.iterations * cfg.encoder_fraction)
-        bar = tqdm(total=cfg.iterations, initial=self.step, disable=not progress, unit="it", dynamic_ncols=True)
+        bar = progress_bar(cfg.iterations, self.step, enabled=progress, desc=self.out_dir.name)
         start = time.time()
         try:
             while self.step < cfg.iterations:

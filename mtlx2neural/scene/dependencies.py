@@ -1,0 +1,73 @@
+"""Every file an input asset reads: the set a conversion must never write to.
+
+For a USD stage: the root layer and every layer and asset it reaches through
+sublayers, references, payloads and asset-valued attributes (USD's own
+``UsdUtils.ComputeAllDependencies``; unresolved paths are included as written,
+made absolute, since a later run could create them). For every MaterialX
+document a selected material comes from: the document's own file, the files it
+``xi:include``s, and every ``filename`` input (textures), resolved as the
+compiler resolves them. Paths are absolute and normalised (symbolic links
+resolved), so two spellings of one file compare equal.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def canonical(path) -> Path:
+    """``path`` absolute, with symbolic links and ``..`` resolved (as far as it exists)."""
+    return Path(os.path.realpath(os.path.abspath(os.fspath(path))))
+
+
+def _usd_dependencies(asset: Path) -> set[Path]:
+    from pxr import UsdUtils
+
+    found: set[Path] = set()
+    try:
+        layers, assets, unresolved = UsdUtils.ComputeAllDependencies(str(asset))
+    except Exception as exc:  # noqa: BLE001 - USD raises Tf errors for broken layers; loading reports them
+        log.debug("%s: cannot compute its dependencies (%s)", asset, exc)
+        return found
+    for layer in layers:
+        if layer.realPath:
+            found.add(canonical(layer.realPath))
+    for p in list(assets) + list(unresolved):
+        if p and "<UDIM>" not in p:
+            found.add(canonical(p))
+    return found
+
+
+def _mtlx_dependencies(document) -> set[Path]:
+    """The document's files (``xi:include`` included) and its ``filename`` inputs."""
+    found: set[Path] = set()
+    for uri in [document.getSourceUri(), *document.getReferencedSourceUris()]:
+        if uri:
+            found.add(canonical(uri))
+    for elem in document.traverseTree():
+        if elem.getCategory() == "input" and elem.getAttribute("type") == "filename":
+            value = elem.getResolvedValueString()
+            if value and "<UDIM>" not in value:
+                base = elem.getActiveSourceUri()
+                path = value if os.path.isabs(value) or not base else os.path.join(os.path.dirname(base), value)
+                found.add(canonical(path))
+    return found
+
+
+def input_files(asset, sources=()) -> set[Path]:
+    """Every file the asset ``asset`` and the material ``sources`` (:class:`MaterialSource`) read."""
+    asset = canonical(asset)
+    found = {asset}
+    if asset.suffix.lower() in USD_SUFFIXES:
+        found |= _usd_dependencies(asset)
+    for src in sources:
+        if src.source_file:
+            found.add(canonical(src.source_file))
+        found |= _mtlx_dependencies(src.document)
+    return found
