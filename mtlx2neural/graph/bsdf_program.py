@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..errors import UnsupportedNodeError
+from ..errors import InputError, UnsupportedNodeError
 from .evaluate import GraphEvaluator
 from .ir import Const, Input, Ref
 
@@ -29,6 +29,9 @@ ZERO_WEIGHT_THROUGHPUT = {"dielectric_bsdf": 1.0, "generalized_schlick_bsdf": 1.
 EDFS = {"uniform_edf", "conical_edf", "measured_edf", "generalized_schlick_edf"}
 VDFS = {"anisotropic_vdf", "absorption_vdf"}
 CLOSURE_NODES = LOBES | EDFS | VDFS | {"layer", "surface", "surface_unlit"}
+# Deepest nesting of closure combinators (layer, mix, add, multiply) accepted. The closure
+# tree is walked recursively here and by the reference; real materials nest a few tens.
+MAX_CLOSURE_DEPTH = 256
 APPROXIMATED = {"subsurface_bsdf": "subsurface scattering is replaced by MaterialX's hardware wrapped-diffusion "
                                    "approximation for a flat surface"}
 
@@ -124,6 +127,16 @@ class _Builder:
         self.ev = ev
         self.g = ev.graph
         self.prog = BsdfProgram(None)
+        self.depth = 0
+
+    def _enter(self, inp: Input) -> None:
+        """Count one more level of closure nesting; refuse a tree deeper than MAX_CLOSURE_DEPTH."""
+        self.depth += 1
+        if self.depth > MAX_CLOSURE_DEPTH:
+            where = self.g[inp.node].path if isinstance(inp, Ref) else "?"
+            raise InputError(f"{self.ev.source}: the closure tree is nested more than {MAX_CLOSURE_DEPTH} levels deep "
+                             f"(layer/mix/add/multiply of BSDFs, reached at '{where}'); mtlx2neural supports at most "
+                             f"{MAX_CLOSURE_DEPTH}. Flatten the chain, e.g. fold a run of multiplies into one node.")
 
     def const(self, inp: Input):
         if not self.ev.is_constant(inp):
@@ -137,6 +150,14 @@ class _Builder:
         return Zero(throughput)
 
     def surface(self, inp: Input):
+        """Program of a surfaceshader input (one level deeper in the closure tree)."""
+        self._enter(inp)
+        try:
+            return self._surface(inp)
+        finally:
+            self.depth -= 1
+
+    def _surface(self, inp: Input):
         if isinstance(inp, Const):
             return Zero(1.0)
         n = self.g[inp.node]
@@ -199,6 +220,14 @@ class _Builder:
         return Mix(fg, bg, amount, f"{n.path}.mix")
 
     def bsdf(self, inp: Input, need_tp: bool):
+        """Program of a BSDF input (one level deeper in the closure tree)."""
+        self._enter(inp)
+        try:
+            return self._bsdf(inp, need_tp)
+        finally:
+            self.depth -= 1
+
+    def _bsdf(self, inp: Input, need_tp: bool):
         if isinstance(inp, Const):
             return Zero(1.0)  # an unconnected BSDF input is MaterialX's BSDF(0, 1)
         i = inp.node

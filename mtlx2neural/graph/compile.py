@@ -11,6 +11,7 @@ from .evaluate import GraphEvaluator
 from .expand import expand_material
 from .ir import Const, Input, IRGraph, Ref
 from .ops import OPS
+from .validate import check_image_modes
 from .sources import FRAME_AXES, SPATIAL, UV_PRIMVARS, needs_conversion, texture, texture_colorspaces
 from ..errors import InputError
 
@@ -107,6 +108,7 @@ def compile_material(document: mx.Document, material: str | None = None, device=
     for leaf in program.leaves():
         needed += list(graph[leaf.node].inputs.values())
     spatial_nodes = ev.spatial_closure(needed)
+    check_image_modes(source, graph, spatial_nodes)  # before any texture is read
     for i in spatial_nodes:
         n = graph[i]
         f = n.inputs.get("file")

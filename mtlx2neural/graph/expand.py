@@ -7,6 +7,11 @@ NodeGraph that implements its nodedef, with the instance's inputs bound to the
 graph's interface. standard_surface, open_pbr_surface, gltf_pbr,
 UsdPreviewSurface and disney_principled all reduce this way; there is no
 per-shader code.
+
+Expansion follows connections depth first, but on an explicit stack rather
+than Python's call stack (:func:`_drive`): each step that would recurse is a
+generator that ``yield``s the sub-step it needs and receives its result, so a
+chain of thousands of nodes expands without ``RecursionError``.
 """
 
 from __future__ import annotations
@@ -14,12 +19,14 @@ from __future__ import annotations
 import itertools
 import os
 from dataclasses import dataclass, field
+from typing import Generator
 
 import MaterialX as mx
 
 from ..errors import InputError, UnsupportedNodeError
 from .ir import Const, Input, IRGraph, IRNode, Ref
 from .library import nodegraph_implementation, with_libraries
+from .validate import check_enum_inputs
 
 # Inputs that only feed emission, which a reflectance model drops: an
 # unsupported node there becomes "unconnected" (with a note) instead of an error.
@@ -32,12 +39,44 @@ _GEOMPROPS = {"normal", "tangent", "bitangent", "position", "texcoord", "geomcol
 @dataclass
 class _Scope:
     """One graph being expanded: the document, a user nodegraph or a library
-    nodegraph instance (then ``interface`` binds its inputs)."""
+    nodegraph instance (then ``interface`` binds its inputs and ``library`` is True)."""
 
     element: mx.GraphElement
     label: str
     interface: dict[str, Input] | None = None
+    library: bool = False
     uid: int = field(default_factory=itertools.count().__next__)
+
+
+# A step of the expansion: a generator that yields the sub-steps it needs and returns its result.
+Step = Generator["Step", object, object]
+
+
+def _drive(root: Step):
+    """Run the step ``root`` and every sub-step it yields on an explicit stack; return its result.
+
+    A step's exception is thrown into the step that asked for it (so ``try``/``except``
+    and ``finally`` inside steps behave as in ordinary recursion) and leaves from here
+    when no step handles it.
+    """
+    stack, value, error = [root], None, None
+    while stack:
+        top = stack[-1]
+        try:
+            request = top.throw(error) if error is not None else top.send(value)
+        except StopIteration as done:  # the step finished: hand its result to the caller
+            stack.pop()
+            value, error = done.value, None
+            continue
+        except BaseException as exc:  # the step failed: raise it in the caller
+            stack.pop()
+            if not stack:
+                raise
+            value, error = None, exc
+            continue
+        stack.append(request)  # the step needs a sub-step first
+        value, error = None, None
+    return value
 
 
 def _const_value(elem: mx.ValueElement, mx_type: str, base_dir: str):
@@ -68,7 +107,7 @@ class Expander:
         self.graph = IRGraph()
         self._memo: dict[tuple[int, str], object] = {}
         self._geom: dict[tuple, int] = {}
-        self._stack: list[str] = []
+        self._active: set[str] = set()  # nodes being expanded (a repeat is a cycle)
         self._graph_scopes: dict[str, _Scope] = {}
         self.notes: list[str] = []
         # The working colour space; as in MaterialX's generators, texture colour spaces are
@@ -102,6 +141,10 @@ class Expander:
 
     def resolve_input(self, scope: _Scope, inst, ndin) -> Input:
         """The IR input for instance input ``inst`` (may be None) of nodedef input ``ndin``."""
+        return _drive(self._resolve(scope, inst, ndin))
+
+    def _resolve(self, scope: _Scope, inst, ndin) -> Step:
+        """Step of :meth:`resolve_input`."""
         if inst is None:
             return self._default(ndin) if ndin is not None else Const(None, "float")
         mx_type = inst.getType()
@@ -115,20 +158,21 @@ class Expander:
                                  f"referenced by '{inst.getNamePath()}' is not declared.")
             return bound
         if inst.getNodeName():
-            return self.node_output(scope, inst.getNodeName(), inst.getOutputString())
+            return (yield self._node_output(scope, inst.getNodeName(), inst.getOutputString()))
         if inst.getOutputString() and not inst.getNodeGraphString():
             # A connection to an <output> element of the enclosing graph (or document).
             out = scope.element.getOutput(inst.getOutputString())
             if out is None:
                 raise InputError(f"{self.source}: input '{inst.getNamePath()}' connects to missing output "
                                  f"'{inst.getOutputString()}'.")
-            return self.resolve_input(scope, out, None)
+            return (yield self._resolve(scope, out, None))
         if inst.getNodeGraphString():
             ng = self.doc.getNodeGraph(inst.getNodeGraphString())
             if ng is None:
                 raise InputError(f"{self.source}: input '{inst.getNamePath()}' connects to missing "
                                  f"nodegraph '{inst.getNodeGraphString()}'.")
-            return self.graph_output(self._document_graph(ng), inst.getOutputString())
+            graph_scope = yield self._document_graph(ng)
+            return (yield self._graph_output(graph_scope, inst.getOutputString()))
         if inst.hasValueString() and inst.getValueString() != "":
             colorspace = inst.getActiveColorSpace() if mx_type == "filename" else ""
             value = _const_value(inst, mx_type, self.base_dir)
@@ -151,40 +195,45 @@ class Expander:
         return tuple(float(x) for x in rgb) + tuple(value[3:])
 
     # -- graphs and nodes ----------------------------------------------------
-    def _document_graph(self, ng: mx.NodeGraph) -> _Scope:
-        """Scope of a user nodegraph; its own inputs form its interface (resolved at document level)."""
+    def _document_graph(self, ng: mx.NodeGraph) -> Step:
+        """Step: the scope of a user nodegraph; its own inputs form its interface (resolved at document level)."""
         key = ng.getNamePath()
         if key not in self._graph_scopes:
             doc_scope = _Scope(self.doc, "")
-            interface = {i.getName(): self.resolve_input(doc_scope, i, None) for i in ng.getInputs()}
+            interface = {}
+            for i in ng.getInputs():
+                interface[i.getName()] = yield self._resolve(doc_scope, i, None)
             self._graph_scopes[key] = _Scope(ng, key, interface)
         return self._graph_scopes[key]
 
-    def graph_output(self, scope: _Scope, output: str) -> Input:
+    def _graph_output(self, scope: _Scope, output: str) -> Step:
+        """Step: the IR input an output of the graph of ``scope`` resolves to."""
         ng = scope.element
         outputs = ng.getOutputs()
         out = ng.getOutput(output) if output else (outputs[0] if len(outputs) == 1 else None)
         if out is None:
             raise InputError(f"{self.source}: nodegraph '{ng.getNamePath()}' has no output "
                              f"'{output}' (outputs: {[o.getName() for o in outputs]}).")
-        return self.resolve_input(scope, out, None)
+        return (yield self._resolve(scope, out, None))
 
-    def node_output(self, scope: _Scope, node_name: str, output: str) -> Input:
+    def _node_output(self, scope: _Scope, node_name: str, output: str) -> Step:
+        """Step: the IR input for output ``output`` of node ``node_name`` in ``scope`` (expanded once)."""
         node = scope.element.getNode(node_name)
         if node is None:
             raise InputError(f"{self.source}: '{scope.label}' references missing node '{node_name}'.")
         key = (scope.uid, node_name)
         if key not in self._memo:
-            self._memo[key] = self._expand_node(scope, node)
+            self._memo[key] = yield self._expand_node(scope, node)
         kind, payload, nodedef = self._memo[key]
         out_name = output or nodedef.getActiveOutputs()[0].getName()
         if kind == "native":
             if out_name not in self.graph[payload].outputs:
                 raise InputError(f"{self.source}: node '{node.getNamePath()}' has no output '{out_name}'.")
             return Ref(payload, out_name)
-        return self.graph_output(payload, out_name)
+        return (yield self._graph_output(payload, out_name))
 
-    def _expand_node(self, scope: _Scope, node: mx.Node):
+    def _expand_node(self, scope: _Scope, node: mx.Node) -> Step:
+        """Step: ``("native", IR index, nodedef)`` or ``("graph", implementation scope, nodedef)``."""
         path = f"{scope.label}/{node.getName()}" if scope.interface is not None else node.getNamePath()
         nodedef = node.getNodeDef()
         if nodedef is None:
@@ -192,9 +241,9 @@ class Expander:
                 f"{self.source}: node '{node.getNamePath()}' (category '{node.getCategory()}', type "
                 f"'{node.getType()}') matches no nodedef in the MaterialX libraries. Check the node's "
                 f"category, type and input types against the MaterialX specification.")
-        if path in self._stack:
+        if path in self._active:
             raise InputError(f"{self.source}: cycle through node '{path}'.")
-        self._stack.append(path)
+        self._active.add(path)
         try:
             inputs = {}
             category = node.getCategory()
@@ -202,12 +251,15 @@ class Expander:
             for ndin in nodedef.getActiveInputs():
                 name = ndin.getName()
                 try:
-                    inputs[name] = self.resolve_input(scope, node.getInput(name), ndin)
+                    inputs[name] = yield self._resolve(scope, node.getInput(name), ndin)
                 except UnsupportedNodeError as exc:
                     if lenient is not None and name not in lenient:
                         raise
                     inputs[name] = Const(None, ndin.getType())
                     self.notes.append(f"emission input '{path}.{name}' dropped: {exc}")
+            if not scope.library:
+                # Values a library nodegraph passes on were checked on the instance that set them.
+                check_enum_inputs(self.source, node.getNamePath(), nodedef, inputs)
             if category in self.native:
                 attrs = {}
                 file_in = inputs.get("file")
@@ -224,10 +276,10 @@ class Expander:
                     f"{self.source}: node '{node.getNamePath()}' uses nodedef '{nodedef.getName()}' "
                     f"(category '{category}'), which mtlx2neural cannot evaluate: it has no torch operator "
                     f"and no nodegraph implementation to expand. Replace the node or bake it to a texture.")
-            child = _Scope(impl, f"{path}<{nodedef.getName()}>", inputs)
+            child = _Scope(impl, f"{path}<{nodedef.getName()}>", inputs, library=True)
             return ("graph", child, nodedef)
         finally:
-            self._stack.pop()
+            self._active.discard(path)
 
 
 def find_material_node(document: mx.Document, material: str | None) -> mx.Node:

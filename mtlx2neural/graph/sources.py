@@ -15,6 +15,7 @@ import functools
 
 from ..textures.image_io import Texture
 from ..textures.texel_lookup import conform_channels
+from .validate import ADDRESS_ALIASES
 
 SPATIAL = {"texcoord", "position", "geomcolor", "geompropvalue", "image"}
 FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
@@ -61,10 +62,13 @@ def eval_source(node, args: dict, uv: torch.Tensor):
         if not path or node.attrs.get("missing"):
             return default.expand(n, -1)
         tex = texture(path, node.path)
-        raw = tex.sample(args["texcoord"].expand(n, -1), uaddress=args.get("uaddressmode", "periodic"),
-                         vaddress=args.get("vaddressmode", "periodic"),
-                         filtertype=args.get("filtertype", "linear") or "linear",
-                         default=conform_channels(default, tex.channels))
+        modes = [args.get(k) or "periodic" for k in ("uaddressmode", "vaddressmode")]
+        border = conform_channels(default, tex.channels)
+        if "black" in modes:  # UsdUVTexture's "black" wrap: a constant border of zeros
+            border = torch.zeros_like(border)
+        raw = tex.sample(args["texcoord"].expand(n, -1), uaddress=ADDRESS_ALIASES.get(modes[0], modes[0]),
+                         vaddress=ADDRESS_ALIASES.get(modes[1], modes[1]),
+                         filtertype=args.get("filtertype", "linear") or "linear", default=border)
         out = conform_channels(raw, CHANNELS[node.type])
         src, dst = texture_colorspaces(node)
         if out.shape[-1] >= 3 and needs_conversion(src, dst):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 
 import MaterialX as mx
 
@@ -34,12 +35,14 @@ def read_document(path) -> "mx.Document":
     Returns a new document (a private copy; callers may modify it) whose
     ``filename`` inputs are absolute paths (``<UDIM>``/``<UVTILE>`` tokens kept)
     and that contains no standard-library elements. Raises InputError when the
-    file is missing, is not well-formed XML, has an unresolvable XInclude, or
-    fails ``validate()`` against the standard libraries.
+    file is missing or unreadable (a permission problem is named as such,
+    for the file and for anything it XIncludes), is not well-formed XML, has an
+    unresolvable XInclude, or fails ``validate()`` against the standard libraries.
     """
     path = _abspath(path)
     if not os.path.isfile(path):
         raise InputError(f"{path}: MaterialX file not found. Check the path.")
+    check_readable(path)  # every time: permissions may change without the mtime
     cached = _read_cached(path, os.stat(path).st_mtime_ns, os.environ.get("MATERIALX_SEARCH_PATH", ""))
     doc = mx.createDocument()
     doc.copyContentFrom(cached)
@@ -57,6 +60,9 @@ def _read_uncached(path: str) -> "mx.Document":
     try:
         mx.readFromXmlFile(doc, path, search)
     except mx.ExceptionFileMissing as exc:
+        unreadable = _unreadable_include(str(exc), os.path.dirname(path))
+        if unreadable:
+            check_readable(unreadable, f"It is included (xi:include) by {path}. ")
         raise InputError(
             f"{path}: a file it includes (xi:include) could not be found: {exc}. "
             "Fix the include path or restore the missing file."
@@ -74,6 +80,41 @@ def _read_uncached(path: str) -> "mx.Document":
     absolutize_filenames(doc, os.path.dirname(path), search)
     mxlib.validate(doc, path)
     return doc
+
+
+def check_readable(path: str, context: str = "") -> None:
+    """Raise InputError when the existing file ``path`` cannot be opened for reading.
+
+    ``context`` (a sentence, e.g. who includes the file) goes into the message. A
+    permission problem is reported as such, not as a missing or malformed file.
+    """
+    try:
+        with open(path, "rb"):
+            pass
+    except PermissionError:
+        reason = "permission denied"
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+    else:
+        return
+    raise InputError(f"cannot read {path}: {reason}. {context}Give the current user read access to the file "
+                     f"(and search access to its folders) and try again.")
+
+
+def _unreadable_include(message: str, base_dir: str) -> str | None:
+    """The file named by MaterialX's "Failed to open file for reading: X" when X exists but cannot be read."""
+    match = re.search(r"for reading:\s*(.+?)\s*$", message)
+    if not match:
+        return None
+    name = match.group(1)
+    candidate = name if os.path.isabs(name) else os.path.join(base_dir, name)
+    if not os.path.isfile(candidate):
+        return None
+    try:
+        with open(candidate, "rb"):
+            return None
+    except OSError:
+        return os.path.normpath(candidate)
 
 
 def _drop_library_elements(doc: "mx.Document") -> None:

@@ -30,9 +30,10 @@ USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
 
 def open_stage(path: str) -> Usd.Stage:
-    """Open the USD file at ``path``; InputError when it is missing or cannot be parsed."""
+    """Open the USD file at ``path``; InputError when it is missing, unreadable or cannot be parsed."""
     if not os.path.isfile(path):
         raise InputError(f"{path}: USD file not found. Check the path.")
+    mtlx_file.check_readable(path)  # else USD reports only "failed to open layer"
     try:
         stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:

@@ -27,10 +27,18 @@ Sampling (:class:`Texture`)
     Address modes and filters follow MaterialX's ``image`` node; see
     :meth:`Texture.sample`. UDIM sets (``<UDIM>``, ``<UVTILE>``) are handled as
     described in :mod:`mtlx2neural.textures.udim`.
+
+OpenImageIO's messages
+    Errors are retrieved with ``geterror()`` and reported in exceptions (or logged
+    when a caller ignores a failure, :func:`pending_oiio_error`). OpenImageIO's own
+    habit of printing errors nobody retrieved to *stdout* when the process exits is
+    switched off (:func:`openimageio`), so that ``inspect --json`` stdout stays JSON.
 """
 
 from __future__ import annotations
 
+import functools
+import logging
 import os
 import threading
 from collections import OrderedDict
@@ -50,6 +58,8 @@ from .texel_lookup import (
 )
 from .udim import UdimRange, is_tiled_path, resolve_udim_set, udim_number
 
+log = logging.getLogger(__name__)
+
 DEFAULT_CACHE_BYTES = 2 << 30
 """Default memory budget of the process-wide image cache: 2 GiB."""
 
@@ -59,6 +69,29 @@ def _where(node: str | None) -> str:
 
 
 # --------------------------------------------------------------------------- reading
+
+
+@functools.lru_cache(maxsize=1)
+def openimageio():
+    """The OpenImageIO module, configured once so that it never writes to stdout.
+
+    By default OpenImageIO prints any error message nobody retrieved with
+    ``geterror()`` to stdout when the process exits ("OpenImageIO exited with a
+    pending error message ..."), which corrupts machine-readable output such as
+    ``inspect --json``. That is switched off; errors are retrieved where they occur.
+    """
+    import OpenImageIO as oiio
+
+    oiio.attribute("oiio:print_uncaught_errors", 0)
+    return oiio
+
+
+def pending_oiio_error(context: str) -> str:
+    """Retrieve (and clear) OpenImageIO's pending error message, logging it with ``context``; "" when none."""
+    message = openimageio().geterror()
+    if message:
+        log.debug("%s: OpenImageIO: %s", context, message)
+    return message
 
 
 # Storage of decoded pixels: integer files stay integers (a quarter of the memory of
@@ -209,8 +242,7 @@ def _check_file(path: str, node: str | None) -> None:
 
 
 def _open(path: str, node: str | None):
-    import OpenImageIO as oiio
-
+    oiio = openimageio()
     _check_file(path, node)
     # Keep straight (unassociated) alpha as the file stores it: a texture's colour
     # channels are data, not to be premultiplied (OIIO would for PNG, GIF, ...).
@@ -218,8 +250,22 @@ def _open(path: str, node: str | None):
     config.attribute("oiio:UnassociatedAlpha", 1)
     inp = oiio.ImageInput.open(path, config)
     if inp is None:
-        raise InputError(f"cannot read texture file '{path}'{_where(node)}: {oiio.geterror() or 'unknown format'}")
+        message = oiio.geterror() or "unknown format"
+        if _permission_denied(path):
+            message = "permission denied. Give the current user read access to the file."
+        raise InputError(f"cannot read texture file '{path}'{_where(node)}: {message}")
     return inp
+
+
+def _permission_denied(path: str) -> bool:
+    """Whether opening ``path`` for reading fails for lack of permission."""
+    try:
+        with open(path, "rb"):
+            return False
+    except PermissionError:
+        return True
+    except OSError:
+        return False
 
 
 def _count_mips(inp, subimage: int) -> int:

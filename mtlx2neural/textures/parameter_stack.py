@@ -130,8 +130,10 @@ def _semantic(name: str, mx_type: str) -> tuple[str, str, str]:
 
 def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]:
     """Finest texel grid over UV [0,1]^2: each image's size times its UV scale (tiling)."""
-    import OpenImageIO as oiio
+    from .image_io import openimageio, pending_oiio_error
+    from .udim import is_tiled_path
 
+    oiio = openimageio()
     g, ev, notes = compiled.graph, compiled.evaluator, []
     best = (0, 0)
     probe = torch.tensor([[0.25, 0.25], [0.75, 0.25], [0.25, 0.75]])
@@ -140,8 +142,11 @@ def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]
         f = n.inputs.get("file")
         if n.category != "image" or not isinstance(f, Const) or not f.value:
             continue
+        if n.attrs.get("missing") or is_tiled_path(f.value):
+            continue  # a missing texture (its default is used) or a UDIM pattern: no single file to measure
         inp = oiio.ImageInput.open(f.value)
         if inp is None:
+            pending_oiio_error(f"texture '{f.value}' of '{n.path}'")  # retrieved: OIIO would print it at exit
             continue
         w, h = inp.spec().width, inp.spec().height
         inp.close()
