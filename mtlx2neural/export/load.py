@@ -29,13 +29,15 @@ class ExportedNeuralMaterial(NeuralMaterial):
 
     def albedo(self, wi, uv=None, samples: int = 256, seed: int = 0):
         """[N,3] directional albedo: the mean of ``sample``'s weights over ``samples``
-        independent uniform draws (seeded by ``seed``)."""
+        independent uniform draws (seeded by ``seed``); 0 when wi is at or below the horizon.
+        ``wi`` as for ``eval`` (any length and real dtype; NaN/Inf raise ValueError)."""
+        wi = self._wi(wi)
         g = torch.Generator().manual_seed(seed)
         n = wi.shape[0]
-        acc = torch.zeros(n, 3, device=wi.device)
+        acc = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
         with torch.no_grad():
             for _ in range(samples):
-                _, w, _ = self.sample(wi, torch.rand(n, 2, generator=g).to(wi.device), uv)
+                _, w, _ = self.sample(wi, torch.rand(n, 2, generator=g).to(self.device), uv)
                 acc += w
         return acc / samples
 

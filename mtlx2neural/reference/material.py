@@ -1,15 +1,24 @@
 """The batched torch reference BRDF of one compiled material (``m2n.load_reference``).
 
-Conventions (DESIGN.md): local shading frame with z the geometric normal and x
+Conventions (DESIGN.md; the input contract is :mod:`mtlx2neural.material_contract`, shared
+with the neural material): local shading frame with z the geometric normal and x
 the tangent; ``wi`` points to the viewer, ``wo`` to the light, both away from
 the surface. ``eval`` returns f(wi, wo) * max(0, wo.z) in linear RGB and is 0
-when either direction is at or below the horizon. Reflection only.
+when either direction is at or below the horizon. Reflection only. Directions of
+any length are normalised (a zero vector counts as below the horizon); any real
+dtype is accepted and converted to the material's (float32), in which results come
+back; NaN or Inf input raises ``ValueError``.
 
 Sampling picks one live lobe with probability proportional to the luminance of
 its estimated energy times the factors the combinators above it apply (layer
 throughput, mix amount, tint), then samples that lobe. ``pdf`` is the resulting
-one-sample mixture density over the whole sphere (a sampled direction may fall
-below the horizon: its weight is then 0), and ``weight = eval / pdf``.
+one-sample mixture density restricted to the upper hemisphere: it is 0 when
+``wi`` or ``wo`` is at or below the horizon, where a sampled direction gets
+weight 0 and pdf 0 (so ``pdf`` integrates to 1 minus the probability of such a
+failed sample). ``weight = eval / pdf``.
+
+The ``nan_to_num`` guards below act on internal numerics only (lobe formulas at
+grazing angles, extreme parameters): input NaN and Inf never get that far.
 """
 
 from __future__ import annotations
@@ -18,6 +27,8 @@ import torch
 
 from ..graph.bsdf_program import Add, Layer, Leaf, Mix, Multiply, Zero
 from ..graph.compile import CompiledMaterial
+from ..material_contract import above_horizon, normalize_directions, prepare_direction, prepare_directions, \
+    prepare_values
 from .closures import LOBE_CLASSES
 from .tree import AddNode, LayerNode, LobeNode, MixNode, MultiplyNode, ZeroNode
 from .vec import INV_PI, cosine_sample, luminance
@@ -26,6 +37,7 @@ DEFAULT_UV = (0.5, 0.5)
 
 
 def _finite(x: torch.Tensor) -> torch.Tensor:
+    """Internal guard for lobe numerics on finite, normalised input (never applied to the input)."""
     return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
 
 
@@ -98,20 +110,25 @@ class ReferenceMaterial:
         """Whether ``params`` overrides every spatially varying parameter (no graph evaluation needed)."""
         return bool(params) and all(k in params for k, _, _ in self.compiled.varying_parameters())
 
-    def _prep(self, *dirs):
-        return [d.to(self.device, self.dtype) for d in dirs]
+    def _directions(self, wi, wo):
+        return prepare_directions(wi, wo, self.dtype, self.device)
+
+    def _uv(self, uv):
+        return prepare_values("uv", uv, self.dtype, self.device, width=(2,))
 
     # -- public API ----------------------------------------------------------------------
     def eval(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None,
              params: dict | None = None) -> torch.Tensor:
         """f(wi, wo) * max(0, wo.z): [N,3] linear RGB; 0 when wi or wo is at or below the horizon.
 
-        ``params`` optionally overrides parameters by name (see
+        ``wi``, ``wo`` [N,3] of any length and real dtype (normalised; NaN/Inf raise ValueError);
+        ``uv`` [N,2]. ``params`` optionally overrides parameters by name (see
         ``CompiledMaterial.parameters()``), e.g. prefiltered values from a parameter pyramid.
         """
-        wi, wo = self._prep(wi, wo)
+        wi, wo = self._directions(wi, wo)
+        uv = self._uv(uv)
         response, _ = self._tree(wi.shape[0], uv, params).eval(wi, wo)
-        above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
+        above = above_horizon(wi, wo)
         response = torch.where(above, _finite(response), 0.0)
         return response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response
 
@@ -134,22 +151,27 @@ class ReferenceMaterial:
 
     def pdf(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None,
             params: dict | None = None) -> torch.Tensor:
-        """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi is at or below the horizon."""
-        wi, wo = self._prep(wi, wo)
+        """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi or wo is at or below the horizon
+        (where :meth:`sample` gives weight 0 and pdf 0). Inputs as for :meth:`eval`."""
+        wi, wo = self._directions(wi, wo)
+        uv = self._uv(uv)
         tree = self._tree(wi.shape[0], uv, params)
         lobes, probs = self._selection(tree, wi)
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
-        return torch.where(wi[:, 2] > 0, pdf, torch.zeros_like(pdf))
+        return torch.where(above_horizon(wi, wo)[:, 0], pdf, torch.zeros_like(pdf))
 
     def sample(self, wi: torch.Tensor, u: torch.Tensor, uv: torch.Tensor | None = None,
                params: dict | None = None):
         """Importance-sample ``wo`` from ``u`` [N,2] (or [N,3]: the third number picks the lobe).
 
-        Returns (wo [N,3], weight [N,3] = eval/pdf, pdf [N]); weight and pdf are 0 for
-        failed samples and when wi is at or below the horizon.
+        Returns (wo [N,3] unit, weight [N,3] = eval/pdf, pdf [N] = ``pdf(wi, wo)``); weight and pdf
+        are 0 for failed samples, for a ``wo`` at or below the horizon, and when wi is at or below
+        the horizon. ``wi`` as for :meth:`eval`; ``u`` finite (NaN/Inf raise ValueError).
         """
-        wi, u = self._prep(wi, u)
+        wi = prepare_direction("wi", wi, self.dtype, self.device)
         n = wi.shape[0]
+        u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
+        uv = self._uv(uv)
         tree = self._tree(n, uv, params)
         lobes, probs = self._selection(tree, wi)
         if not lobes:
@@ -168,24 +190,27 @@ class ReferenceMaterial:
                 sel = k == j
                 if bool(sel.any()):
                     wo = torch.where(sel[:, None], lobe.sample(wi, uu), wo)
-        wo = _finite(wo)
+        wo = normalize_directions(_finite(wo))  # as pdf() would see it: a failed (zero) sample is below
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
         response, _ = tree.eval(wi, wo)
         response = response.expand(n, 3)
-        ok = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0) & (pdf[:, None] > 0)
+        above = above_horizon(wi, wo)
+        ok = above & (pdf[:, None] > 0)
         weight = torch.where(ok, _finite(response) / pdf.clamp_min(1e-30)[:, None], torch.zeros_like(response))
-        pdf = torch.where(wi[:, 2] > 0, pdf, torch.zeros_like(pdf))
+        pdf = torch.where(above[:, 0], pdf, torch.zeros_like(pdf))
         return wo, _finite(weight), pdf
 
     def albedo(self, wi: torch.Tensor, uv: torch.Tensor | None = None, samples: int = 256,
                seed: int = 0) -> torch.Tensor:
-        """Directional albedo [N,3]: Monte Carlo mean of sample() weights over ``samples`` Sobol points."""
-        (wi,) = self._prep(wi)
+        """Directional albedo [N,3]: Monte Carlo mean of sample() weights over ``samples`` Sobol points;
+        0 when wi is at or below the horizon. ``wi`` as for :meth:`eval`."""
+        wi = prepare_direction("wi", wi, self.dtype, self.device)
         n = wi.shape[0]
+        uv = self._uv(uv)
         sobol = torch.quasirandom.SobolEngine(3, scramble=True, seed=seed).draw(samples).to(self.device, self.dtype)
         wi_rep = wi.repeat_interleave(samples, 0)
         u = sobol.repeat(n, 1)
-        uv_rep = None if uv is None else uv.to(self.device, self.dtype).repeat_interleave(samples, 0)
+        uv_rep = None if uv is None else uv.repeat_interleave(samples, 0)
         _, weight, _ = self.sample(wi_rep, u, uv_rep)
         return weight.view(n, samples, 3).mean(1)
 
