@@ -36,6 +36,7 @@ import mtlx2neural as m2n
 from mtlx2neural.cli import main
 from mtlx2neural.convert import convert_asset
 from mtlx2neural.export import bundle, export_asset
+from mtlx2neural.export.outputs import material_folder
 from mtlx2neural.export.latents import (
     read_latent_textures,
     read_mip_chain,
@@ -275,7 +276,7 @@ def test_output_layout(converted):
     assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
     for name in ("World.Looks.CarPaint", "World.Looks.Plastic"):
         files = sorted(p.name for p in (converted["out"] / name / "neural").iterdir())
-        shader = "NeuralMaterial_" + name.rsplit("_", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
+        shader = "NeuralMaterial_" + name.rsplit(".", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
         assert files == sorted(["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json",
                                 f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin",
                                 "NeuralLayers.slang", "NeuralMaterial.slang"])
@@ -555,7 +556,7 @@ def test_shared_usd_assets_convert_end_to_end(tmp_path, name):
     usda = Path(summaries[0]["usd"])
     for s in summaries:
         loaded = m2n.load_neural(usda, s["material"])
-        folder = usda.with_suffix("") / s["material"].strip("/").replace("/", "_")
+        folder = usda.with_suffix("") / material_folder(s["material"])
         original = load_checkpoint(folder)
         assert_round_trip(loaded, original, textured=True, lod=torch.rand(2048) * (original.latents.num_levels - 1),
                           u_level=torch.rand(2048))
