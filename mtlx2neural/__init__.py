@@ -1,6 +1,6 @@
 """mtlx2neural: bake MaterialX materials into real-time neural appearance models.
 
-Public API (see DESIGN.md):
+Public API (see docs/ARCHITECTURE.md):
 
 >>> import mtlx2neural as m2n
 >>> m = m2n.load_reference("asset.usda", material="/World/Looks/Brass")

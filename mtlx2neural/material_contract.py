@@ -1,6 +1,6 @@
 """The input contract shared by the reference and the neural material (``eval``/``sample``/``pdf``/``albedo``).
 
-Conventions (DESIGN.md), the same for :class:`~mtlx2neural.reference.ReferenceMaterial` and
+Conventions (docs/ARCHITECTURE.md), the same for :class:`~mtlx2neural.reference.ReferenceMaterial` and
 :class:`~mtlx2neural.model.neural_material.NeuralMaterial`:
 
 - Directions are ``[N, 3]`` in the local shading frame: z the geometric normal, x the tangent; ``wi``

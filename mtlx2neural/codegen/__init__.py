@@ -1,4 +1,4 @@
-"""Slang shader code for trained neural materials (DESIGN.md, "Shader side").
+"""Slang shader code for trained neural materials (docs/ARCHITECTURE.md, "codegen: the shader side").
 
 - :func:`generate_slang`: the per-material module ``NeuralMaterial_<name>.slang`` (FP32,
   divergent FP16 and coherent CoopVec variants) from a model or an export folder;

@@ -4,7 +4,7 @@
 (``codegen/templates/cpu_harness.slang.in``) for one network variant and evaluates
 ``eval`` / ``evalPdf`` / ``sample`` / ``albedo`` for batches of (latent, wi, wo, u) given as
 float32 NumPy arrays, plus the latent fetch. Buffers are passed through ``dispatch(vars=...)``
-(DESIGN.md, "Verification toolbox"). The CPU back end compiles the C++ on first dispatch.
+(docs/ARCHITECTURE.md, "Verification"). The CPU back end compiles the C++ on first dispatch.
 
 Variants: ``"FP32"``, ``"FP16"``, ``"FP16Buffer"``, ``"CoopVec"``, ``"Auto"`` (the per-warp
 selector; on the CPU its choice is the NM_CPU_COHERENT define, 1 = coherent).

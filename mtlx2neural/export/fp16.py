@@ -1,4 +1,4 @@
-"""FP16 quantisation with a range check (DESIGN.md, "Numerics": check ranges before quantising).
+"""FP16 quantisation with a range check (docs/ARCHITECTURE.md, "Numerics": check ranges before quantising).
 
 IEEE binary16 represents normal numbers with 6.1035e-5 <= |x| <= 65504.
 Before a float32 tensor is rounded to half:

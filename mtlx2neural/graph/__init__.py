@@ -1,4 +1,4 @@
-"""MaterialX document -> IR -> folded BSDF program (see DESIGN.md, "graph")."""
+"""MaterialX document -> IR -> folded BSDF program (see docs/ARCHITECTURE.md, "graph")."""
 
 from .compile import CompiledMaterial, compile_material
 

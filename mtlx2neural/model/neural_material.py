@@ -1,6 +1,6 @@
 """The neural material: latent pyramid + BRDF decoder + learned sampler (+ encoder for training).
 
-Public methods mirror the reference's contract (DESIGN.md and
+Public methods mirror the reference's contract (docs/ARCHITECTURE.md, "Conventions", and
 :mod:`mtlx2neural.material_contract`, shared with the reference): directions in the
 local frame (z the geometric normal), of any length and any real dtype (normalised,
 then converted to the model's dtype, in which results come back); NaN or Inf input

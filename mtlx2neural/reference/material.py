@@ -1,6 +1,6 @@
 """The batched torch reference BRDF of one compiled material (``m2n.load_reference``).
 
-Conventions (DESIGN.md; the input contract is :mod:`mtlx2neural.material_contract`, shared
+Conventions (docs/ARCHITECTURE.md; the input contract is :mod:`mtlx2neural.material_contract`, shared
 with the neural material): local shading frame with z the geometric normal and x
 the tangent; ``wi`` points to the viewer, ``wo`` to the light, both away from
 the surface. ``eval`` returns f(wi, wo) * max(0, wo.z) in linear RGB and is 0

@@ -1,1 +1,1 @@
-"""Training of the neural material (DESIGN.md, "train")."""
+"""Training of the neural material (docs/ARCHITECTURE.md, "train")."""

@@ -1,4 +1,4 @@
-"""Train a neural material against its reference (DESIGN.md, "Model and training").
+"""Train a neural material against its reference (docs/ARCHITECTURE.md, "model" and "train").
 
 Three phases over ``cfg.iterations`` steps:
 1. encoder end to end: prefiltered parameters at (uv, level) -> encoder -> decoder;
