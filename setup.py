@@ -1,6 +1,6 @@
 """Build hook; all other configuration is in pyproject.toml.
 
-DESIGN.md keeps non-Python assets in top-level folders (``schemas/``: the USD
+The project keeps non-Python assets in top-level folders (``schemas/``: the USD
 schema plugin and Sdr shader definition; ``codegen/``: the shader runtime,
 templates and examples). A source checkout and the editable install (``pip install -e .``) read them from the checkout; pyproject-only
 setuptools cannot put a folder from outside the package into a wheel, so this
