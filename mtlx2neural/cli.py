@@ -17,12 +17,19 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 
 from .errors import Mtlx2NeuralError
 from .train.config import PRESETS
 
 SUBCOMMANDS = ("inspect", "convert", "render", "report")
+ASSET_SUFFIXES = (".mtlx", ".usd", ".usda", ".usdc", ".usdz")
+
+
+def _looks_like_asset(word: str) -> bool:
+    """``mtlx2neural WORD``: an asset (an existing path, or one with an asset suffix), not a mistyped command."""
+    return word.lower().endswith(ASSET_SUFFIXES) or os.path.exists(word)
 
 
 MAX_TEXELS_HELP = ("cap on the latent grid's longer side, in texels (default: the preset's: fast and standard 256, "
@@ -267,6 +274,10 @@ def _convert(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] not in SUBCOMMANDS and not argv[0].startswith("-"):
+        if not _looks_like_asset(argv[0]):
+            print(f"mtlx2neural: error: unknown command '{argv[0]}': give one of {', '.join(SUBCOMMANDS)}, or an "
+                  f"asset to convert (a path ending in {', '.join(ASSET_SUFFIXES)})", file=sys.stderr)
+            return 2
         argv = ["convert"] + argv  # `mtlx2neural ASSET ...` is the conversion
     args = _parser().parse_args(argv)
     try:

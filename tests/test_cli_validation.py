@@ -88,3 +88,12 @@ def test_training_progress_in_a_log_is_lines_with_loss_and_eta(red, tmp_path, ca
     assert "\r" not in err  # capsys is not a terminal: no bar redraws
     final = [line for line in err.splitlines() if line.startswith("Red: 30/30 (100%)")]
     assert final and "loss=" in final[-1] and "ETA" in final[-1]
+
+
+def test_an_unknown_command_is_an_error_not_an_asset(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "bench", "--help")
+    assert_clean_input_error(code, out, err, "unknown command 'bench'", "inspect, convert, render, report")
+    # A missing asset is still named as a missing asset (by its suffix), and so is an existing path.
+    code, out, err = run_cli(capsys, "nope.usda")
+    assert code == 2 and "nope.usda" in err and "unknown command" not in err
