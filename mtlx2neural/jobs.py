@@ -8,7 +8,7 @@ one :class:`MaterialJob`, run by one function, :func:`run_job`, wherever it runs
   Each worker gets ``cpus // N`` torch threads (at least 1), set both through
   ``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` at spawn time and ``torch.set_num_threads``:
   torch's OpenMP kernels collapse (100x) when more threads than free cores compete
-  (BENCHMARKS.md). Workers send their progress through a queue, and the parent
+  (BENCHMARKS.md, "Reference BRDF throughput"). Workers send their progress through a queue, and the parent
   draws one bar per material (phase, loss, ETA) and prints a line per finished one;
 - ``workers="ray"`` (a local Ray cluster, or the one ``RAY_ADDRESS`` names) or
   ``"ray://host:port"`` (Ray client): the same :func:`run_job` as Ray tasks, with

@@ -116,8 +116,8 @@ def test_mollification_floor_keeps_the_grazing_energy_of_a_sharp_coat(carpaint, 
     at least 85 % of the reference and 0.2 above the model without the floor. The floored model
     overshoots instead since the decoder's cosine became analytic (measured 0.85, 129 %, at seed 0;
     0.76-0.79 at seeds 0-1 of the benchmark runs, whose parameter stack differs), so the upper bound is 135 %:
-    it catches a runaway, not the known overshoot (BENCHMARKS.md; ``grazing_fraction`` removes it
-    for this material). (Shorter runs are not settled: at 300 steps, with a quarter of lobe
+    it catches a runaway, not the known overshoot (BENCHMARKS.md, "Mollification floor"; ``grazing_fraction``
+    removes it for this material). (Shorter runs are not settled: at 300 steps, with a quarter of lobe
     directions, it overshot by a third.)"""
     stack = build_parameter_stack(carpaint.compiled)
     fast = preset("fast")

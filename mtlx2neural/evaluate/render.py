@@ -76,7 +76,7 @@ def sample_footprint_scale(spp: int) -> float:
     The jittered samples already average the pixel (a box), so a prefiltered material
     looked up at the whole pixel's level of detail is filtered twice and renders blurrier
     than the point-sampled reference it is compared with (the GlazedCeramic's grout lines,
-    BENCHMARKS.md); the spacing between samples is what each lookup has to filter. 1 at
+    docs/history/BENCHMARKS-2026-12-01.md); the spacing between samples is what each lookup has to filter. 1 at
     1 spp (a real-time renderer's single lookup), 1/8 from 64 spp on."""
     return max(0.125, 1.0 / math.sqrt(max(spp, 1)))
 

@@ -15,7 +15,7 @@ local frame (z the geometric normal, as the reference's ``eval``). With
 ``analytic_cosine`` (the default for new models) the network predicts f alone and
 the decoder multiplies by max(0, wo.z), so the foreshortening is exact: a learned
 cosine fell off too slowly at grazing light (3-4x too bright at 89 degrees, the
-terminator; BENCHMARKS.md). ``analytic_cosine=False`` is the original form, where
+terminator; docs/history/BENCHMARKS-2026-12-01.md). ``analytic_cosine=False`` is the original form, where
 the network learns f * cos itself; checkpoints and exports made before the option
 read as that.
 """

@@ -83,7 +83,7 @@ def stratified_gaussian(m: int, s: int, generator: torch.Generator | None = None
     Each point is still N(0, I) and the row mean still an unbiased estimate of a footprint
     average, with less variance than ``s`` independent draws: a normal map's crease seen by 16
     points (the GlazedCeramic's grout) gives a target half as noisy (log-L1 to a 256-point
-    average 0.053 instead of 0.13; BENCHMARKS.md)."""
+    average 0.053 instead of 0.13; docs/history/BENCHMARKS-2026-12-01.md)."""
     perm = torch.argsort(torch.rand(m, s, 2, generator=generator), dim=1)
     u = (perm + torch.rand(m, s, 2, generator=generator)) / s
     return torch.special.ndtri(u.clamp(1e-7, 1 - 1e-7))

@@ -43,7 +43,7 @@ class TrainConfig:
     rim). Extra rather than in place of half/difference rows, which the specular lobes need; with
     ``lobe_fraction`` half of them take ``wo`` near the reference's lobes. Off in every preset: 0.1
     cut the CarPaint's directional-light error by a quarter but cost the textured materials' sky
-    error (GlazedCeramic 0.113 -> 0.130; BENCHMARKS.md)."""
+    error (GlazedCeramic 0.113 -> 0.130; docs/history/BENCHMARKS-2026-12-01.md)."""
     lobe_fraction: float = 0.0
     """Share of each BRDF batch whose ``wo`` comes from the reference's sampler (spread over the
     current cone) instead of uniform half/difference angles, so narrow lobes are trained on."""
@@ -75,16 +75,16 @@ _FAST = TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, 
 PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
     # learning rate than the paper's 1e-3 (sample CarPaint, 3x64: HDR FLIP 0.45 at 1e-3,
-    # 0.07 at 5e-3, 0.09 at 1e-2; BENCHMARKS.md).
+    # 0.07 at 5e-3, 0.09 at 1e-2; docs/history/BENCHMARKS-2026-12-01.md).
     # fast and balanced keep a 1-degree mollification floor, estimated by MIS, with a tenth of the
     # directions drawn near the reference's lobes: without it a sharp clear coat lost most of its
     # grazing energy (CarPaint: albedo 0.19 instead of 0.81 at 5 degrees elevation). More lobe
-    # directions overshoot at grazing angles (BENCHMARKS.md has the sweep).
+    # directions overshoot at grazing angles (docs/history/BENCHMARKS-2026-12-01.md has the sweep).
     "fast": _FAST,
     # standard: fast's settings for 8x the steps, the CPU's quality setting (one thread: about 8 min
     # for a uniform material, about 33 min for a 256² textured one). On the sample CarPaint (3x64,
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
-    # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Training length").
+    # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     "standard": dataclasses.replace(_FAST, iterations=8000),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,

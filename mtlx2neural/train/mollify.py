@@ -8,7 +8,7 @@ around wo::
 It keeps a lobe's energy while widening it to at least the cone: a roughness-0.05 clear coat
 (GGX alpha 0.0025, about 0.15 degrees wide) becomes a lobe the decoder can represent, instead of
 a spike that uniform training directions find in 0.3% of samples and that the median-seeking
-log-L1 loss then drops (its grazing albedo of 0.8 came out as 0.16; BENCHMARKS.md).
+log-L1 loss then drops (its grazing albedo of 0.8 came out as 0.16; docs/history/BENCHMARKS-2026-12-01.md).
 
 Estimator (:func:`cone_mean`): stratified multiple importance sampling with ``pairs`` pairs of
 directions, one uniform in the cone and one from the reference's own sampler, combined by the

@@ -88,7 +88,7 @@ class Trainer:
         self.history: list[dict] = []
         self.clipped_steps = 0
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
-        # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md); it costs
+        # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md, "Training throughput"); it costs
         # tens of seconds of compilation, so only the long presets turn it on.
         if cfg.compile:
             import logging
