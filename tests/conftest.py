@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -58,3 +61,32 @@ def write_float_image(path, img) -> None:
     out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], "float"))
     out.write_image(img)
     out.close()
+
+
+def unprivileged_prefix(tmp_path: Path) -> list[str]:
+    """A command prefix under which file permissions apply (chmod 000 denies reads, 0555 denies
+    writes); skips the test when there is none.
+
+    As root, file permissions do not apply; ``setpriv`` drops the capabilities that
+    bypass them (CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH) for the child process.
+    """
+    prefix: list[str] = []
+    if os.geteuid() == 0:
+        setpriv = shutil.which("setpriv")
+        if setpriv is None:
+            pytest.skip("running as root, and setpriv (to drop CAP_DAC_OVERRIDE) is not available")
+        prefix = [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--"]
+    probe = tmp_path / "probe"
+    probe.write_text("x")
+    probe.chmod(0)
+    try:
+        r = subprocess.run([*prefix, sys.executable, "-c", f"open({str(probe)!r}).read()"],
+                           capture_output=True, text=True, timeout=60, check=False)
+    except OSError as exc:
+        pytest.skip(f"cannot run a process without file-permission override: {exc}")
+    finally:
+        probe.unlink()
+    if "PermissionError" not in r.stderr:
+        pytest.skip("file permissions are not enforced for this user (root without a way to drop "
+                    f"CAP_DAC_OVERRIDE): {r.stderr.strip()[-200:]}")
+    return prefix

@@ -9,8 +9,6 @@
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +17,7 @@ import MaterialX as mx
 import numpy as np
 import pytest
 import torch
-from conftest import SIMPLE_MTLX, write_float_image
+from conftest import SIMPLE_MTLX, unprivileged_prefix, write_float_image
 
 from mtlx2neural.cli import main
 from mtlx2neural.errors import InputError
@@ -180,34 +178,6 @@ def test_a_too_deep_closure_tree_is_an_input_error(tmp_path):
 # ----------------------------------------------------------------------------- 3. unreadable files
 
 
-def _as_unprivileged(tmp_path: Path) -> list[str]:
-    """A command prefix under which chmod 000 denies reads; skips the test when there is none.
-
-    As root, file permissions do not apply; ``setpriv`` drops the capabilities that
-    bypass them (CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH) for the child process.
-    """
-    prefix: list[str] = []
-    if os.geteuid() == 0:
-        setpriv = shutil.which("setpriv")
-        if setpriv is None:
-            pytest.skip("running as root, and setpriv (to drop CAP_DAC_OVERRIDE) is not available")
-        prefix = [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--"]
-    probe = tmp_path / "probe"
-    probe.write_text("x")
-    probe.chmod(0)
-    try:
-        r = subprocess.run([*prefix, sys.executable, "-c", f"open({str(probe)!r}).read()"],
-                           capture_output=True, text=True, timeout=60, check=False)
-    except OSError as exc:
-        pytest.skip(f"cannot run a process without file-permission override: {exc}")
-    finally:
-        probe.unlink()
-    if "PermissionError" not in r.stderr:
-        pytest.skip("file permissions are not enforced for this user (root without a way to drop "
-                    f"CAP_DAC_OVERRIDE): {r.stderr.strip()[-200:]}")
-    return prefix
-
-
 def _run_cli(prefix: list[str], *argv, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([*prefix, sys.executable, "-m", "mtlx2neural.cli", *[str(a) for a in argv]],
                           capture_output=True, text=True, timeout=300, cwd=cwd, check=False)
@@ -249,7 +219,7 @@ print(json.dumps(results))
 
 @pytest.mark.slow
 def test_unreadable_files_are_reported_as_permission_denied(tmp_path):
-    prefix = _as_unprivileged(tmp_path)
+    prefix = unprivileged_prefix(tmp_path)
     cases = _write_unreadable_cases(tmp_path)
     for _, locked in cases.values():  # each case reads only its own locked file
         locked.chmod(0)
