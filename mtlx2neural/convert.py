@@ -45,6 +45,7 @@ from pathlib import Path
 from . import __version__
 from .errors import InputError
 from .export import export_asset
+from .export.bundle import EXPORT_FOLDER
 from .export.cache import cached_summary
 from .export.lock import output_lock
 from .export.outputs import (OutputLayout, check_output, default_output, material_folder,  # noqa: F401 (API)
@@ -52,7 +53,7 @@ from .export.outputs import (OutputLayout, check_output, default_output, materia
 from .export.usd_writer import KeptMaterials, register_schema
 from .jobs import BUDGET_FOLDER, check_device, held_out_error, make_job, run_jobs, write_summary  # noqa: F401
 from .model.checkpoint import checkpoint_file, load_checkpoint, read_checkpoint, resume_conflicts
-from .plan import latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
+from .plan import DECODERS, latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
 from .scene import load_asset
 from .scene.dependencies import input_files
 from .train.config import PRESETS, TrainConfig, validate_config
@@ -122,7 +123,7 @@ def _check_resume(plans, folders, max_error) -> None:
     for plan, folder in zip(plans, folders):
         if plan.shared_with:
             continue
-        sizes = [folder / BUDGET_FOLDER / d for d in ("2x16", "2x32", "3x64")] if max_error is not None else [folder]
+        sizes = [folder / BUDGET_FOLDER / d for d in DECODERS] if max_error is not None else [folder]
         for place in sizes:
             f = checkpoint_file(place)
             if not f.is_file():
@@ -148,11 +149,11 @@ def _kept_materials(layout: OutputLayout, record, names, material) -> KeptMateri
         if name in names:
             continue
         folder = (layout.layer.parent / entry.get("folder", "")).resolve()
-        if entry.get("folder") and (folder / "neural" / "weights.json").is_file():
+        if entry.get("folder") and (folder / EXPORT_FOLDER / "weights.json").is_file():
             entries[name] = entry
         else:
             warnings.warn(f"{layout.layer}: dropping {name} from the layer: its exported files are gone "
-                          f"({folder / 'neural'})", stacklevel=3)
+                          f"({folder / EXPORT_FOLDER})", stacklevel=3)
     return KeptMaterials(layout.layer, entries)
 
 
