@@ -51,7 +51,7 @@ from .export.lock import output_lock
 from .export.outputs import (OutputLayout, check_output, default_output, material_folder,  # noqa: F401 (API)
                              material_folders, prepare_folder, resolve_output)
 from .export.usd_writer import KeptMaterials, register_schema
-from .jobs import BUDGET_FOLDER, check_device, held_out_error, make_job, run_jobs, write_summary  # noqa: F401
+from .jobs import BUDGET_FOLDER, check_device, check_workers, held_out_error, make_job, run_jobs, write_summary  # noqa: F401
 from .model.checkpoint import checkpoint_file, load_checkpoint, read_checkpoint, resume_conflicts
 from .plan import DECODERS, latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
 from .scene import load_asset
@@ -187,6 +187,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
     # 1. options, before reading anything
     validate_config(cfg, allow_untrained)
     device = check_device(device)
+    workers = check_workers(workers)
     register_schema()  # before USD's schema registry is first built
     # 2. the scene and the materials to convert
     scene = load_asset(asset)

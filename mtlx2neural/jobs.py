@@ -28,6 +28,7 @@ budget (:func:`choose_decoder`).
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import math
 import os
@@ -524,12 +525,23 @@ def _pool_devices(device: str, n: int) -> list[str]:
     return [device]
 
 
-def _run_ray(jobs, address: str, report) -> list[dict]:
+def check_workers(workers):
+    """:func:`parse_workers`, with a bad value or a Ray runner without Ray installed an
+    :class:`InputError`: checked before any work (Ray is an optional extra)."""
     try:
-        import ray
-    except ImportError:
-        raise InputError(f"--workers {address} needs Ray: pip install 'mtlx2neural[ray]' "
-                         f"(or give a number of local processes)") from None
+        workers = parse_workers(workers)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    if isinstance(workers, str) and importlib.util.find_spec("ray") is None:
+        raise InputError(f"--workers {workers} needs Ray: pip install 'mtlx2neural[ray]' "
+                         f"(or give a number of local processes)")
+    return workers
+
+
+def _run_ray(jobs, address: str, report) -> list[dict]:
+    check_workers(address)
+    import ray  # local: Ray is an optional extra, imported only for a Ray runner
+
     started = not ray.is_initialized()
     if started:
         ray.init(address=None if address == "ray" else address, include_dashboard=False,

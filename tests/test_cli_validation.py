@@ -97,3 +97,16 @@ def test_an_unknown_command_is_an_error_not_an_asset(tmp_path, capsys, monkeypat
     # A missing asset is still named as a missing asset (by its suffix), and so is an existing path.
     code, out, err = run_cli(capsys, "nope.usda")
     assert code == 2 and "nope.usda" in err and "unknown command" not in err
+
+
+def test_ray_workers_without_ray_exit_2_before_any_work(red, tmp_path, capsys, monkeypatch):
+    """Ray is an optional extra: a run asking for it where it is not installed (simulated by hiding
+    the module from importlib's finder) must say how to get it before reading or writing anything."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a))
+    before = snapshot(tmp_path)
+    code, out, err = run_cli(capsys, red, *BASE, "--workers", "ray", "--iterations", "2")
+    assert_clean_input_error(code, out, err, "--workers ray needs Ray", "mtlx2neural[ray]")
+    assert snapshot(tmp_path) == before
