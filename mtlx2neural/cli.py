@@ -214,7 +214,7 @@ def _render(args) -> int:
 
 
 def _convert(args) -> int:
-    from .convert import convert_asset, resolve_output
+    from .convert import convert_asset
     from .errors import InputError
     from .train.trainer import TrainingInterrupted
 
@@ -223,7 +223,6 @@ def _convert(args) -> int:
                          f"one size, --max-error picks the smallest of 2x16, 2x32, 3x64 that meets the budget. "
                          f"Give one of them.")
     cfg = _config(args)
-    layout = resolve_output(args.asset, args.output)
     try:
         summaries = convert_asset(args.asset, cfg, args.output, args.material, args.device, args.resume,
                                   not args.quiet, args.allow_missing_textures, force=args.force,
@@ -237,7 +236,7 @@ def _convert(args) -> int:
         print(f"mtlx2neural: error: cannot write the output{where} ({exc.strerror or exc}); the previous export, "
               f"if any, is unchanged", file=sys.stderr)
         return 1
-    out = layout.folder
+    out = summaries.folder
     for s in summaries:
         if s.get("shared_with"):
             how = f"identical to {s['shared_with']} (same graph, textures and settings): trained once, shared"

@@ -93,11 +93,13 @@ def _reuse(folder: Path, digest: str):
 
 class Summaries(list):
     """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
-    left out (``{"material", "reason"}``; only when no ``material`` was named), and ``kept``: the
-    materials an existing layer kept from earlier runs (a ``--material`` run)."""
+    left out (``{"material", "reason"}``; only when no ``material`` was named), ``kept``: the
+    materials an existing layer kept from earlier runs (a ``--material`` run), and ``folder``: the
+    output folder."""
 
     skipped: list[dict]
     kept: list[str]
+    folder: Path
 
 
 def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict:
@@ -198,7 +200,8 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
         layout = OutputLayout(layout.folder, Path(os.path.abspath(usda)))
     names = material_folders([s.name for s in sources])
     folders = [layout.folder / names[s.name] for s in sources]
-    record = check_output(layout, scene.asset, input_files(scene.asset, [*scene.materials, *sources]), folders)
+    read = list({id(s): s for s in [*scene.materials, *sources]}.values())  # a named material may be both
+    record = check_output(layout, scene.asset, input_files(scene.asset, read), folders)
     # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
     plans = plan_materials(sources, cfg, allow_missing_textures, max_error, texel_density, scene.asset)
     for p in plans:
@@ -220,6 +223,7 @@ def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None
     for s, e in zip(summaries, exported):
         s["usd"], s["export_notes"] = str(layer), e.notes
     summaries.kept = sorted(keep.entries) if keep else []
+    summaries.folder = layout.folder
     return summaries
 
 

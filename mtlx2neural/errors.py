@@ -21,3 +21,15 @@ class InputError(Mtlx2NeuralError):
 
 class UnsupportedNodeError(InputError):
     """A node whose nodedef has no torch implementation and no nodegraph to expand."""
+
+
+def unreadable_reason(path) -> str | None:
+    """Why the existing file ``path`` cannot be opened for reading (``"permission denied"``, or the
+    operating system's reason), for error messages; None when it can be read."""
+    try:
+        with open(path, "rb"):
+            return None
+    except PermissionError:
+        return "permission denied"
+    except OSError as exc:
+        return exc.strerror or str(exc)

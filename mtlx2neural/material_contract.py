@@ -108,3 +108,9 @@ def above_horizon(*ws: torch.Tensor) -> torch.Tensor:
     for w in ws[1:]:
         ok = ok & (w[:, 2:3] > 0)
     return ok
+
+
+def zero_below_horizon(x: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """``x`` ([N] or [N, C]) where both ``wi`` and ``wo`` are above the horizon, else 0."""
+    ok = above_horizon(wi, wo)
+    return torch.where(ok[:, 0] if x.dim() == 1 else ok, x, torch.zeros_like(x))

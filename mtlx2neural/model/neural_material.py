@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from ..material_contract import above_horizon, normalize_directions, prepare_direction, prepare_directions, \
-    prepare_values
+    prepare_values, zero_below_horizon
 from .decoder import BrdfDecoder
 from .latent import LatentPyramid
 from .networks import Encoder, SamplerNet
@@ -67,13 +67,13 @@ class NeuralMaterial(nn.Module):
         """f(wi, wo) * cos(wo) [N,3]; 0 when either direction is at or below the horizon."""
         wi, wo = self._directions(wi, wo)
         f = self.decoder(self._latent(wi.shape[0], uv, lod, u_level), wi, wo)
-        return torch.where(above_horizon(wi, wo), f, torch.zeros_like(f))
+        return zero_below_horizon(f, wi, wo)
 
     def pdf(self, wi, wo, uv=None, lod=None, u_level=None):
         """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi or wo is at or below the horizon."""
         wi, wo = self._directions(wi, wo)
         pdf = self.sampler.pdf(wi, wo, self._latent(wi.shape[0], uv, lod, u_level))
-        return torch.where(above_horizon(wi, wo)[:, 0], pdf, torch.zeros_like(pdf))
+        return zero_below_horizon(pdf, wi, wo)
 
     def sample_direction(self, wi, u, uv=None, lod=None, u_level=None):
         """(wo [N,3], pdf [N] per steradian) from the learned sampler, without evaluating the BRDF;
@@ -92,7 +92,7 @@ class NeuralMaterial(nn.Module):
         # (zero) sample then counts as below the horizon, with pdf 0.
         wo = normalize_directions(torch.nan_to_num(proxy.sample(wi, params, u), nan=0.0, posinf=0.0, neginf=0.0))
         pdf = proxy.pdf(wi, wo, params)
-        return wi, wo, torch.where(above_horizon(wi, wo)[:, 0], pdf, torch.zeros_like(pdf)), lat
+        return wi, wo, zero_below_horizon(pdf, wi, wo), lat
 
     def sample(self, wi, u, uv=None, lod=None, u_level=None):
         """(wo [N,3], weight [N,3] = eval / pdf, pdf [N]) from ``u`` [N,2]; weight and pdf are 0 where

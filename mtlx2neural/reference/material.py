@@ -28,7 +28,7 @@ import torch
 from ..graph.bsdf_program import Add, Layer, Leaf, Mix, Multiply, Zero
 from ..graph.compile import CompiledMaterial
 from ..material_contract import above_horizon, normalize_directions, prepare_direction, prepare_directions, \
-    prepare_values
+    prepare_values, zero_below_horizon
 from .closures import LOBE_CLASSES
 from .tree import AddNode, LayerNode, LobeNode, MixNode, MultiplyNode, ZeroNode
 from .vec import INV_PI, cosine_sample, luminance
@@ -158,7 +158,7 @@ class ReferenceMaterial:
         tree = self._tree(wi.shape[0], uv, params)
         lobes, probs = self._selection(tree, wi)
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
-        return torch.where(above_horizon(wi, wo)[:, 0], pdf, torch.zeros_like(pdf))
+        return zero_below_horizon(pdf, wi, wo)
 
     def sample(self, wi: torch.Tensor, u: torch.Tensor, uv: torch.Tensor | None = None,
                params: dict | None = None):

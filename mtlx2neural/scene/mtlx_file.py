@@ -14,7 +14,7 @@ import re
 
 import MaterialX as mx
 
-from ..errors import InputError
+from ..errors import InputError, unreadable_reason
 from . import mxlib
 
 MATERIAL_CATEGORY = "surfacematerial"
@@ -88,17 +88,10 @@ def check_readable(path: str, context: str = "") -> None:
     ``context`` (a sentence, e.g. who includes the file) goes into the message. A
     permission problem is reported as such, not as a missing or malformed file.
     """
-    try:
-        with open(path, "rb"):
-            pass
-    except PermissionError:
-        reason = "permission denied"
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-    else:
-        return
-    raise InputError(f"cannot read {path}: {reason}. {context}Give the current user read access to the file "
-                     f"(and search access to its folders) and try again.")
+    reason = unreadable_reason(path)
+    if reason is not None:
+        raise InputError(f"cannot read {path}: {reason}. {context}Give the current user read access to the file "
+                         f"(and search access to its folders) and try again.")
 
 
 def _unreadable_include(message: str, base_dir: str) -> str | None:
@@ -108,13 +101,9 @@ def _unreadable_include(message: str, base_dir: str) -> str | None:
         return None
     name = match.group(1)
     candidate = name if os.path.isabs(name) else os.path.join(base_dir, name)
-    if not os.path.isfile(candidate):
+    if not os.path.isfile(candidate) or unreadable_reason(candidate) is None:
         return None
-    try:
-        with open(candidate, "rb"):
-            return None
-    except OSError:
-        return os.path.normpath(candidate)
+    return os.path.normpath(candidate)
 
 
 def _drop_library_elements(doc: "mx.Document") -> None:

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, unreadable_reason
 from .texel_lookup import (
     ADDRESS_MODES,
     FILTER_TYPES,
@@ -251,21 +251,10 @@ def _open(path: str, node: str | None):
     inp = oiio.ImageInput.open(path, config)
     if inp is None:
         message = oiio.geterror() or "unknown format"
-        if _permission_denied(path):
+        if unreadable_reason(path) == "permission denied":
             message = "permission denied. Give the current user read access to the file."
         raise InputError(f"cannot read texture file '{path}'{_where(node)}: {message}")
     return inp
-
-
-def _permission_denied(path: str) -> bool:
-    """Whether opening ``path`` for reading fails for lack of permission."""
-    try:
-        with open(path, "rb"):
-            return False
-    except PermissionError:
-        return True
-    except OSError:
-        return False
 
 
 def _count_mips(inp, subimage: int) -> int:
