@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mtlx2neural.convert import held_out_error, latent_resolution
-from mtlx2neural.evaluate.render import compare, save_png
 from mtlx2neural.graph import compile_material
+from mtlx2neural.pipeline.convert import held_out_error, latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.render.renderer import compare, save_png
 from mtlx2neural.scene import find_material
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset

@@ -20,9 +20,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fidelity import ROOT, train_and_model  # noqa: E402
-from mtlx2neural.evaluate.analytic import fit_analytic  # noqa: E402
-from mtlx2neural.evaluate.lighting import EnvironmentMap  # noqa: E402
-from mtlx2neural.evaluate.render import compare  # noqa: E402
+
+from mtlx2neural.baseline.analytic_model import fit_analytic  # noqa: E402
+from mtlx2neural.render.lighting import EnvironmentMap  # noqa: E402
+from mtlx2neural.render.renderer import compare  # noqa: E402
 from mtlx2neural.train.config import preset  # noqa: E402
 
 GOEGAP = ROOT.parent / "shared/assets/materialx/resources/Lights/irradiance/goegap.hdr"

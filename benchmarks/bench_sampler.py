@@ -9,7 +9,7 @@ material integrates) at 16 fixed incoming directions (elevations 0, 30, 60,
 (b) the learned sampler; (c) the reference's own mixture sampler estimating
 the reference BRDF is listed for context. Reported: relative variance of the
 one-sample estimator and the time to unit relative variance
-(``mtlx2neural.evaluate.sampling_efficiency``).
+(``mtlx2neural.verify.sampling_efficiency``).
 """
 
 from __future__ import annotations
@@ -23,11 +23,15 @@ from pathlib import Path
 import torch
 
 import mtlx2neural as m2n
-from mtlx2neural.evaluate.sampling_efficiency import (cosine_sample, elevation_directions, estimator_statistics,
-                                                      neural_sample_fn)
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.trainer import Trainer
+from mtlx2neural.verify.sampling_efficiency import (
+    cosine_sample,
+    elevation_directions,
+    estimator_statistics,
+    neural_sample_fn,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [("Plastic", "/World/Looks/Plastic"), ("CarPaint", "/World/Looks/CarPaint")]

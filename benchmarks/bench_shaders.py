@@ -3,7 +3,7 @@
 Run:  OMP_NUM_THREADS=1 python benchmarks/bench_shaders.py [--n 16384] [--repeats 3] [--out FILE]
 
 For the CarPaint material of ``samples/layered_spheres.usda``: MaterialX's Slang generator
-(through :mod:`mtlx2neural.evaluate.mtlx_oracle`: one directional light, evaluated twice per
+(through :mod:`mtlx2neural.oracle.runner`: one directional light, evaluated twice per
 query, lit and unlit, so its time is halved to estimate one BSDF evaluation) against the
 analytic baseline's shader (``codegen/slang/AnalyticMaterial.slang``) and ``eval()`` of the
 generated neural module for decoders 2x16, 2x32 and 3x64 (untrained seeded
@@ -46,9 +46,9 @@ def main():
 
     from mtlx2neural.codegen import as_spec, generate_slang
     from mtlx2neural.codegen.cpu import CpuMaterial
-    from mtlx2neural.evaluate.mtlx_oracle import mtlx_slang_eval, oracle_available
-    from mtlx2neural.evaluate.shader_cost import best_time
     from mtlx2neural.model.neural_material import NeuralMaterial
+    from mtlx2neural.oracle.runner import mtlx_slang_eval, oracle_available
+    from mtlx2neural.report.shader_cost import best_time
     from mtlx2neural.scene import load_asset
 
     n = args.n
@@ -72,7 +72,7 @@ def main():
     print(row, flush=True)
     lines.append(row)
 
-    from mtlx2neural.codegen.analytic import CpuAnalytic
+    from mtlx2neural.baseline.shader_harness import CpuAnalytic
 
     am = CpuAnalytic()
     ch = np.random.default_rng(4).uniform(0.05, 0.95, size=(n, 8)).astype(np.float32)

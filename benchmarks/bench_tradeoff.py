@@ -41,10 +41,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fidelity import CASES, TEXTURED, train_and_model
 
-from mtlx2neural.evaluate.analytic import fit_analytic
-from mtlx2neural.evaluate.lighting import EnvironmentMap
-from mtlx2neural.evaluate.render import compare_many, save_png
-from mtlx2neural.evaluate.shader_cost import best_time, random_queries, shader_rates
+from mtlx2neural.baseline.analytic_model import fit_analytic
+from mtlx2neural.render.lighting import EnvironmentMap
+from mtlx2neural.render.renderer import compare_many, save_png
+from mtlx2neural.report.shader_cost import best_time, random_queries, shader_rates
 from mtlx2neural.scene import find_material
 from mtlx2neural.train.config import TrainConfig, preset
 
@@ -59,10 +59,10 @@ def torch_rate(fn, n: int = 65536) -> float:
 
 def timing_only(names: list[str]) -> list[str]:
     """The shader columns alone, untrained models on each case's latent grid (module docstring)."""
-    from mtlx2neural.convert import latent_resolution
-    from mtlx2neural.evaluate.analytic import AnalyticMaterial
+    from mtlx2neural.baseline.analytic_model import AnalyticMaterial
     from mtlx2neural.graph import compile_material
     from mtlx2neural.model.neural_material import NeuralMaterial
+    from mtlx2neural.pipeline.convert import latent_resolution
 
     lines = ["| material | latent grid | model | shader evals/s | vs reference |", "|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)

@@ -10,7 +10,7 @@ Public API (see docs/ARCHITECTURE.md):
 
 from __future__ import annotations
 
-__version__ = "0.2.0"
+from mtlx2neural.version import __version__
 
 
 def load_reference(path, material: str | None = None, device: str = "cpu", allow_missing_textures: bool = False):
@@ -22,15 +22,10 @@ def load_reference(path, material: str | None = None, device: str = "cpu", allow
     missing file instead of failing.
     Returns a :class:`mtlx2neural.reference.ReferenceMaterial`.
     """
-    from .graph import compile_material
-    from .reference import ReferenceMaterial
-    from .scene import find_material
+    # Local: `import mtlx2neural` stays cheap (no torch, USD or MaterialX) until an entry point runs.
+    from mtlx2neural.reference.loading import load_reference as _load
 
-    src = find_material(path, material)
-    compiled = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures)
-    compiled.name = src.name
-    return ReferenceMaterial(compiled)
+    return _load(path, material, device, allow_missing_textures)
 
 
 def usd_plugin_path() -> str:
@@ -51,7 +46,8 @@ def usd_plugin_path() -> str:
     without environment variables, if called before USD's schema registry is
     first used.
     """
-    from .usd_schema import plugin_path
+    # Local: keeps `import mtlx2neural` cheap.
+    from mtlx2neural.usd_schema import plugin_path
 
     return str(plugin_path())
 
@@ -67,7 +63,8 @@ def load_neural(path, material: str | None = None, device: str = "cpu"):
     omitted when the layer holds one neural material.
     Returns a :class:`mtlx2neural.export.load.ExportedNeuralMaterial`.
     """
-    from .export.load import load_neural as _load
+    # Local: keeps `import mtlx2neural` cheap.
+    from mtlx2neural.export.load import load_neural as _load
 
     return _load(path, material, device)
 

@@ -1,7 +1,7 @@
 """Atomic single-file writes: write a temporary sibling, then rename it over the target.
 
 A reader never sees a half-written file, and a failed write leaves the old file
-(or no file) in place. Whole folders go through :class:`mtlx2neural.export.staging.Staging`.
+(or no file) in place. Whole folders go through :class:`mtlx2neural.staging.Staging`.
 """
 
 from __future__ import annotations

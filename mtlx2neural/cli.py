@@ -20,8 +20,8 @@ import math
 import os
 import sys
 
-from .errors import Mtlx2NeuralError
-from .train.config import PRESETS
+from mtlx2neural.errors import Mtlx2NeuralError
+from mtlx2neural.train.config import PRESETS
 
 SUBCOMMANDS = ("inspect", "convert", "render", "report")
 ASSET_SUFFIXES = (".mtlx", ".usd", ".usda", ".usdc", ".usdz")
@@ -72,7 +72,8 @@ def _budget(text: str) -> float:
 
 
 def _workers(text: str):
-    from .jobs import parse_workers
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.pipeline.jobs import parse_workers
 
     try:
         return parse_workers(text)
@@ -84,7 +85,8 @@ def _config(args):
     """The TrainConfig of ``args`` (preset, overrides, --max-texels)."""
     import dataclasses
 
-    from .train.config import preset
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.train.config import preset
 
     cfg = preset(args.preset, **{k: getattr(args, k, None) for k in ("decoder", "iterations", "batch", "frames",
                                                                      "seed")})
@@ -192,7 +194,8 @@ def _uv(text: str) -> tuple[float, float]:
 
 
 def _report(args) -> int:
-    from .evaluate.report import write_report
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.report.html_report import write_report
 
     r = write_report(args.layer, args.output, args.analytic_iterations, args.res, args.spp,
                      materials=args.material, texels_at=args.texel, train_sizes=args.train_sizes)
@@ -203,7 +206,8 @@ def _report(args) -> int:
 
 
 def _render(args) -> int:
-    from .evaluate.render_cli import render_asset
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.report.views import render_asset
 
     s = render_asset(args.asset, args.output, args.material, args.model, args.checkpoint, args.geometry,
                      args.env, args.res, args.spp, args.azimuth, args.elevation, args.distance, args.fov,
@@ -214,9 +218,11 @@ def _render(args) -> int:
 
 
 def _convert(args) -> int:
-    from .convert import convert_asset
-    from .errors import InputError
-    from .train.trainer import TrainingInterrupted
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.errors import InputError
+    from mtlx2neural.pipeline.convert import convert_asset
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.train.trainer import TrainingInterrupted
 
     if args.decoder and args.max_error is not None:
         raise InputError(f"--decoder {args.decoder} and --max-error {args.max_error} conflict: --decoder forces "
@@ -281,7 +287,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "inspect":
-            from .inspect import format_report, inspect_asset
+            # Local: --help and option errors answer without importing torch.
+            from mtlx2neural.pipeline.inspection import format_report, inspect_asset
 
             report = inspect_asset(args.asset, args.material, args.allow_missing_textures, _config(args),
                                    args.texel_density)

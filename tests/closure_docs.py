@@ -8,6 +8,7 @@ from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.library import standard_library
 from mtlx2neural.reference import ReferenceMaterial
 
+
 def _value(mx_type, v):
     if mx_type == "color3":
         return mx.Color3(*v)

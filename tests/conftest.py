@@ -22,17 +22,7 @@ if (SHARED / "assets" / "materialx").exists():
     os.environ.setdefault("MATERIALX_SEARCH_PATH", str(SHARED / "assets" / "materialx"))
 
 
-# A minimal valid MaterialX material (a red standard_surface named Red); needs nothing from ../shared.
-SIMPLE_MTLX = """<?xml version="1.0"?>
-<materialx version="1.39">
-  <standard_surface name="SR_red" type="surfaceshader">
-    <input name="base_color" type="color3" value="0.8, 0.1, 0.1" />
-  </standard_surface>
-  <surfacematerial name="Red" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="SR_red" />
-  </surfacematerial>
-</materialx>
-"""
+from materials import SIMPLE_MTLX  # noqa: E402,F401  (re-exported: tests import it from conftest)
 
 
 def shared_path(*parts) -> Path:

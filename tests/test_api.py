@@ -6,11 +6,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import random_dirs
 
 import mtlx2neural as m2n
 from mtlx2neural.errors import InputError
-
-from conftest import random_dirs
 
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "layered_spheres.usda"
 

@@ -8,7 +8,6 @@ traceback and write nothing.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -23,37 +22,10 @@ from mtlx2neural.cli import main
 
 STD_SURFACE = ("materialx", "resources", "Materials", "Examples", "StandardSurface")
 
+from cli_helpers import assert_clean_input_error, run_cli, snapshot  # noqa: E402,F401  (shared helpers)
 from conftest import SIMPLE_MTLX  # noqa: E402  (a minimal material named Red)
 
-
 # ----------------------------------------------------------------------------- helpers
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    """``main(argv)`` in-process: (exit code, stdout, stderr)."""
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def snapshot(folder: Path) -> dict[str, tuple]:
-    """Every entry under ``folder``: kind, size, mtime and content hash, by relative path."""
-    snap = {}
-    for p in sorted(folder.rglob("*")):
-        st = p.lstat()
-        digest = hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
-        snap[str(p.relative_to(folder))] = (p.is_dir(), st.st_size, st.st_mtime_ns, digest)
-    return snap
-
-
-def assert_clean_input_error(code: int, out: str, err: str, *expected: str) -> None:
-    """Exit 2, no stdout, a one-shot message on stderr naming every ``expected`` string."""
-    assert code == 2, f"exit code {code}; stderr:\n{err}"
-    assert out == ""
-    assert "Traceback" not in err
-    assert err.startswith("mtlx2neural: error: "), err
-    for s in expected:
-        assert s in err, f"{s!r} not in stderr:\n{err}"
 
 
 def make_usd_stage(path: Path, *, bind: bool = True, surface_output: str | None = "mtlx:surface") -> None:
@@ -203,17 +175,7 @@ def test_inspect_unknown_material_is_input_error(tmp_path, capsys):
 
 # ----------------------------------------------------------------------------- inspect: bad input
 
-HAIR_MTLX = """<?xml version="1.0"?>
-<materialx version="1.39">
-  <chiang_hair_bsdf name="hair" type="BSDF" />
-  <surface name="surf" type="surfaceshader">
-    <input name="bsdf" type="BSDF" nodename="hair" />
-  </surface>
-  <surfacematerial name="M" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="surf" />
-  </surfacematerial>
-</materialx>
-"""
+from materials import HAIR_MTLX  # noqa: E402  (shared documents)
 
 BAD_INPUTS = {
     # id: (file name, content, strings the message must contain besides the file path)

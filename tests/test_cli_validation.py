@@ -9,10 +9,10 @@ import io
 
 import pytest
 import torch
+from cli_helpers import assert_clean_input_error, run_cli, snapshot  # noqa: E402  (the CLI tests' helpers)
 from conftest import SIMPLE_MTLX
 
 from mtlx2neural.progress import LogLines, progress_bar
-from test_cli import assert_clean_input_error, run_cli, snapshot  # noqa: E402  (the CLI tests' helpers)
 
 BASE = ("--batch", "64", "--quiet", "--workers", "1")
 

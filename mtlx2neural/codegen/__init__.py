@@ -11,10 +11,15 @@ The runtime (``NeuralMaterial.slang``, ``NeuralLayers.slang``) and the templates
 top-level ``codegen/`` folder (see :mod:`.paths`).
 """
 
-from .generate import coopvec_blob, fp16_blob, generate_slang, identifier
-from .paths import codegen_path, runtime_path
-from .spec import NetworkSpec, as_spec
-from .write import write_material_shader
+from mtlx2neural.codegen.generate import (
+           coopvec_blob,
+           fp16_blob,
+           generate_slang,
+           identifier,
+)
+from mtlx2neural.codegen.paths import codegen_path, runtime_path
+from mtlx2neural.codegen.spec import NetworkSpec, as_spec
+from mtlx2neural.codegen.write import write_material_shader
 
 __all__ = ["NetworkSpec", "as_spec", "codegen_path", "coopvec_blob", "fp16_blob", "generate_slang", "identifier",
            "runtime_path", "write_material_shader"]

@@ -23,7 +23,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from .paths import runtime_path
+from mtlx2neural.codegen.paths import runtime_path
 
 COOPVEC_SPIRV_EXTENSION = "SPV_NV_cooperative_vector"
 

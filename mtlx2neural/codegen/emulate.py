@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .spec import Layer, NetworkSpec
+from mtlx2neural.codegen.spec import Layer, NetworkSpec
 
 F16_MAX = np.float32(65504.0)
 

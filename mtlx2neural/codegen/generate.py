@@ -34,8 +34,8 @@ from string import Template
 
 import numpy as np
 
-from .paths import template
-from .spec import Layer, NetworkSpec, as_spec
+from mtlx2neural.codegen.paths import template
+from mtlx2neural.codegen.spec import Layer, NetworkSpec, as_spec
 
 MATRIX_ALIGN = 64  # bytes: cooperative-vector matrix offsets
 BIAS_ALIGN = 16    # bytes: bias offsets and row strides

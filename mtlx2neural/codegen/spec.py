@@ -7,7 +7,7 @@ head and the sampler MLP of a :class:`~mtlx2neural.model.neural_material.NeuralM
 
 It is built from a model in memory (float32 weights) or from an export folder (the FP16
 values of ``weights.bin``, read through ``weights.json``). :meth:`NetworkSpec.fp16` rounds
-every weight to FP16 with the export's range check (:func:`mtlx2neural.export.fp16.to_fp16`),
+every weight to FP16 with the export's range check (:func:`mtlx2neural.formats.fp16.to_fp16`),
 so a spec built from a model and one read back from its export hold the same FP16 values.
 """
 
@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from mtlx2neural.errors import InputError
+from mtlx2neural.formats.fp16 import to_fp16
+from mtlx2neural.formats.weights import analytic_cosine_of, read_weights
 
 
 @dataclass
@@ -65,9 +67,6 @@ class NetworkSpec:
 
     def fp16(self) -> NetworkSpec:
         """A copy with every weight rounded to FP16 (range-checked), held as float32."""
-        from ..export.fp16 import (
-            to_fp16,  # here: mtlx2neural.export imports this package
-        )
         notes: list[str] = []
 
         def r(a, what):
@@ -119,7 +118,6 @@ def spec_from_model(model) -> NetworkSpec:
 
 def spec_from_export(folder) -> NetworkSpec:
     """The spec of an export folder (``weights.json`` + ``weights.bin``: FP16 values)."""
-    from ..export.weights import analytic_cosine_of, read_weights
 
     folder = Path(folder)
     manifest = folder / "weights.json" if folder.is_dir() else folder

@@ -17,9 +17,14 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from .generate import coopvec_blob, fp16_blob, generate_slang, identifier
-from .paths import RUNTIME_FILES, runtime_path
-from .spec import as_spec
+from mtlx2neural.codegen.generate import (
+    coopvec_blob,
+    fp16_blob,
+    generate_slang,
+    identifier,
+)
+from mtlx2neural.codegen.paths import RUNTIME_FILES, runtime_path
+from mtlx2neural.codegen.spec import as_spec
 
 
 def write_material_shader(model_or_export, folder, name: str, *, coherent: bool = True) -> list[Path]:

@@ -1,15 +1,16 @@
 """Export stage: trained neural materials as USD with NeuralMaterialAPI, latent EXR MIP chains and FP16 weights.
 
-Modules: ``fp16`` (range check and quantisation), ``latents`` (EXR MIP chains),
-``weights`` (binary + manifest), ``usd_writer`` (the neural layer), ``staging``
-(all-or-nothing writes), ``bundle`` (one export of an asset; the output layout is
-described there), ``cache`` (source hash), ``load`` (rebuild from the files alone).
+Modules: ``latents`` (EXR MIP chains), ``usd_writer`` (the neural layer), ``bundle``
+(one export of an asset: latents, weights, shaders and the layer, staged and committed
+together), ``load`` (rebuild a material from the files alone). The weights format and
+FP16 conversion are in :mod:`mtlx2neural.formats`, shared with codegen; the output
+layout and the source hash are in :mod:`mtlx2neural.pipeline`.
 """
 
-from .bundle import export_asset, layer_path
-from .cache import FORMAT_VERSION, source_hash
-from .load import load_neural
-from .usd_writer import ExportedMaterial, write_neural_layer
+from mtlx2neural.export.bundle import export_asset, layer_path
+from mtlx2neural.export.load import load_neural
+from mtlx2neural.export.usd_writer import ExportedMaterial, write_neural_layer
+from mtlx2neural.formats import FORMAT_VERSION
 
 __all__ = [
            "FORMAT_VERSION",
@@ -17,6 +18,5 @@ __all__ = [
            "export_asset",
            "layer_path",
            "load_neural",
-           "source_hash",
            "write_neural_layer",
 ]

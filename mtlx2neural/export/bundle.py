@@ -25,11 +25,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..codegen import write_material_shader
-from .latents import write_latent_textures
-from .staging import Staging
-from .usd_writer import ExportedMaterial, KeptMaterials, write_neural_layer
-from .weights import write_weights
+from mtlx2neural.codegen import write_material_shader
+from mtlx2neural.export.latents import write_latent_textures
+from mtlx2neural.export.usd_writer import (
+    ExportedMaterial,
+    KeptMaterials,
+    write_neural_layer,
+)
+from mtlx2neural.formats.weights import write_weights
+from mtlx2neural.staging import Staging
 
 EXPORT_FOLDER = "neural"
 

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..atomic import atomic_path
-from ..errors import InputError
-from .fp16 import to_fp16
+from mtlx2neural.atomic import atomic_path
+from mtlx2neural.errors import InputError
+from mtlx2neural.formats.fp16 import to_fp16
 
 TILE = 64
 COLORSPACE = "raw"

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import torch
 
-from ..errors import InputError
-from ..model.checkpoint import model_arguments
-from ..model.neural_material import NeuralMaterial
-from .cache import FORMAT_VERSION
-from .latents import read_latent_textures
-from .usd_writer import API, NEURAL, VARIANT_SET, register_schema
-from .weights import analytic_cosine_of, read_weights
+from mtlx2neural.errors import InputError
+from mtlx2neural.export.latents import read_latent_textures
+from mtlx2neural.export.usd_writer import API, NEURAL, VARIANT_SET, register_schema
+from mtlx2neural.formats import FORMAT_VERSION
+from mtlx2neural.formats.weights import analytic_cosine_of, read_weights
+from mtlx2neural.model.checkpoint import model_arguments
+from mtlx2neural.model.neural_material import NeuralMaterial
 
 
 class ExportedNeuralMaterial(NeuralMaterial):

@@ -38,7 +38,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .cache import FORMAT_VERSION
+from mtlx2neural import usd_schema
+from mtlx2neural.formats import FORMAT_VERSION
 
 VARIANT_SET = "neuralMaterial"
 NEURAL, ORIGINAL = "neural", "original"
@@ -63,7 +64,6 @@ def register_schema() -> None:
         return
     _schema_tried = True
     try:
-        from .. import usd_schema
 
         usd_schema.register()
     except Exception:  # noqa: BLE001, S110 - e.g. the plugin folder is missing from an install

@@ -1,5 +1,5 @@
 """MaterialX document -> IR -> folded BSDF program (see docs/ARCHITECTURE.md, "graph")."""
 
-from .compile import CompiledMaterial, compile_material
+from mtlx2neural.graph.compile import CompiledMaterial, compile_material
 
 __all__ = ["CompiledMaterial", "compile_material"]

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..errors import InputError, UnsupportedNodeError
-from .evaluate import GraphEvaluator
-from .ir import Const, Input, Ref
+from mtlx2neural.errors import InputError, UnsupportedNodeError
+from mtlx2neural.graph.evaluator import GraphEvaluator
+from mtlx2neural.graph.ir import Const, Input, Ref
 
 LOBES = {"oren_nayar_diffuse_bsdf", "burley_diffuse_bsdf", "dielectric_bsdf", "conductor_bsdf",
          "generalized_schlick_bsdf", "sheen_bsdf", "subsurface_bsdf", "translucent_bsdf"}

@@ -6,14 +6,21 @@ from dataclasses import dataclass, field
 
 import MaterialX as mx
 
-from .bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
-from .evaluate import GraphEvaluator
-from .expand import expand_material
-from .ir import Const, Input, IRGraph, Ref
-from .ops import OPS
-from .validate import check_image_modes
-from .sources import FRAME_AXES, SPATIAL, UV_PRIMVARS, needs_conversion, texture, texture_colorspaces
-from ..errors import InputError
+from mtlx2neural.errors import InputError
+from mtlx2neural.graph.bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
+from mtlx2neural.graph.evaluator import GraphEvaluator
+from mtlx2neural.graph.expand import expand_material
+from mtlx2neural.graph.ir import Const, Input, IRGraph, Ref
+from mtlx2neural.graph.ops import OPS
+from mtlx2neural.graph.spatial import (
+    FRAME_AXES,
+    SPATIAL,
+    UV_PRIMVARS,
+    needs_conversion,
+    texture,
+    texture_colorspaces,
+)
+from mtlx2neural.graph.validate import check_image_modes
 
 NATIVE = set(OPS) | CLOSURE_NODES | SPATIAL | set(FRAME_AXES)
 

@@ -23,10 +23,12 @@ from typing import Generator
 
 import MaterialX as mx
 
-from ..errors import InputError, UnsupportedNodeError
-from .ir import Const, Input, IRGraph, IRNode, Ref
-from .library import nodegraph_implementation, with_libraries
-from .validate import check_enum_inputs
+from mtlx2neural.errors import InputError, UnsupportedNodeError
+from mtlx2neural.graph.ir import Const, Input, IRGraph, IRNode, Ref
+from mtlx2neural.graph.library import nodegraph_implementation, with_libraries
+from mtlx2neural.graph.spatial import needs_conversion
+from mtlx2neural.graph.validate import check_enum_inputs
+from mtlx2neural.imaging.colour import convert
 
 # Inputs that only feed emission, which a reflectance model drops: an
 # unsupported node there becomes "unconnected" (with a note) instead of an error.
@@ -183,8 +185,6 @@ class Expander:
 
     def _to_working_space(self, value: tuple, colorspace: str) -> tuple:
         """A colour value declared in ``colorspace``, converted into the working space (as MaterialX does)."""
-        from .sources import needs_conversion
-        from ..textures.colour import convert
 
         working = self.working_space or "lin_rec709"
         if not needs_conversion(colorspace, working):

@@ -18,6 +18,8 @@ from typing import Callable
 
 import torch
 
+from mtlx2neural.graph.ir import CHANNELS
+
 EPS = 1e-8  # guards for divisions/normalize; matches the role of M_FLOAT_EPS in MaterialX
 OPS: dict[str, Callable] = {}
 
@@ -144,7 +146,6 @@ def _separate(a, n):
 
 
 def _convert(x, mx_type: str):
-    from .ir import CHANNELS
     c = CHANNELS[mx_type]
     if x.shape[-1] == c:
         return x

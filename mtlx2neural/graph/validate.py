@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import MaterialX as mx
 
-from ..errors import InputError
-from .ir import Const, IRGraph
-from ..textures.texel_lookup import ADDRESS_MODES, FILTER_TYPES
+from mtlx2neural.errors import InputError
+from mtlx2neural.graph.ir import Const, IRGraph
+from mtlx2neural.imaging.texel_lookup import ADDRESS_MODES, FILTER_TYPES
 
 # Address-mode spellings the image operator accepts besides MaterialX's own:
 # UsdUVTexture's "black" reaches the inner image node of its library nodegraph unchanged.

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import torch
 
-from ..errors import InputError
-from .neural_material import NeuralMaterial
+from mtlx2neural.errors import InputError
+from mtlx2neural.model.neural_material import NeuralMaterial
 
 
 def checkpoint_file(path) -> Path:

@@ -25,9 +25,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .mlp import mlp, parse_hidden
-
-OUTPUT_OFFSET = 3.0
+from mtlx2neural.formats.weights import OUTPUT_OFFSET
+from mtlx2neural.model.mlp import mlp, parse_hidden
 
 
 class BrdfDecoder(nn.Module):

@@ -15,7 +15,7 @@ import math
 import torch
 from torch import nn
 
-from ..textures.grid_lookup import bilinear_periodic
+from mtlx2neural.imaging.grid_lookup import bilinear_periodic
 
 
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from . import proxy
-from .mlp import mlp
+from mtlx2neural.model import proxy
+from mtlx2neural.model.mlp import mlp
 
 
 class Encoder(nn.Module):

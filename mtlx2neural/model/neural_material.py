@@ -1,7 +1,7 @@
 """The neural material: latent pyramid + BRDF decoder + learned sampler (+ encoder for training).
 
 Public methods mirror the reference's contract (docs/ARCHITECTURE.md, "Conventions", and
-:mod:`mtlx2neural.material_contract`, shared with the reference): directions in the
+:mod:`mtlx2neural.contract`, shared with the reference): directions in the
 local frame (z the geometric normal), of any length and any real dtype (normalised,
 then converted to the model's dtype, in which results come back); NaN or Inf input
 raises ``ValueError``. ``eval`` returns f * cos in linear RGB, ``sample`` returns
@@ -20,12 +20,18 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..material_contract import above_horizon, normalize_directions, prepare_direction, prepare_directions, \
-    prepare_values, zero_below_horizon
-from .decoder import BrdfDecoder
-from .latent import LatentPyramid
-from .networks import Encoder, SamplerNet
-from . import proxy
+from mtlx2neural.contract import (
+    above_horizon,
+    normalize_directions,
+    prepare_direction,
+    prepare_directions,
+    prepare_values,
+    zero_below_horizon,
+)
+from mtlx2neural.model import proxy
+from mtlx2neural.model.decoder import BrdfDecoder
+from mtlx2neural.model.latent import LatentPyramid
+from mtlx2neural.model.networks import Encoder, SamplerNet
 
 
 class NeuralMaterial(nn.Module):

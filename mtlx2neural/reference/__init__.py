@@ -1,5 +1,5 @@
 """Batched torch reference BRDF with MaterialX's hardware-shading semantics."""
 
-from .material import ReferenceMaterial
+from mtlx2neural.reference.material import ReferenceMaterial
 
 __all__ = ["ReferenceMaterial"]

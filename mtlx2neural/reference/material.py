@@ -1,6 +1,6 @@
 """The batched torch reference BRDF of one compiled material (``m2n.load_reference``).
 
-Conventions (docs/ARCHITECTURE.md; the input contract is :mod:`mtlx2neural.material_contract`, shared
+Conventions (docs/ARCHITECTURE.md; the input contract is :mod:`mtlx2neural.contract`, shared
 with the neural material): local shading frame with z the geometric normal and x
 the tangent; ``wi`` points to the viewer, ``wo`` to the light, both away from
 the surface. ``eval`` returns f(wi, wo) * max(0, wo.z) in linear RGB and is 0
@@ -25,13 +25,26 @@ from __future__ import annotations
 
 import torch
 
-from ..graph.bsdf_program import Add, Layer, Leaf, Mix, Multiply, Zero
-from ..graph.compile import CompiledMaterial
-from ..material_contract import above_horizon, normalize_directions, prepare_direction, prepare_directions, \
-    prepare_values, zero_below_horizon
-from .closures import LOBE_CLASSES
-from .tree import AddNode, LayerNode, LobeNode, MixNode, MultiplyNode, ZeroNode
-from .vec import INV_PI, cosine_sample, luminance
+from mtlx2neural.contract import (
+    above_horizon,
+    normalize_directions,
+    prepare_direction,
+    prepare_directions,
+    prepare_values,
+    zero_below_horizon,
+)
+from mtlx2neural.graph.bsdf_program import Add, Layer, Leaf, Mix, Multiply, Zero
+from mtlx2neural.graph.compile import CompiledMaterial
+from mtlx2neural.reference.closures import LOBE_CLASSES
+from mtlx2neural.reference.tree import (
+    AddNode,
+    LayerNode,
+    LobeNode,
+    MixNode,
+    MultiplyNode,
+    ZeroNode,
+)
+from mtlx2neural.reference.vec import INV_PI, cosine_sample, luminance
 
 DEFAULT_UV = (0.5, 0.5)
 

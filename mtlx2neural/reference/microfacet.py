@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from .vec import PI, FLOAT_EPS
+from mtlx2neural.reference.vec import FLOAT_EPS, PI
 
 # Rational fit of GGX directional albedo, E = F0 * A + F90 * B, with
 # A = num_A / den_A and B = num_B / den_B; each is a polynomial in x = NdotV and

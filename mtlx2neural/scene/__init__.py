@@ -6,13 +6,13 @@ MaterialX's own nodedefs for it) or references to ``.mtlx`` files, which are
 read directly because usd-core has no usdMtlx plugin. Each material is handed
 on as a self-contained MaterialX document without the standard libraries.
 
-Modules: ``loader`` (entry points), ``sources`` (result types, choosing by
+Modules: ``loader`` (entry points), ``materials`` (result types, choosing by
 name), ``mtlx_file``, ``usd_stage``, ``usd_to_mtlx``, ``usd_values``,
 ``usd_preview``, ``mtlx_refs``, ``binding``, ``mxlib``, ``texel_density`` (metres of
 surface per UV unit of a material's meshes, for ``--texel-density``).
 """
 
-from .loader import find_material, load_asset
-from .sources import MaterialSource, SceneMaterials
+from mtlx2neural.scene.loader import find_material, load_asset
+from mtlx2neural.scene.materials import MaterialSource, SceneMaterials
 
 __all__ = ["MaterialSource", "SceneMaterials", "find_material", "load_asset"]

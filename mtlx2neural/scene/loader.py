@@ -6,9 +6,14 @@ import os
 
 import MaterialX as mx
 
-from ..errors import InputError
-from . import mtlx_file, usd_stage
-from .sources import Candidate, MaterialSource, SceneMaterials, choose
+from mtlx2neural.errors import InputError
+from mtlx2neural.scene import mtlx_file, usd_stage
+from mtlx2neural.scene.materials import (
+    Candidate,
+    MaterialSource,
+    SceneMaterials,
+    choose,
+)
 
 MTLX_EXTENSIONS = (".mtlx",)
 

@@ -14,8 +14,8 @@ import re
 
 import MaterialX as mx
 
-from ..errors import InputError, unreadable_reason
-from . import mxlib
+from mtlx2neural.errors import InputError, unreadable_reason
+from mtlx2neural.scene import mxlib
 
 MATERIAL_CATEGORY = "surfacematerial"
 

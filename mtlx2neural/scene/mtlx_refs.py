@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from pxr import Sdf, Usd, UsdShade
 
-from . import mtlx_file
+from mtlx2neural.scene import mtlx_file
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ import os
 
 import MaterialX as mx
 
-from ..errors import InputError
+from mtlx2neural.errors import InputError
 
 
 def library_dir() -> str:

@@ -3,7 +3,7 @@
 ``--texel-density D`` (latent texels per metre of surface, the game-art convention:
 512 = 5.12 texels/cm) turns this into the grid a material needs: ``D`` times the
 metres one UV unit spans, in texels per UV unit (:func:`texels_per_uv`), which
-:mod:`mtlx2neural.plan` compares with the textures' grid.
+:mod:`mtlx2neural.pipeline.plan` compares with the textures' grid.
 
 For each bound ``UsdGeom.Mesh`` (a ``UsdGeom.Subset``: its parent mesh, only the
 subset's faces; holes left out) :func:`mesh_density` takes the texture-coordinate
@@ -25,6 +25,8 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from mtlx2neural.scene.usd_stage import open_stage
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -88,7 +90,6 @@ def open_stage_for(asset) -> object | None:
     """The USD stage of ``asset`` (a path), or None when it is not a USD file (plain ``.mtlx``)."""
     if os.path.splitext(os.fspath(asset))[1].lower() not in USD_EXTENSIONS:
         return None
-    from .usd_stage import open_stage
 
     return open_stage(os.path.abspath(os.fspath(asset)))
 

@@ -18,11 +18,15 @@ import re
 
 from pxr import Pcp, Tf, Usd, UsdShade
 
-from ..errors import InputError
-from . import binding, mtlx_file, mxlib
-from .mtlx_refs import MtlxReference, add_placeholders, find_mtlx_references
-from .sources import Candidate, MaterialSource
-from .usd_to_mtlx import convert_material, defining_file
+from mtlx2neural.errors import InputError
+from mtlx2neural.scene import binding, mtlx_file, mxlib
+from mtlx2neural.scene.materials import Candidate, MaterialSource
+from mtlx2neural.scene.mtlx_refs import (
+    MtlxReference,
+    add_placeholders,
+    find_mtlx_references,
+)
+from mtlx2neural.scene.usd_to_mtlx import convert_material, defining_file
 
 log = logging.getLogger(__name__)
 

@@ -31,9 +31,9 @@ from __future__ import annotations
 import MaterialX as mx
 from pxr import Sdf, Usd, UsdShade
 
-from ..errors import InputError
-from . import mxlib, usd_preview
-from .usd_values import (
+from mtlx2neural.errors import InputError
+from mtlx2neural.scene import mxlib, usd_preview
+from mtlx2neural.scene.usd_values import (
     ValueConversionError,
     authored_value,
     resolve_asset,

@@ -26,7 +26,7 @@ import math
 
 import torch
 
-from .parameter_stack import ParameterStack
+from mtlx2neural.textures.parameter_stack import ParameterStack
 
 SIGMA_TEXELS = 0.5  # the footprint's standard deviation, in level-k texels
 

@@ -26,10 +26,12 @@ from dataclasses import dataclass, field
 import torch
 import torch.nn.functional as F
 
-from ..graph.compile import CompiledMaterial
-from ..graph.ir import CHANNELS, Const
-from .grid_lookup import bilinear_periodic
-from .lean import lobe_from_moments, moments
+from mtlx2neural.graph.compile import CompiledMaterial
+from mtlx2neural.graph.ir import CHANNELS, Const
+from mtlx2neural.imaging.grid_lookup import bilinear_periodic
+from mtlx2neural.imaging.image_io import openimageio, pending_oiio_error
+from mtlx2neural.imaging.udim import is_tiled_path
+from mtlx2neural.textures.lean import lobe_from_moments, moments
 
 MICROFACET = {"dielectric_bsdf", "conductor_bsdf", "generalized_schlick_bsdf"}
 DEFAULT_PROCEDURAL_RES = 256
@@ -130,8 +132,6 @@ def _semantic(name: str, mx_type: str) -> tuple[str, str, str]:
 
 def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]:
     """Finest texel grid over UV [0,1]^2: each image's size times its UV scale (tiling)."""
-    from .image_io import openimageio, pending_oiio_error
-    from .udim import is_tiled_path
 
     oiio = openimageio()
     g, ev, notes = compiled.graph, compiled.evaluator, []

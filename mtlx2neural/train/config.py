@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from mtlx2neural.errors import InputError
+
 
 @dataclass
 class TrainConfig:
@@ -119,8 +121,8 @@ def validate_config(cfg: TrainConfig, allow_untrained: bool = False) -> None:
     """
     import math
 
-    from ..errors import InputError
-    from ..model.mlp import parse_hidden  # local: the CLI's parser imports this module, and mlp imports torch
+    # Local: the CLI's parser imports this module, and mlp imports torch.
+    from mtlx2neural.model.mlp import parse_hidden
 
     def bad(name: str, why: str) -> InputError:
         flag = _FLAGS.get(name)

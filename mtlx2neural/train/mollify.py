@@ -23,7 +23,7 @@ import math
 
 import torch
 
-from .directions import cone_jitter
+from mtlx2neural.train.directions import cone_jitter
 
 
 def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs: int = 1,

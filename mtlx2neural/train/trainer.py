@@ -24,15 +24,19 @@ from pathlib import Path
 
 import torch
 
-from ..atomic import atomic_path
-from ..model.neural_material import NeuralMaterial
-from ..progress import progress_bar
-from ..textures.footprint import footprint_targets, sample_levels
-from ..textures.parameter_stack import ParameterStack
-from .config import TrainConfig
-from .directions import cone_jitter, grazing_directions, half_difference_pairs
-from .losses import log_l1
-from .mollify import cone_mean, lobe_directions
+from mtlx2neural.atomic import atomic_path
+from mtlx2neural.model.neural_material import NeuralMaterial
+from mtlx2neural.progress import progress_bar
+from mtlx2neural.textures.footprint import footprint_targets, sample_levels
+from mtlx2neural.textures.parameter_stack import ParameterStack
+from mtlx2neural.train.config import TrainConfig
+from mtlx2neural.train.directions import (
+    cone_jitter,
+    grazing_directions,
+    half_difference_pairs,
+)
+from mtlx2neural.train.losses import log_l1
+from mtlx2neural.train.mollify import cone_mean, lobe_directions
 
 UNIFORM_PDF = 1.0 / (2.0 * math.pi)
 GRAD_CLIP = 10.0  # global gradient-norm cap

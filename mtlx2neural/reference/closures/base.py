@@ -20,7 +20,15 @@ from __future__ import annotations
 
 import torch
 
-from ..vec import FLOAT_EPS, INV_PI, cosine_sample, dot, forward_facing, from_frame, tangent_frame
+from mtlx2neural.reference.vec import (
+    FLOAT_EPS,
+    INV_PI,
+    cosine_sample,
+    dot,
+    forward_facing,
+    from_frame,
+    tangent_frame,
+)
 
 
 class Lobe:

@@ -8,9 +8,14 @@ from __future__ import annotations
 
 import torch
 
-from ..fresnel import CONDUCTOR, FresnelData, compute_fresnel, fresnel_conductor
-from ..microfacet import ggx_dir_albedo, ggx_energy_compensation
-from .microfacet_lobe import MicrofacetLobe
+from mtlx2neural.reference.closures.microfacet_lobe import MicrofacetLobe
+from mtlx2neural.reference.fresnel import (
+    CONDUCTOR,
+    FresnelData,
+    compute_fresnel,
+    fresnel_conductor,
+)
+from mtlx2neural.reference.microfacet import ggx_dir_albedo, ggx_energy_compensation
 
 
 class ConductorLobe(MicrofacetLobe):

@@ -8,9 +8,14 @@ Transmission (scatter_mode T) is not a reflectance and is pruned by the compiler
 
 from __future__ import annotations
 
-from ..fresnel import DIELECTRIC, FresnelData, compute_fresnel, ior_to_f0
-from ..microfacet import ggx_dir_albedo
-from .microfacet_lobe import MicrofacetLobe
+from mtlx2neural.reference.closures.microfacet_lobe import MicrofacetLobe
+from mtlx2neural.reference.fresnel import (
+    DIELECTRIC,
+    FresnelData,
+    compute_fresnel,
+    ior_to_f0,
+)
+from mtlx2neural.reference.microfacet import ggx_dir_albedo
 
 
 class DielectricLobe(MicrofacetLobe):

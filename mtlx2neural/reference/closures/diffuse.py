@@ -12,8 +12,8 @@ import math
 
 import torch
 
-from ..vec import FLOAT_EPS, INV_PI, dot, forward_facing, normalize
-from .base import CosineSampledLobe
+from mtlx2neural.reference.closures.base import CosineSampledLobe
+from mtlx2neural.reference.vec import FLOAT_EPS, INV_PI, dot, forward_facing, normalize
 
 FUJII_1 = 0.5 - 2.0 / (3.0 * math.pi)
 FUJII_2 = 2.0 / 3.0 - 28.0 / (15.0 * math.pi)

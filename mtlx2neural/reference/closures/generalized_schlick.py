@@ -7,9 +7,9 @@ a grey value, as MaterialX computes it.
 
 from __future__ import annotations
 
-from ..fresnel import SCHLICK, FresnelData, compute_fresnel
-from ..microfacet import ggx_dir_albedo
-from .microfacet_lobe import MicrofacetLobe
+from mtlx2neural.reference.closures.microfacet_lobe import MicrofacetLobe
+from mtlx2neural.reference.fresnel import SCHLICK, FresnelData, compute_fresnel
+from mtlx2neural.reference.microfacet import ggx_dir_albedo
 
 
 class GeneralizedSchlickLobe(MicrofacetLobe):

@@ -11,11 +11,27 @@ from __future__ import annotations
 
 import torch
 
-from ..microfacet import (average_alpha, ggx_dir_albedo_ab, ggx_energy_compensation, ggx_ndf, sample_vndf,
-                          smith_g2, vndf_reflection_pdf)
-from ..vec import (FLOAT_EPS, dot, forward_facing, from_frame, is_geometric_frame, normalize, reflect,
-                   tangent_frame, to_frame)
-from .base import Lobe
+from mtlx2neural.reference.closures.base import Lobe
+from mtlx2neural.reference.microfacet import (
+    average_alpha,
+    ggx_dir_albedo_ab,
+    ggx_energy_compensation,
+    ggx_ndf,
+    sample_vndf,
+    smith_g2,
+    vndf_reflection_pdf,
+)
+from mtlx2neural.reference.vec import (
+    FLOAT_EPS,
+    dot,
+    forward_facing,
+    from_frame,
+    is_geometric_frame,
+    normalize,
+    reflect,
+    tangent_frame,
+    to_frame,
+)
 
 
 class MicrofacetLobe(Lobe):

@@ -13,8 +13,16 @@ import math
 
 import torch
 
-from ..vec import FLOAT_EPS, INV_PI, cross, dot, forward_facing, normalize, tangent_frame
-from .base import CosineSampledLobe
+from mtlx2neural.reference.closures.base import CosineSampledLobe
+from mtlx2neural.reference.vec import (
+    FLOAT_EPS,
+    INV_PI,
+    cross,
+    dot,
+    forward_facing,
+    normalize,
+    tangent_frame,
+)
 
 
 def imageworks_albedo(n_dot_v, r):

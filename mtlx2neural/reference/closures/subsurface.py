@@ -13,8 +13,8 @@ import math
 
 import torch
 
-from ..vec import FLOAT_EPS, INV_PI, dot, forward_facing
-from .base import CosineSampledLobe
+from mtlx2neural.reference.closures.base import CosineSampledLobe
+from mtlx2neural.reference.vec import FLOAT_EPS, INV_PI, dot, forward_facing
 
 FLAT_SURFACE_RADIUS = 1.0 / 0.01
 _SAMPLES = 32

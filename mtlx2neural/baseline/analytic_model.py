@@ -1,0 +1,257 @@
+"""The analytic baseline: a Lambert + isotropic GGX material fitted numerically to the reference.
+
+This is the "distilled" alternative a user would otherwise pick (the paper's
+Figure 3): a standard real-time BRDF whose parameters are textures, fitted with
+Adam against the same reference, the same footprint-filtered targets and the
+same log-L1 loss as the neural material, so the two compare like for like.
+
+The 8 channels (``CHANNELS``), stored unconstrained and mapped to their ranges by
+:func:`decode`:
+
+====  ==============  ==================================================================
+ 0-2  base colour     linear RGB in [0, 1] (sigmoid): the diffuse albedo of a dielectric,
+                      F0 of a metal
+  3   roughness       perceptual roughness in [0.02, 1] (sigmoid); GGX alpha = roughness^2
+  4   metalness       [0, 1] (sigmoid): mixes dielectric and metal
+  5   specular        [0, 1] (sigmoid): dielectric F0 = 0.08 * specular (0.5 -> 0.04, IOR 1.5)
+ 6-7  normal slopes   (sx, sy), unbounded: shading normal n = normalize(-sx, -sy, 1) in the
+                      local frame (x tangent, z geometric normal)
+====  ==============  ==================================================================
+
+The model, with all cosines taken about the shading normal n and h = normalize(wi + wo)::
+
+    F   = F0 + (1 - F0) (1 - wi.h)^5               F0 = mix(0.08 specular, base, metalness)
+    D   = alpha^2 / (pi ((n.h)^2 (alpha^2 - 1) + 1)^2)
+    V   = 0.5 / (n.wo sqrt(a2 + (1-a2)(n.wi)^2) + n.wi sqrt(a2 + (1-a2)(n.wo)^2))   Smith height-correlated
+    f   = (1 - metalness) base / pi + D F V
+    eval = f * max(0, n.wo)      (0 when wi.z <= 0 or wo.z <= 0, as every material here)
+
+The channels are a texture pyramid (:class:`~mtlx2neural.model.latent.LatentPyramid`):
+1x1 for a uniform material, else the latent grid (``stack.resolution``) halved down
+to 1x1; every level is fitted (queries draw levels like the neural training), and
+a render picks levels stochastically from its level of detail, as the neural model.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from mtlx2neural.model.latent import LatentPyramid
+from mtlx2neural.staging import Staging
+from mtlx2neural.textures.footprint import footprint_targets, sample_levels
+from mtlx2neural.train.directions import half_difference_pairs
+from mtlx2neural.train.losses import log_l1
+
+CHANNELS = ("base_r", "base_g", "base_b", "roughness", "metalness", "specular", "slope_x", "slope_y")
+MIN_ROUGHNESS = 0.02
+
+
+def _logit(p: torch.Tensor) -> torch.Tensor:
+    p = p.clamp(1e-3, 1 - 1e-3)
+    return torch.log(p / (1 - p))
+
+
+def decode(raw: torch.Tensor) -> dict:
+    """Unconstrained channels [N, 8] -> {base [N,3], roughness [N,1], metalness [N,1], specular [N,1],
+    normal [N,3] (unit, local frame)}."""
+    s = torch.sigmoid(raw[:, :6])
+    slope = raw[:, 6:8]
+    n = torch.cat([-slope, torch.ones_like(slope[:, :1])], -1)
+    return {"base": s[:, 0:3], "roughness": MIN_ROUGHNESS + (1 - MIN_ROUGHNESS) * s[:, 3:4],
+            "metalness": s[:, 4:5], "specular": s[:, 5:6],
+            "normal": n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)}
+
+
+def brdf(p: dict, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """f * max(0, n.wo) [N,3] for decoded parameters ``p``; finite for any unit directions."""
+    n = p["normal"]
+    nv = (wi * n).sum(-1, keepdim=True).clamp(1e-4, 1.0)
+    nl_raw = (wo * n).sum(-1, keepdim=True)
+    nl = nl_raw.clamp(1e-4, 1.0)
+    h = wi + wo
+    h = h / h.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    nh = (h * n).sum(-1, keepdim=True).clamp(0.0, 1.0)
+    vh = (wi * h).sum(-1, keepdim=True).clamp(0.0, 1.0)
+    a2 = (p["roughness"] ** 2) ** 2
+    d = a2 / (math.pi * ((nh * nh) * (a2 - 1) + 1).clamp_min(1e-12) ** 2)
+    vis = 0.5 / (nl * (a2 + (1 - a2) * nv * nv).sqrt() + nv * (a2 + (1 - a2) * nl * nl).sqrt()).clamp_min(1e-12)
+    f0 = (1 - p["metalness"]) * 0.08 * p["specular"] + p["metalness"] * p["base"]
+    fres = f0 + (1 - f0) * (1 - vh) ** 5
+    f = (1 - p["metalness"]) * p["base"] / math.pi + d * fres * vis
+    out = f * nl_raw.clamp_min(0.0)
+    ok = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
+    return torch.where(ok & torch.isfinite(out), out, torch.zeros_like(out))
+
+
+class AnalyticMaterial(nn.Module):
+    """Lambert + GGX with 8 channels per texel in a MIP pyramid; ``eval`` has NeuralMaterial's contract."""
+
+    def __init__(self, resolution: tuple[int, int] = (1, 1)):
+        super().__init__()
+        self.maps = LatentPyramid(*resolution, channels=len(CHANNELS))
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return tuple(self.maps.levels[0].shape[1:])
+
+    def raw(self, n: int, uv=None, lod=None, u_level=None, device="cpu") -> torch.Tensor:
+        uv = torch.zeros(n, 2, device=device) if uv is None else uv
+        lod = torch.zeros(n, device=device) if lod is None else lod
+        u_level = torch.zeros(n, device=device) if u_level is None else u_level
+        return self.maps(uv, lod, u_level)
+
+    def parameters_at(self, uv=None, lod=None, u_level=None, n: int = 1) -> dict:
+        """Decoded parameters (see :func:`decode`) at ``uv`` [N,2] (default: one query at uv (0,0))."""
+        n = uv.shape[0] if uv is not None else n
+        return decode(self.raw(n, uv, lod, u_level))
+
+    def eval(self, wi, wo, uv=None, lod=None, u_level=None):
+        """f(wi, wo) * cos [N,3], linear RGB; ``lod`` in finest-level texels (log2), ``u_level`` [N] uniform."""
+        return brdf(decode(self.raw(wi.shape[0], uv, lod, u_level, wi.device)), wi, wo)
+
+    def level_maps(self, level: int = 0) -> dict:
+        """Decoded maps of ``level`` as [H, W, C] numpy arrays (row 0 = top, v = 1)."""
+        lv = self.maps.levels[level].detach()
+        c, h, w = lv.shape
+        p = decode(lv.reshape(c, -1).T)
+        return {k: v.reshape(h, w, -1).numpy().astype(np.float32) for k, v in p.items()}
+
+
+def _initial_raw(reference, stack) -> torch.Tensor:
+    """Level-0 initial channels [8, H, W]: base colour from the reference's off-specular response
+    (pi * f*cos / cos at wi = normal, wo 60 degrees off), roughness 0.5, metalness 0.1, specular 0.5,
+    flat normal."""
+    h, w = stack.resolution
+    n = h * w
+    wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3)
+    wo = torch.tensor([[math.sin(math.pi / 3), 0.0, 0.5]]).expand(n, 3)
+    with torch.no_grad():
+        if stack.channels:
+            vals = reference.eval(wi, wo, params=stack.texel_values(0))
+        else:
+            vals = reference.eval(wi[:1], wo[:1]).expand(n, 3)
+    base = (vals * math.pi / 0.5).clamp(0.02, 0.98)
+    raw = torch.zeros(n, len(CHANNELS))
+    raw[:, 0:3] = _logit(base)
+    raw[:, 3] = _logit(torch.tensor((0.5 - MIN_ROUGHNESS) / (1 - MIN_ROUGHNESS)))
+    raw[:, 4] = _logit(torch.tensor(0.1))
+    raw[:, 5] = 0.0
+    return raw.T.reshape(len(CHANNELS), h, w).contiguous()
+
+
+def fit_analytic(reference, stack, iterations: int = 300, batch: int = 4096, seed: int = 0,
+                 lr: float = 3e-2, max_samples: int = 16) -> AnalyticMaterial:
+    """Fit an :class:`AnalyticMaterial` to ``reference`` on ``stack``'s grid with Adam.
+
+    Each step draws ``batch`` (wi, wo) pairs uniform in half/difference angles, uv uniform and
+    MIP levels favouring fine ones; targets are the footprint-averaged reference (``max_samples``
+    points at most per query), the loss the neural training's log-L1. The learning rate decays
+    on a cosine from ``lr`` to ``lr/10``. Coarser levels start as box-averages of level 0.
+    """
+
+    g = torch.Generator().manual_seed(seed)
+    model = AnalyticMaterial(stack.resolution)
+    init = _initial_raw(reference, stack)
+    with torch.no_grad():
+        for k, lv in enumerate(model.maps.levels):
+            src = init if k == 0 else torch.nn.functional.adaptive_avg_pool2d(init[None], lv.shape[1:])[0]
+            lv.copy_(src)
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, iterations), eta_min=lr / 10)
+    levels = model.maps.num_levels
+    for _ in range(iterations):
+        wi, wo = half_difference_pairs(batch, g)
+        uv = torch.rand(batch, 2, generator=g)
+        level = sample_levels(batch, levels, generator=g)
+        with torch.no_grad():
+            if stack.channels:
+                target = footprint_targets(reference, stack, wi, wo, uv, level, max_samples, g)
+            else:
+                target = reference.eval(wi, wo)
+        pred = brdf(decode(model.maps.fetch(uv, level)), wi, wo)
+        loss = log_l1(pred, target)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+    model.final_loss = float(loss.detach()) if iterations else math.nan
+    return model.train(False)
+
+
+# ----------------------------------------------------------------------------- UsdPreviewSurface export
+
+
+def _write_image(path: Path, img: np.ndarray) -> None:
+    """Write [H, W, C] float32 as a half-float EXR (linear, raw)."""
+    import OpenImageIO as oiio
+
+    out = oiio.ImageOutput.create(str(path))
+    if out is None:
+        raise OSError(f"{path}: cannot create an image writer ({oiio.geterror()})")
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], "half")
+    spec.attribute("oiio:ColorSpace", "Linear")
+    if not out.open(str(path), spec) or not out.write_image(np.ascontiguousarray(img, dtype=np.float32)):
+        raise OSError(f"{path}: cannot write ({out.geterror()})")
+    out.close()
+
+
+def _author_usda(path: Path, files: dict, ior: float) -> None:
+    from pxr import Sdf, Usd, UsdShade
+
+    stage = Usd.Stage.CreateNew(str(path))
+    stage.SetDefaultPrim(stage.DefinePrim("/Looks", "Scope"))
+    mat = UsdShade.Material.Define(stage, "/Looks/Analytic")
+    surf = UsdShade.Shader.Define(stage, "/Looks/Analytic/PreviewSurface")
+    surf.CreateIdAttr("UsdPreviewSurface")
+    surf.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(float(ior))
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    st = UsdShade.Shader.Define(stage, "/Looks/Analytic/st")
+    st.CreateIdAttr("UsdPrimvarReader_float2")
+    st.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+    st_out = st.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    wiring = {"diffuseColor": ("rgb", Sdf.ValueTypeNames.Color3f, Sdf.ValueTypeNames.Float3),
+              "roughness": ("r", Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Float),
+              "metallic": ("r", Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Float),
+              "normal": ("rgb", Sdf.ValueTypeNames.Normal3f, Sdf.ValueTypeNames.Float3)}
+    for name, (out_name, in_type, out_type) in wiring.items():
+        tex = UsdShade.Shader.Define(stage, f"/Looks/Analytic/{name}Texture")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{files[name]}"))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st_out)
+        if name == "normal":  # stored as n * 0.5 + 0.5
+            tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
+            tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
+        surf.CreateInput(name, in_type).ConnectToSource(tex.CreateOutput(out_name, out_type))
+    stage.GetRootLayer().Save()
+
+
+def export_usd_preview(model: AnalyticMaterial, folder) -> dict:
+    """Write ``model``'s level-0 maps and a UsdPreviewSurface ``analytic.usda`` into ``folder``.
+
+    Textures are half-float EXR, linear, ``sourceColorSpace = raw``: ``diffuseColor.exr`` (base
+    colour), ``roughness.exr``, ``metallic.exr``, ``normal.exr`` (tangent-space n * 0.5 + 0.5, with
+    the reader's scale 2 / bias -1). UsdPreviewSurface has no per-texel dielectric F0, so the mean
+    ``specular`` becomes its uniform ``ior`` (F0 = ((ior - 1)/(ior + 1))^2 = 0.08 specular). The
+    folder is written whole into a temporary sibling and swapped in (an old one is replaced).
+    Returns ``{"usda": Path, "textures": {input: Path}, "ior": float}``.
+    """
+    folder = Path(folder)
+    maps = model.level_maps(0)
+    images = {"diffuseColor": maps["base"], "roughness": maps["roughness"], "metallic": maps["metalness"],
+              "normal": maps["normal"] * 0.5 + 0.5}
+    f0 = float(np.clip(0.08 * maps["specular"].mean(), 1e-4, 0.5))
+    ior = (1 + math.sqrt(f0)) / (1 - math.sqrt(f0))
+    with Staging(folder.parent) as st:
+        tmp = st.stage(folder)
+        files = {}
+        for name, img in images.items():
+            files[name] = f"{name}.exr"
+            _write_image(tmp / files[name], img)
+        _author_usda(tmp / "analytic.usda", files, ior)
+    return {"usda": folder / "analytic.usda", "textures": {k: folder / v for k, v in files.items()}, "ior": ior}

@@ -1,0 +1,1 @@
+"""The per-material pipeline: plan, source hash, jobs and workers, output layout, lock, and convert_asset."""

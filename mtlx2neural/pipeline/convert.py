@@ -1,0 +1,294 @@
+"""``mtlx2neural ASSET``: train a neural material for every material the scene selects, then export.
+
+Steps (the library behind the default command):
+
+0. check every setting and the device (:func:`mtlx2neural.train.config.validate_config`,
+   :func:`mtlx2neural.pipeline.jobs.check_device`), then, once the materials are selected, every
+   path the run will write (:mod:`.export.outputs`): nothing is trained for a run that
+   could not finish or would overwrite the input;
+1. select: the materials renderable geometry binds (:func:`mtlx2neural.scene.load_asset`;
+   the others are reported as skipped, with the reason), or only ``material``;
+2. plan (:mod:`.plan`): compile each, decide its latent grid (1x1 when uniform; the
+   textures' grid, scaled down to what the bound meshes' UVs need at ``texel_density``
+   texels per metre and capped at ``cfg.max_resolution`` texels per side, with a warning
+   when that loses detail), the settings it trains with, its source hash, and which
+   materials are identical (same name-free content hash, grid included): those train
+   once and share the first one's result;
+3. reuse: a material whose ``summary.json`` carries the same source hash (document,
+   texture bytes, settings: :mod:`.export.cache`) is not trained again (``force``
+   retrains);
+4. train the rest as jobs (:mod:`.jobs`): in this process, a local process pool
+   (``workers``) or Ray; with ``max_error`` each job picks the smallest decoder whose
+   HDR FLIP meets the budget. Each writes into ``OUT/<material>/``: ``checkpoint.pt``,
+   ``training_curves.csv``, ``summary.json`` (settings, hashes, time, held-out error,
+   HDR FLIP at three views, notes) and PNG renders of reference, neural model and FLIP
+   map per view. A shared material's folder gets a ``summary.json`` with
+   ``shared_with`` and a link (or copy) of the checkpoint;
+5. export (:mod:`.export.bundle`): latent EXRs and FP16 weights into
+   ``OUT/<material>/neural/`` (a shared material gets its own copy) and the neural USD
+   layer ``OUT.parent/<OUT name>.usda``.
+
+``OUT`` defaults to ``<asset folder>/<asset stem>_neural`` (``-o`` may also name the
+layer: ``OUT.usda``); the input is never modified. One run at a time holds ``OUT``
+(:mod:`.export.lock`). A ``--material`` run updates that material in an existing layer
+and keeps the others (the layer's record lists them, with their source hashes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+import warnings
+from pathlib import Path
+
+from mtlx2neural.errors import InputError
+from mtlx2neural.export import export_asset
+from mtlx2neural.export.bundle import EXPORT_FOLDER
+from mtlx2neural.export.usd_writer import KeptMaterials, register_schema
+from mtlx2neural.model.checkpoint import (
+    checkpoint_file,
+    load_checkpoint,
+    read_checkpoint,
+    resume_conflicts,
+)
+from mtlx2neural.pipeline.jobs import (  # noqa: F401
+    BUDGET_FOLDER,
+    check_device,
+    check_workers,
+    held_out_error,
+    make_job,
+    run_jobs,
+    write_summary,
+)
+from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
+    OutputLayout,
+    check_output,
+    default_output,
+    material_folder,
+    material_folders,
+    prepare_folder,
+    resolve_output,
+)
+from mtlx2neural.pipeline.lock import output_lock
+from mtlx2neural.pipeline.plan import DECODERS, latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
+from mtlx2neural.pipeline.source_hash import cached_summary
+from mtlx2neural.scene import find_material, load_asset
+from mtlx2neural.scene.dependencies import input_files
+from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
+from mtlx2neural.version import __version__
+
+
+def preset_name(cfg: TrainConfig) -> str:
+    """The preset ``cfg`` equals, else "custom"."""
+    return next((name for name, p in PRESETS.items() if p == cfg), "custom")
+
+
+def _select(scene, asset, material):
+    sources = [s for s in scene.materials
+               if material is None or material in (s.name, s.name.rsplit("/", 1)[-1], s.material)]
+    if not sources and material is not None:
+
+        sources = [find_material(asset, material)]  # an explicitly named material, even if unbound
+    if not sources:
+        choices = [s.name for s in scene.materials] + [f"{n} (skipped: {why})" for n, why in scene.skipped]
+        what = f"no material named '{material}'" if material else "no material bound to renderable geometry"
+        raise InputError(f"{scene.asset}: {what}. Materials: {', '.join(choices) or 'none'}. "
+                         f"Name one with --material.")
+    return sources
+
+
+def _reuse(folder: Path, digest: str):
+    """(model, summary) of an earlier run of the same source hash in ``folder``, or None."""
+    summary = cached_summary(folder, digest)
+    if summary is None or summary.get("shared_with"):  # a shared folder's checkpoint is another's
+        return None
+    try:
+        model = load_checkpoint(folder)
+    except InputError:  # unreadable: train again
+        return None
+    return (model, summary) if model.checkpoint_step == summary.get("steps") else None
+
+
+class Summaries(list):
+    """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
+    left out (``{"material", "reason"}``; only when no ``material`` was named), ``kept``: the
+    materials an existing layer kept from earlier runs (a ``--material`` run), and ``folder``: the
+    output folder."""
+
+    skipped: list[dict]
+    kept: list[str]
+    folder: Path
+
+
+def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict:
+    """The summary of ``src``, which reuses the result of ``plan.shared_with`` (trained in ``rep_folder``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = {**rep_summary, "material": src.name, "mtlx_material": src.material, "source": src.source_file,
+               "bound_prims": list(src.bound_prims), "source_hash": plan.digest, "shared_with": plan.shared_with,
+               "latent": plan.latent_info()}
+    summary.pop("cached", None)
+    ckpt = folder / "checkpoint.pt"  # so that `render --material` finds it
+    ckpt.unlink(missing_ok=True)
+    try:
+        os.link(rep_folder / "checkpoint.pt", ckpt)
+    except OSError:
+        shutil.copyfile(rep_folder / "checkpoint.pt", ckpt)
+    write_summary(folder, summary)
+    return summary
+
+
+def _check_resume(plans, folders, max_error) -> None:
+    """Before training: every checkpoint a ``--resume`` run would continue is readable and was
+    trained with the same network shape (else :class:`InputError` naming it and the difference)."""
+    for plan, folder in zip(plans, folders):
+        if plan.shared_with:
+            continue
+        sizes = [folder / BUDGET_FOLDER / d for d in DECODERS] if max_error is not None else [folder]
+        for place in sizes:
+            f = checkpoint_file(place)
+            if not f.is_file():
+                continue
+            remedy = "delete it to start that material afresh, or run without --resume"
+            ck = read_checkpoint(f, "cpu", remedy)
+            settings = dataclasses.asdict(plan.cfg)
+            if max_error is not None:
+                settings["decoder"] = place.name
+            diff = resume_conflicts(ck, settings, tuple(plan.grid))
+            if diff:
+                raise InputError(f"{f}: --resume cannot continue this checkpoint, whose network differs from "
+                                 f"this run's ({'; '.join(diff)}). Rerun with the checkpoint's settings, or "
+                                 f"without --resume (--force retrains from scratch)")
+
+
+def _kept_materials(layout: OutputLayout, record, names, material) -> KeptMaterials | None:
+    """With ``--material``, the previous layer's other materials whose files are still there."""
+    if record is None or material is None:
+        return None
+    entries = {}
+    for name, entry in record.materials.items():
+        if name in names:
+            continue
+        folder = (layout.layer.parent / entry.get("folder", "")).resolve()
+        if entry.get("folder") and (folder / EXPORT_FOLDER / "weights.json").is_file():
+            entries[name] = entry
+        else:
+            warnings.warn(f"{layout.layer}: dropping {name} from the layer: its exported files are gone "
+                          f"({folder / EXPORT_FOLDER})", stacklevel=3)
+    return KeptMaterials(layout.layer, entries)
+
+
+def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None, device: str = "cpu",
+                  resume: bool = False, progress: bool = True, allow_missing_textures: bool = False,
+                  force: bool = False, preset: str | None = None, usda=None, workers=None,
+                  max_error: float | None = None, texel_density: float | None = None,
+                  allow_untrained: bool = False) -> Summaries:
+    """Train (or reuse, or share) every selected material (or only ``material``), then export them.
+
+    ``out``: the output folder, or the layer's path when it ends in ``.usda``/``.usd``/``.usdc``
+    (:func:`mtlx2neural.pipeline.layout.resolve_output`; default ``<asset stem>_neural``);
+    ``usda`` overrides the layer's path. Every setting, device and output path is checked
+    before any training (:class:`InputError` otherwise): the outputs never touch the input
+    or the files it reads, nor files this tool did not write (:mod:`.export.outputs`); one
+    run at a time holds the output folder (:mod:`.export.lock`). With ``material``, an
+    existing layer keeps its other materials. ``iterations = 0`` (an untrained network)
+    needs ``allow_untrained``.
+
+    ``workers``: None (min(materials, CPUs or GPUs)), a number of local processes (1: this
+    process), ``"ray"`` or ``"ray://host:port"`` (:mod:`.jobs`). ``max_error``: an HDR FLIP
+    budget; each material gets the smallest decoder meeting it (``cfg.decoder`` is then
+    ignored). ``texel_density``: latent texels per metre of surface (``--texel-density``,
+    :mod:`.plan`); each material trains with its plan's settings. Returns one summary per
+    material, with ``latent`` (the plan's grid decision), ``cached`` (True: reused, nothing
+    trained), ``shared_with`` (the material whose result it shares, else absent),
+    ``warnings``, ``usd`` (the layer written) and ``export_notes`` (FP16 range-check
+    notes) added. ``preset`` names the preset for ``neural:metrics:preset`` (default: the
+    preset ``cfg`` equals, else "custom").
+    """
+    # 1. options, before reading anything
+    validate_config(cfg, allow_untrained)
+    device = check_device(device)
+    workers = check_workers(workers)
+    register_schema()  # before USD's schema registry is first built
+    # 2. the scene and the materials to convert
+    scene = load_asset(asset)
+    sources = _select(scene, asset, material)
+    # 3. where everything goes, checked against the files the input reads (nothing written yet)
+    layout = resolve_output(asset, out)
+    if usda:
+        layout = OutputLayout(layout.folder, Path(os.path.abspath(usda)))
+    names = material_folders([s.name for s in sources])
+    folders = [layout.folder / names[s.name] for s in sources]
+    read = list({id(s): s for s in [*scene.materials, *sources]}.values())  # a named material may be both
+    record = check_output(layout, scene.asset, input_files(scene.asset, read), folders)
+    # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
+    plans = plan_materials(sources, cfg, allow_missing_textures, max_error, texel_density, scene.asset)
+    for p in plans:
+        p.compiled = None  # the workers compile again (on their device); keep the parent small
+    if resume:
+        _check_resume(plans, folders, max_error)
+    keep = _kept_materials(layout, record, {s.name for s in sources}, material)
+    # 5. the output folder: writable, ours, and held by this run alone
+    prepare_folder(layout, scene.asset, __version__)
+    with output_lock(layout.folder):
+        summaries, trained = _train_and_share(plans, folders, cfg, device, resume, progress,
+                                              allow_missing_textures, force, workers, max_error)
+        summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
+        if cfg.iterations == 0:
+            for s in summaries:
+                s.setdefault("warnings", []).append("exported untrained (--iterations 0 --allow-untrained)")
+        layer, exported = export_asset(scene.asset, trained, layout.folder, preset or preset_name(cfg),
+                                       layout.layer, keep=keep, tool_version=__version__)
+    for s, e in zip(summaries, exported):
+        s["usd"], s["export_notes"] = str(layer), e.notes
+    summaries.kept = sorted(keep.entries) if keep else []
+    summaries.folder = layout.folder
+    return summaries
+
+
+def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
+                     max_error) -> tuple[Summaries, list[tuple]]:
+    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder) per plan)."""
+    results: dict[int, tuple] = {}  # plan index -> (model or None, summary, cached)
+    jobs, job_plans = [], []
+    for i, (plan, folder) in enumerate(zip(plans, folders)):
+        if plan.shared_with:
+            continue
+        reused = None if force else _reuse(folder, plan.digest)
+        if reused is not None:
+            results[i] = (reused[0], reused[1], True)
+            if progress:
+                print(f"{plan.name}: unchanged since the last run (source hash {plan.digest[:12]}): "
+                      f"reusing {folder}", flush=True)
+            continue
+        jobs.append(make_job(plan, folder, plan.cfg, device=device, resume=resume, progress=progress,
+                             allow_missing_textures=allow_missing_textures, max_error=max_error))
+        job_plans.append(i)
+
+    finished = []
+
+    def report(k: int, s: dict) -> None:  # one line per finished material, in the parent
+        finished.append(k)
+        if progress and len(jobs) > 1:
+            print(f"[{len(finished)}/{len(jobs)}] {s['material']}: decoder {s['decoder']}, {s['steps']} steps "
+                  f"in {s['seconds']} s, HDR FLIP {s['flip_mean']:.4f}", flush=True)
+
+    for k, s in enumerate(run_jobs(jobs, workers, report)):
+        i = job_plans[k]
+        results[i] = (load_checkpoint(folders[i]), s, False)
+    first = {p.name: i for i, p in reversed(list(enumerate(plans)))}
+    summaries, trained = Summaries(), []
+    for i, (plan, folder) in enumerate(zip(plans, folders)):
+        if plan.shared_with:
+            j = first[plan.shared_with]
+            model, rep, cached = results[j]
+            summary = _share(plan.source, plan, rep, folders[j], folder)
+            if progress:
+                print(f"{plan.name}: identical to {plan.shared_with} (same compiled graph, textures and "
+                      f"settings; content hash {plan.content[:12]}): trained once, sharing its result", flush=True)
+        else:
+            model, summary, cached = results[i]
+        summary = {**summary, "cached": cached, "latent": plan.latent_info()}
+        trained.append((model, summary, folder))
+        summaries.append(summary)
+    return summaries, trained

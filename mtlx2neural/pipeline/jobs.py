@@ -1,0 +1,585 @@
+"""Per-material training jobs, and where they run: in this process, a local process pool, or Ray.
+
+Training one material is independent of training another, so every material is
+one :class:`MaterialJob`, run by one function, :func:`run_job`, wherever it runs:
+
+- ``workers=1``: in this process, one after another, with a progress bar each;
+- ``workers=N`` (N > 1): a local ``ProcessPoolExecutor`` with the ``spawn`` context.
+  Each worker gets ``cpus // N`` torch threads (at least 1), set both through
+  ``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` at spawn time and ``torch.set_num_threads``:
+  torch's OpenMP kernels collapse (100x) when more threads than free cores compete
+  (BENCHMARKS.md, "Reference BRDF throughput"). Workers send their progress through a queue, and the parent
+  draws one bar per material (phase, loss, ETA) and prints a line per finished one;
+- ``workers="ray"`` (a local Ray cluster, or the one ``RAY_ADDRESS`` names) or
+  ``"ray://host:port"`` (Ray client): the same :func:`run_job` as Ray tasks, with
+  ``num_cpus=1`` and ``num_gpus=1`` when the cluster has GPUs (the task then trains
+  on ``cuda``). Needs the optional extra: ``pip install mtlx2neural[ray]``. Through
+  ``ray://`` the worker trains in a temporary folder and the files come back with
+  the result; texture paths must resolve on the workers too (a shared file system,
+  or the same paths), and the workers need mtlx2neural installed.
+
+A job carries its MaterialX document as XML (documents do not pickle) and writes its
+results into its material folder (``checkpoint.pt``, ``training_curves.csv``,
+``summary.json``, PNGs: :func:`train_material`). With an error budget
+(``max_error``) it trains decoders from small to large until the HDR FLIP meets the
+budget (:func:`choose_decoder`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+import math
+import os
+import platform
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from mtlx2neural.atomic import atomic_path
+from mtlx2neural.errors import InputError
+from mtlx2neural.graph import compile_material
+from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
+from mtlx2neural.progress import progress_bar
+from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.render.renderer import compare, save_png
+from mtlx2neural.scene import MaterialSource
+from mtlx2neural.textures.footprint import footprint_targets
+from mtlx2neural.textures.parameter_stack import build_parameter_stack
+from mtlx2neural.train.config import TrainConfig
+from mtlx2neural.train.directions import half_difference_pairs
+from mtlx2neural.train.losses import log_l1
+from mtlx2neural.train.trainer import Trainer, TrainingInterrupted
+
+# ----------------------------------------------------------------------------- the error budget
+
+
+def choose_decoder(train_and_measure: Callable[[str], float], budget: float,
+                   sizes: tuple[str, ...] = DECODERS) -> tuple[str, dict[str, float]]:
+    """The smallest decoder of ``sizes`` whose error meets ``budget``.
+
+    ``train_and_measure(decoder)`` trains that size and returns its error (HDR FLIP
+    mean); sizes are tried smallest first and the search stops at the first whose
+    error is <= ``budget``. When none meets it, the one with the lowest error (the
+    smaller on a tie) is returned. A non-finite error never meets a budget. Returns
+    ``(decoder, {decoder tried: error})``; the budget was met iff
+    ``errors[decoder] <= budget``.
+    """
+    errors: dict[str, float] = {}
+    for size in sizes:
+        err = float(train_and_measure(size))
+        errors[size] = err
+        if math.isfinite(err) and err <= budget:
+            return size, errors
+    finite = {k: v for k, v in errors.items() if math.isfinite(v)}
+    best = min(finite, key=lambda k: (finite[k], sizes.index(k))) if finite else sizes[-1]
+    return best, errors
+
+
+# ----------------------------------------------------------------------------- one material
+
+
+def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345) -> float:
+    """Log-L1 between the neural model at level 0 and the reference averaged over a level-0
+    texel's footprint (the training target, up to 64 points), uv uniform, half/difference
+    directions, on draws the training never saw."""
+
+    g = torch.Generator().manual_seed(seed)
+    wi, wo = half_difference_pairs(n, g)
+    uv = torch.rand(n, 2, generator=g)
+    level = torch.zeros(n, dtype=torch.long)
+    with torch.no_grad():
+        target = footprint_targets(ref, stack, wi, wo, uv, level, 64, g) if stack.channels else ref.eval(wi, wo)
+        return float(log_l1(model.eval(wi, wo, uv), target))
+
+
+def device_name(device: str) -> str:
+    """``cpu (x86_64)`` or ``cuda:0 (<GPU name>)``: where the training ran, for the metrics."""
+    if device.startswith("cuda") and torch.cuda.is_available():
+        d = torch.device(device)
+        return f"cuda:{d.index or 0} ({torch.cuda.get_device_name(d)})"
+    return f"{device} ({platform.machine() or 'unknown'})"
+
+
+def resolve_device(device: str) -> str:
+    """``auto`` -> ``cuda`` when CUDA is available, else ``cpu``; anything else unchanged."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
+
+
+def check_device(device: str) -> str:
+    """``device`` resolved (:func:`resolve_device`), or :class:`~mtlx2neural.errors.InputError`
+    when it is not ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` of a GPU this machine has."""
+    try:
+        d = torch.device(resolve_device(device))
+    except (RuntimeError, TypeError):
+        d = None
+    if d is None or d.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {device!r}: not a device mtlx2neural trains on; give cpu, cuda, cuda:N or auto")
+    if d.type == "cuda":
+        if not torch.cuda.is_available():
+            build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "no CUDA (a CPU build)"
+            raise InputError(f"--device {device}: CUDA is not available on this machine (torch {torch.__version__} "
+                             f"has {build}); use --device cpu, or auto to take a GPU when there is one")
+        if d.index is not None and d.index >= torch.cuda.device_count():
+            raise InputError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s), "
+                             f"numbered from 0")
+    return str(d)
+
+
+def write_summary(folder: Path, summary: dict) -> None:
+    """Write ``folder/summary.json`` atomically."""
+    with atomic_path(folder / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2))
+
+
+def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
+                   allow_missing_textures: bool, digest: str, resolution: tuple[int, int] | None = None,
+                   extra: dict | None = None):
+    """Train one material into ``folder``; returns (model, summary) and writes ``summary.json``.
+
+    ``resolution`` is the latent grid (default: :func:`mtlx2neural.pipeline.plan.latent_resolution`);
+    ``extra`` is merged into the summary (its ``notes`` are put before the stack's).
+    """
+
+    t0 = time.time()
+    folder.mkdir(parents=True, exist_ok=True)
+    # An interrupted run must not leave an old summary (and its hash) beside a new checkpoint.
+    (folder / "summary.json").unlink(missing_ok=True)
+    compiled = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures)
+    ref = ReferenceMaterial(compiled)
+    stack = build_parameter_stack(compiled, resolution=resolution or latent_resolution(compiled, cfg))
+    trainer = Trainer(ref, stack, cfg, folder, device=device)
+    if resume:
+        trainer.resume()
+    if progress:
+        print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid, "
+              f"{stack.levels[0].shape[0]} varying channels, decoder {cfg.decoder}, "
+              f"{cfg.iterations} steps x {cfg.batch}", flush=True)
+    model = trainer.run(progress=progress, listener=_LISTENER)
+    train_seconds = time.time() - t0
+    errors = compare(ref, model, texels=tuple(stack.resolution))
+    for i, e in enumerate(errors):
+        save_png(folder / f"view{i}_reference.png", e["reference"])
+        save_png(folder / f"view{i}_neural.png", e["neural"])
+        save_png(folder / f"view{i}_flip.png", e["flip_map"], linear=False)
+    extra = dict(extra or {})
+    summary = {"material": src.name, "mtlx_material": src.material, "source": src.source_file,
+               "bound_prims": list(src.bound_prims), "source_hash": digest,
+               "resolution": list(stack.resolution), "varying_channels": int(stack.levels[0].shape[0]),
+               "decoder": cfg.decoder, "config": dataclasses.asdict(cfg),
+               "steps": trainer.step, "seconds": round(time.time() - t0, 1),
+               "train_seconds": round(train_seconds, 2),
+               "final_loss_brdf": trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
+               "held_out_log_l1": held_out_error(ref, model, stack), "device": device,
+               "device_name": device_name(device), "threads": torch.get_num_threads(),
+               "worker": f"{platform.node()}:{os.getpid()}",
+               "flip_per_view": [round(e["flip"], 4) for e in errors],
+               "flip_mean": round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
+               "relmse_mean": round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
+               "notes": list(extra.pop("notes", [])) + list(stack.notes)}
+    summary.update(extra)
+    write_summary(folder, summary)
+    return model, summary
+
+
+BUDGET_FOLDER = "budget"
+"""Sub-folder of a material folder where the decoder sizes of an error budget train."""
+
+
+def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
+                        allow_missing_textures: bool, digest: str, max_error: float,
+                        resolution: tuple[int, int] | None = None, extra: dict | None = None) -> dict:
+    """Train the smallest decoder of :data:`~mtlx2neural.pipeline.plan.DECODERS` whose HDR FLIP mean is at
+    most ``max_error`` (:func:`choose_decoder`); returns its summary.
+
+    Each size trains into ``folder/budget/<size>/``; the chosen one's files then move up
+    into ``folder`` and the others are deleted. The summary adds ``budget`` (the budget,
+    the FLIP and seconds of every size tried) and ``budget_met``; a missed budget is
+    also a warning in ``warnings`` and ``notes``.
+    """
+    (folder / "summary.json").unlink(missing_ok=True)
+    runs: dict[str, dict] = {}
+
+    def attempt(decoder: str) -> float:
+        sub = folder / BUDGET_FOLDER / decoder
+        _, s = train_material(src, dataclasses.replace(cfg, decoder=decoder), sub, device, resume, progress,
+                              allow_missing_textures, digest, resolution, extra)
+        runs[decoder] = s
+        if progress:
+            print(f"{src.name}: decoder {decoder}: HDR FLIP {s['flip_mean']:.4f} "
+                  f"({'meets' if s['flip_mean'] <= max_error else 'misses'} the budget {max_error})", flush=True)
+        return s["flip_mean"]
+
+    decoder, flips = choose_decoder(attempt, max_error)
+    met = bool(flips[decoder] <= max_error)
+    for p in (folder / BUDGET_FOLDER / decoder).iterdir():
+        os.replace(p, folder / p.name)
+    shutil.rmtree(folder / BUDGET_FOLDER, ignore_errors=True)
+    summary = dict(runs[decoder])
+    summary["budget"] = {"max_error": max_error, "flip_by_decoder": flips,
+                         "seconds_by_decoder": {k: v["seconds"] for k, v in runs.items()}, "met": met}
+    summary["budget_met"] = met
+    summary["seconds"] = round(sum(v["seconds"] for v in runs.values()), 1)
+    if not met:
+        warning = (f"HDR FLIP budget {max_error} not met: even the largest decoder, {DECODERS[-1]}, reaches "
+                   f"{flips[DECODERS[-1]]:.4f}; kept {decoder} ({flips[decoder]:.4f}). Train longer "
+                   f"(--preset standard on a CPU, balanced on a GPU, or --iterations) or relax --max-error")
+        summary["warnings"] = list(summary.get("warnings", [])) + [warning]
+        summary["notes"] = [warning] + list(summary.get("notes", []))
+    write_summary(folder, summary)
+    return summary
+
+
+@dataclass
+class MaterialJob:
+    """Everything one material's training needs; picklable (for process pools and Ray)."""
+
+    name: str
+    """Material name (prim path or MaterialX name), as ``MaterialSource.name``."""
+    material: str
+    """The surfacematerial node in the document."""
+    source_file: str
+    bound_prims: list[str]
+    document_xml: str
+    """The material's MaterialX document as XML (``filename`` values are absolute)."""
+    folder: str
+    """The material's output folder."""
+    cfg: TrainConfig
+    digest: str
+    """Cache key stored as ``source_hash``."""
+    content: str
+    """Name-free content hash, stored as ``content_hash``."""
+    resolution: tuple[int, int]
+    """Latent grid (H, W) from the plan."""
+    device: str = "auto"
+    resume: bool = False
+    progress: bool = False
+    allow_missing_textures: bool = False
+    max_error: float | None = None
+    """HDR FLIP budget (None: train ``cfg.decoder``)."""
+    warnings: list[str] = field(default_factory=list)
+    """Planning warnings (a capped grid): recorded in the summary's ``warnings`` and ``notes``."""
+    latent: dict | None = None
+    """The plan's grid decision (:meth:`mtlx2neural.pipeline.plan.MaterialPlan.latent_info`): the summary's ``latent``."""
+    threads: int | None = None
+    """torch threads in the worker (None: leave torch's default)."""
+    ship: bool = False
+    """Train in a temporary folder and return its files with the summary (a remote worker)."""
+    checkpoint: bytes | None = None
+    """With ``ship`` and ``resume``: the checkpoint to resume from."""
+    progress_queue: object = None
+    """A pool worker sends (index, step, total, loss, phase) here for the parent's progress bars."""
+    index: int = 0
+
+    def source(self):
+        """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML."""
+        import MaterialX as mx
+
+
+        doc = mx.createDocument()
+        mx.readFromXmlString(doc, self.document_xml)
+        return MaterialSource(self.name, doc, self.material, self.source_file, list(self.bound_prims))
+
+
+def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
+    """The job for a :class:`mtlx2neural.pipeline.plan.MaterialPlan` (``options``: the other fields)."""
+    import MaterialX as mx
+
+    src = plan.source
+    return MaterialJob(src.name, src.material, src.source_file, list(src.bound_prims),
+                       mx.writeToXmlString(src.document), str(folder), cfg, plan.digest, plan.content,
+                       tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(), **options)
+
+
+def run_job(job: MaterialJob) -> dict:
+    """Train one material (any runner calls this); returns its summary (also in ``summary.json``).
+
+    With ``job.ship`` the summary carries ``_files`` ({name: bytes} of the folder's files).
+    """
+    global _LISTENER
+    if job.threads:
+        torch.set_num_threads(job.threads)
+    if job.progress_queue is not None:
+        q, i = job.progress_queue, job.index
+        _LISTENER = lambda step, total, rec: q.put((i, step, total, rec["loss_brdf"], rec["phase"]))  # noqa: E731
+    src = job.source()
+    device = resolve_device(job.device)
+    folder = Path(tempfile.mkdtemp(prefix="mtlx2neural_")) if job.ship else Path(job.folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if job.ship and job.checkpoint is not None:
+        (folder / "checkpoint.pt").write_bytes(job.checkpoint)
+    extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings)}
+    if job.latent is not None:
+        extra["latent"] = job.latent
+    try:
+        with _running():
+            if job.max_error is None:
+                _, summary = train_material(src, job.cfg, folder, device, job.resume, job.progress,
+                                            job.allow_missing_textures, job.digest, job.resolution, extra)
+            else:
+                summary = train_within_budget(src, job.cfg, folder, device, job.resume, job.progress,
+                                              job.allow_missing_textures, job.digest, job.max_error,
+                                              job.resolution, extra)
+        if job.ship:
+            summary = {**summary, "_files": {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}}
+        return summary
+    finally:
+        if job.ship:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------- runners
+
+_LISTENER = None  # a pool worker's progress callback for Trainer.run (set by run_job)
+_RUNNING = False  # a pool worker: is a job running (Ctrl-C interrupts it) or is it idle (Ctrl-C ignored)?
+
+
+@contextmanager
+def _running():
+    global _RUNNING
+    _RUNNING = True
+    try:
+        yield
+    finally:
+        _RUNNING = False
+
+
+def _pool_sigint(signum, frame):
+    if _RUNNING:  # the trainer saves a checkpoint and raises TrainingInterrupted
+        raise KeyboardInterrupt
+
+
+def _init_pool_worker(threads: int) -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, _pool_sigint)
+    torch.set_num_threads(threads)
+
+
+@contextmanager
+def _thread_env(threads: int):
+    """``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` = ``threads`` while spawned workers start."""
+    keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    old = {k: os.environ.get(k) for k in keys}
+    os.environ.update({k: str(threads) for k in keys})
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def available_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def default_workers(n_jobs: int, device: str) -> int:
+    """min(jobs, CPUs) on the CPU; min(jobs, GPUs) on CUDA (one GPU per worker)."""
+    device = resolve_device(device)
+    if device.startswith("cuda"):
+        return max(1, min(n_jobs, torch.cuda.device_count() if device == "cuda" else 1))
+    return max(1, min(n_jobs, available_cpus()))
+
+
+def parse_workers(value) -> int | str | None:
+    """``None``/``"auto"`` (None), a positive integer, ``"ray"`` or ``"ray://host:port"``; else ValueError."""
+    if value is None or value == "auto":
+        return None
+    if isinstance(value, int) or (isinstance(value, str) and value.strip().isdigit()):
+        n = int(value)
+        if n < 1:
+            raise ValueError(f"--workers must be at least 1 (got {n})")
+        return n
+    if value == "ray" or (isinstance(value, str) and value.startswith("ray://") and len(value) > 6):
+        return value
+    raise ValueError(f"--workers {value!r}: give a number of processes, 'ray' (a local Ray cluster, or "
+                     f"$RAY_ADDRESS) or 'ray://HOST:PORT'")
+
+
+Report = Callable[[int, dict], None]
+"""Called in the parent as each job finishes: (job index, summary)."""
+
+
+def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None) -> list[dict]:
+    """Run every job of ``jobs`` with ``workers`` (see the module docstring); summaries in job order.
+
+    When jobs fail, the others still run to the end (their results are saved and
+    cached) and the first failure is raised afterwards. Ctrl-C stops every job at a
+    checkpoint and raises :class:`~mtlx2neural.train.trainer.TrainingInterrupted`.
+    """
+    workers = parse_workers(workers)
+    if not jobs:
+        return []
+    if isinstance(workers, str):
+        return _run_ray(jobs, workers, report)
+    n = workers or default_workers(len(jobs), jobs[0].device)
+    if n == 1 or len(jobs) == 1:
+        out = []
+        for i, job in enumerate(jobs):
+            out.append(run_job(job))
+            if report:
+                report(i, out[-1])
+        return out
+    return _run_pool(jobs, n, report)
+
+
+def _run_pool(jobs, n: int, report) -> list[dict]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+
+    n = min(n, len(jobs))
+    threads = max(1, available_cpus() // n)
+    devices = _pool_devices(jobs[0].device, n)
+    ctx = multiprocessing.get_context("spawn")
+    bars = _PoolBars(jobs, ctx) if jobs[0].progress else None
+    if bars:
+        print(f"training {len(jobs)} materials in {n} processes ({threads} torch thread(s) each, "
+              f"{', '.join(devices)})", flush=True)
+    jobs = [dataclasses.replace(j, progress=False, threads=threads, device=devices[i % len(devices)],
+                                progress_queue=bars.queue if bars else None, index=i)
+            for i, j in enumerate(jobs)]
+    results: list[dict | None] = [None] * len(jobs)
+    errors: list[BaseException] = []
+    with _thread_env(threads):
+        ex = ProcessPoolExecutor(n, mp_context=ctx,
+                                 initializer=_init_pool_worker, initargs=(threads,))
+        try:
+            futures = {ex.submit(run_job, j): i for i, j in enumerate(jobs)}
+            for f in as_completed(futures):
+                i = futures[f]
+                if f.exception() is not None:
+                    errors.append(f.exception())
+                    continue
+                results[i] = f.result()
+                if report:
+                    report(i, results[i])
+        except KeyboardInterrupt:
+            ex.shutdown(wait=True, cancel_futures=True)  # running jobs save their checkpoints
+            raise TrainingInterrupted("interrupted; finished materials and checkpoints are saved in their "
+                                      "folders (rerun with --resume)") from None
+        finally:
+            ex.shutdown(wait=True)
+            if bars:
+                bars.close()
+    if errors:
+        raise errors[0]
+    return results
+
+
+class _PoolBars:
+    """One progress bar per pool job (phase, loss, ETA; log lines off a terminal: :mod:`.progress`),
+    fed by the workers through a queue."""
+
+    def __init__(self, jobs, ctx):
+        import threading
+
+        self.manager = ctx.Manager()
+        self.queue = self.manager.Queue()
+        self.bars = [progress_bar(j.cfg.iterations, desc=j.name.rsplit("/", 1)[-1], position=i)
+                     for i, j in enumerate(jobs)]
+        self.thread = threading.Thread(target=self._drain, daemon=True)
+        self.thread.start()
+
+    def _drain(self):
+        while True:
+            msg = self.queue.get()
+            if msg is None:
+                return
+            i, step, total, loss, phase = msg
+            bar = self.bars[i]
+            bar.total = total
+            bar.update(step - bar.n)
+            bar.set_postfix(phase=phase, loss=f"{loss:.4f}")
+
+    def close(self):
+        self.queue.put(None)
+        self.thread.join(timeout=5)
+        for bar in self.bars:
+            bar.close()
+        self.manager.shutdown()
+
+
+def _pool_devices(device: str, n: int) -> list[str]:
+    device = resolve_device(device)
+    if device == "cuda" and torch.cuda.device_count() > 1:
+        return [f"cuda:{i}" for i in range(min(n, torch.cuda.device_count()))]
+    return [device]
+
+
+def check_workers(workers):
+    """:func:`parse_workers`, with a bad value or a Ray runner without Ray installed an
+    :class:`InputError`: checked before any work (Ray is an optional extra)."""
+    try:
+        workers = parse_workers(workers)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    if isinstance(workers, str) and importlib.util.find_spec("ray") is None:
+        raise InputError(f"--workers {workers} needs Ray: pip install 'mtlx2neural[ray]' "
+                         f"(or give a number of local processes)")
+    return workers
+
+
+def _run_ray(jobs, address: str, report) -> list[dict]:
+    check_workers(address)
+    import ray  # local: Ray is an optional extra, imported only for a Ray runner
+
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=None if address == "ray" else address, include_dashboard=False,
+                 log_to_driver=False)
+    try:
+        gpus = jobs[0].device != "cpu" and ray.cluster_resources().get("GPU", 0) >= 1
+        task = ray.remote(num_cpus=1, num_gpus=1 if gpus else 0, max_retries=0)(run_job)
+        ship = address.startswith("ray://")
+        if jobs[0].progress:
+            print(f"training {len(jobs)} materials as Ray tasks ({'1 GPU' if gpus else '1 CPU'} each, cluster: "
+                  f"{ray.cluster_resources().get('CPU', 0):g} CPUs, {ray.cluster_resources().get('GPU', 0):g} "
+                  f"GPUs); one line per finished material", flush=True)
+        refs = {}
+        for i, j in enumerate(jobs):
+            ckpt = Path(j.folder) / "checkpoint.pt"
+            j = dataclasses.replace(j, progress=False, threads=1, device="cuda" if gpus else "cpu", ship=ship,
+                                    checkpoint=ckpt.read_bytes() if ship and j.resume and ckpt.is_file() else None)
+            refs[task.remote(j)] = i
+        results: list[dict | None] = [None] * len(jobs)
+        errors, pending = [], list(refs)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            i = refs[done[0]]
+            try:
+                summary = ray.get(done[0])
+            except Exception as exc:  # noqa: BLE001 - re-raised once the others finish
+                errors.append(getattr(exc, "cause", None) or exc)
+                continue
+            files = summary.pop("_files", None)
+            if files is not None:
+                folder = Path(jobs[i].folder)
+                folder.mkdir(parents=True, exist_ok=True)
+                for name, data in files.items():
+                    (folder / name).write_bytes(data)
+            results[i] = summary
+            if report:
+                report(i, summary)
+        if errors:
+            raise errors[0]
+        return results
+    finally:
+        if started:
+            ray.shutdown()

@@ -1,0 +1,79 @@
+"""What a conversion is asked to do: one options dataclass, the single source for the library
+entry point (:func:`mtlx2neural.convert`), the command line (every field is a flag, its
+docstring the help), README's option table and ``summary.json``.
+
+Each field's docstring is its documentation; ``flag`` metadata names the command-line flag
+where it differs from ``--field-name``. ``train`` nests the :class:`TrainConfig` whose
+fields are flags too. Values are checked by :func:`check_options` before any work.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from mtlx2neural.errors import InputError
+from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
+
+
+@dataclass
+class ConvertOptions:
+    """Options of one conversion (``mtlx2neural ASSET`` / ``mtlx2neural.convert``)."""
+
+    out: str | None = field(default=None, metadata={"flag": "-o/--output"})
+    """Output folder (default: ``<asset stem>_neural`` beside a file input; required for an
+    in-memory stage), or the layer's path when it ends in ``.usda``/``.usd``/``.usdc`` (the folder is
+    then that path without its suffix). Never the input, a file it reads, or a file mtlx2neural did not
+    write."""
+    preset: str = "fast"
+    """Training settings the ``train`` fields start from: fast (minutes per material on a CPU),
+    standard (8x fast's steps: the CPU's quality setting), balanced (a GPU), paper (300k steps)."""
+    material: str | None = None
+    """Only this material (USD prim path, prim name or MaterialX material name); an existing layer
+    keeps its other materials."""
+    device: str = "auto"
+    """cpu, cuda, cuda:N or auto (CUDA when present)."""
+    workers: int | str | None = None
+    """Materials trained in parallel: N local processes (1: this process), ``ray`` (a local cluster or
+    $RAY_ADDRESS) or ``ray://HOST:PORT``; None: one per material up to the CPU (or GPU) count."""
+    max_error: float | None = None
+    """HDR FLIP budget: per material, the smallest decoder of 2x16, 2x32, 3x64 that meets it (the
+    preset's decoder is then ignored); when even 3x64 misses, the best is kept with a warning."""
+    texel_density: float | None = None
+    """Latent texels per metre of surface (512 = 5.12 texels/cm): each material's grid is scaled down
+    to what its bound meshes' UVs need (never up; USD input only)."""
+    resume: bool = False
+    """Continue from the checkpoints in the output folder."""
+    force: bool = False
+    """Retrain every material, even one unchanged since the last run (same source hash)."""
+    allow_missing_textures: bool = False
+    """Use an image node's declared default when its file is missing, instead of failing."""
+    allow_untrained: bool = False
+    """Accept ``iterations = 0``: export the untrained network (for pipeline tests)."""
+    progress: bool = True
+    """Progress bars (a terminal) or progress lines (a log) while training."""
+    usda: str | None = field(default=None, metadata={"cli": False})
+    """The layer's path, overriding the one ``out`` implies (library use)."""
+    train: TrainConfig | None = None
+    """Training settings; None: the preset's. Fields given here override the preset's."""
+
+    def train_config(self) -> TrainConfig:
+        """The training settings this conversion uses: ``train`` if given, else the preset's."""
+        if self.train is not None:
+            return self.train
+        if self.preset not in PRESETS:
+            raise InputError(f"--preset {self.preset!r}: unknown; choose one of {', '.join(PRESETS)}")
+        return dataclasses.replace(PRESETS[self.preset])
+
+
+def check_options(options: ConvertOptions) -> TrainConfig:
+    """Raise :class:`InputError` naming the first invalid option; return the training settings."""
+    if options.preset not in PRESETS:
+        raise InputError(f"--preset {options.preset!r}: unknown; choose one of {', '.join(PRESETS)}")
+    cfg = options.train_config()
+    validate_config(cfg, options.allow_untrained)
+    for name in ("max_error", "texel_density"):
+        v = getattr(options, name)
+        if v is not None and not (isinstance(v, (int, float)) and 0 < v < float("inf")):
+            raise InputError(f"--{name.replace('_', '-')} {v!r}: must be a positive number")
+    return cfg

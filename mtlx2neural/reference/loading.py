@@ -1,0 +1,23 @@
+"""Load one material of an asset and build its reference BRDF (``mtlx2neural.load_reference``)."""
+
+from __future__ import annotations
+
+from mtlx2neural.graph import compile_material
+from mtlx2neural.reference.material import ReferenceMaterial
+from mtlx2neural.scene import find_material
+
+
+def load_reference(path, material: str | None = None, device: str = "cpu",
+                   allow_missing_textures: bool = False) -> ReferenceMaterial:
+    """Load ``material`` from a ``.mtlx`` file or a USD stage and compile its reference BRDF.
+
+    ``material`` is a USD material prim path (or prim name) or a MaterialX
+    surfacematerial name; it may be omitted when the asset selects exactly one.
+    ``allow_missing_textures`` substitutes an image node's declared ``default`` for a
+    missing file instead of failing. Tensors live on ``device``.
+    """
+    src = find_material(path, material)
+    compiled = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures)
+    compiled.name = src.name
+    return ReferenceMaterial(compiled)

@@ -1,0 +1,1 @@
+"""Renderers that draw any material of the contract (mtlx2neural.contract): geometry, lights, Monte Carlo shading, image errors."""

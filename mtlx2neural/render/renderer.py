@@ -1,0 +1,317 @@
+"""A small batched torch renderer for evaluation: a UV-mapped sphere under a directional light.
+
+Orthographic camera, unit sphere, y up. UVs are spherical (u around the y axis,
+v from the south pole), the tangent points along increasing u. Each pixel's
+colour is ``material(wi, wo, uv, lod, u_level) * intensity`` with directions in
+the local shading frame, so a reference and a neural model are compared on the
+same geometry; ``spp`` jittered sub-pixel samples antialias both. The level of
+detail comes from the uv footprint of a pixel (finite differences between
+neighbouring pixels), in texels of the material's finest level, scaled to the
+footprint of one of the ``spp`` samples (:func:`sample_footprint_scale`).
+
+``compare`` renders several fixed views and reports HDR FLIP (flip-evaluator),
+mean absolute error and relative MSE per view.
+
+:func:`render_scene` is the general entry point: a perspective camera on any
+geometry of :mod:`.geometry` (analytic sphere and plane, OBJ meshes) under the
+lights of :mod:`.lighting` (directional lights, importance-sampled environment
+maps), with ray-cone levels of detail. ``compare(..., geometry=, lights=)``
+uses it instead of the orthographic sphere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from mtlx2neural.render.geometry import Camera, Hits, Sphere, ray_cone_lod
+from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
+
+
+@dataclass(frozen=True)
+class View:
+    """Camera azimuth/elevation (degrees) and a directional light (direction towards the light, world)."""
+
+    azimuth: float
+    elevation: float
+    light: tuple = (0.4, 0.7, 0.6)
+    intensity: float = 3.0
+
+
+VIEWS = (View(0.0, 15.0), View(70.0, 35.0, (-0.6, 0.5, 0.6)), View(200.0, -10.0, (0.2, 0.2, -1.0)))
+
+
+def _camera(view: View):
+    az, el = math.radians(view.azimuth), math.radians(view.elevation)
+    d = torch.tensor([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
+    right = torch.nn.functional.normalize(torch.linalg.cross(torch.tensor([0.0, 1.0, 0.0]), d), dim=0)
+    up = torch.linalg.cross(d, right)
+    return d, right, up
+
+
+def _shade_points(res: int, view: View, jitter: torch.Tensor):
+    d, right, up = _camera(view)
+    ij = torch.stack(torch.meshgrid(torch.arange(res), torch.arange(res), indexing="ij"), -1).reshape(-1, 2).float()
+    px = (ij[:, 1] + jitter[0]) / res * 2.2 - 1.1
+    py = 1.1 - (ij[:, 0] + jitter[1]) / res * 2.2
+    r2 = px * px + py * py
+    hit = r2 < 1.0
+    z = (1.0 - r2).clamp_min(0).sqrt()
+    p = px[:, None] * right + py[:, None] * up + z[:, None] * d
+    u = 0.5 + torch.atan2(p[:, 0], p[:, 2]) / (2 * math.pi)
+    v = torch.acos((-p[:, 1]).clamp(-1, 1)) / math.pi
+    t = torch.nn.functional.normalize(torch.stack([p[:, 2], torch.zeros_like(u), -p[:, 0]], -1) + 1e-9, dim=-1)
+    b = torch.linalg.cross(p, t, dim=-1)
+    return p, t, b, torch.stack([u, v], -1), hit, d
+
+
+def sample_footprint_scale(spp: int) -> float:
+    """The share of a pixel's footprint that one of ``spp`` jittered samples filters over:
+    max(1/8, 1/sqrt(spp)), pbrt-v4's scale of camera-ray differentials.
+
+    The jittered samples already average the pixel (a box), so a prefiltered material
+    looked up at the whole pixel's level of detail is filtered twice and renders blurrier
+    than the point-sampled reference it is compared with (the GlazedCeramic's grout lines,
+    docs/history/BENCHMARKS-2026-12-01.md); the spacing between samples is what each lookup has to filter. 1 at
+    1 spp (a real-time renderer's single lookup), 1/8 from 64 spp on."""
+    return max(0.125, 1.0 / math.sqrt(max(spp, 1)))
+
+
+def _lod(uv: torch.Tensor, res: int, texels: tuple[int, int], scale: float = 1.0) -> torch.Tensor:
+    """log2 of ``scale`` times a pixel's uv footprint in finest-level texels (finite
+    differences, seam-aware), >= 0."""
+    g = uv.view(res, res, 2)
+    du = torch.diff(g, dim=1, append=g[:, -1:]).abs()
+    dv = torch.diff(g, dim=0, append=g[-1:]).abs()
+    du = torch.minimum(du, 1 - du)
+    dv = torch.minimum(dv, 1 - dv)
+    texel = torch.tensor([texels[1], texels[0]], dtype=uv.dtype)
+    foot = torch.maximum((du * texel).amax(-1), (dv * texel).amax(-1)).reshape(-1) * scale
+    return torch.log2(foot.clamp_min(1.0))
+
+
+def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int, int] = (1, 1),
+           seed: int = 0, footprint: float | None = None) -> np.ndarray:
+    """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on the sphere.
+
+    ``lod`` is log2 of ``footprint`` times the pixel's uv footprint in texels of ``texels``
+    (h, w); ``footprint`` defaults to :func:`sample_footprint_scale` of ``spp``."""
+    g = torch.Generator().manual_seed(seed)
+    scale = sample_footprint_scale(spp) if footprint is None else footprint
+    light = torch.nn.functional.normalize(torch.tensor(view.light, dtype=torch.float32), dim=0)
+    img = torch.zeros(res * res, 3)
+    for _ in range(spp):
+        jitter = torch.rand(2, generator=g)
+        p, t, b, uv, hit, d = _shade_points(res, view, jitter)
+        lod = _lod(uv, res, texels, scale)
+        idx = hit.nonzero()[:, 0]
+        n = p[idx]
+
+        def local(w):
+            return torch.stack([(w * t[idx]).sum(-1), (w * b[idx]).sum(-1), (w * n).sum(-1)], -1)
+
+        wi = local(d.expand(len(idx), 3))
+        wo = local(light.expand(len(idx), 3))
+        u_level = torch.rand(len(idx), generator=g)
+        with torch.no_grad():
+            f = material(wi, wo, uv[idx], lod[idx], u_level)
+        img[idx] += f * view.intensity
+    return (img / spp).view(res, res, 3).numpy().astype(np.float32)
+
+
+def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 16,
+                 texels: tuple[int, int] = (1, 1), seed: int = 0, sampler=None,
+                 footprint: float | None = None) -> np.ndarray:
+    """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on ``geometry``.
+
+    ``camera`` is a :class:`.geometry.Camera`, ``lights`` a sequence of
+    :class:`.lighting.DirectionalLight` / :class:`.lighting.EnvironmentMap`.
+    Each of the ``spp`` passes jitters every pixel's ray, intersects the
+    geometry, picks the level of detail from the ray cone (``texels`` = the
+    material's finest level, (h, w); the cone's spread times ``footprint``, by
+    default :func:`sample_footprint_scale` of ``spp``) and the latent level with
+    one uniform per pixel, and adds for every directional light ``f*cos(wo) * intensity`` and
+    for every environment map one light sample ``f*cos(wo) * L(wo) / pdf(wo)``.
+    Light samples do not depend on the material, so two materials rendered
+    with the same ``seed`` see the same rays, levels and light directions
+    (common random numbers): their difference is the BRDF's, not the noise's.
+
+    ``sampler`` (a :class:`BsdfSampler`, e.g. :func:`reference_sampler`) adds one
+    direction sampled from it per environment map and pass, combined with the light
+    sample by multiple importance sampling (balance heuristic over the two densities).
+    The estimate stays unbiased for ``material`` whatever the sampler is, because the
+    environment's density covers every lit direction; a sharp lobe that light
+    sampling alone finds only by chance (a clear coat reflecting the sky) then
+    converges. The sampler's directions do not depend on ``material`` either, so
+    common random numbers hold with it too.
+    No shadows; the background (misses) is black. ``wi`` points to the camera.
+    """
+    g = torch.Generator().manual_seed(seed)
+    scale = sample_footprint_scale(spp) if footprint is None else footprint
+    centre, radius = geometry.bounds()
+    npix = res * res
+    img = torch.zeros(npix, 3)
+    for _ in range(spp):
+        rays = camera.rays(res, centre, radius, g)
+        hits = geometry.intersect(rays)
+        lod = ray_cone_lod(hits, rays.spread * scale, texels)
+        u_level = torch.rand(npix, generator=g)
+        light_u = [torch.rand(npix, 3, generator=g) if isinstance(li, EnvironmentMap) else None for li in lights]
+        bsdf_u = [torch.rand(npix, 2, generator=g) if isinstance(li, EnvironmentMap) and sampler is not None
+                  else None for li in lights]
+        idx = hits.mask.nonzero()[:, 0]
+        if len(idx) == 0:
+            continue
+        frame = Hits(*(getattr(hits, f.name)[idx] for f in dataclasses.fields(Hits)))
+        wi = frame.to_local(-rays.dirs[idx])
+        args = (frame.uv, lod[idx], u_level[idx])
+        acc = torch.zeros(len(idx), 3)
+        for li, u, ub in zip(lights, light_u, bsdf_u):
+            if isinstance(li, DirectionalLight):
+                wo = frame.to_local(li.vector().expand(len(idx), 3))
+                weight = li.rgb().expand(len(idx), 3)
+            elif isinstance(li, EnvironmentMap):
+                d, weight, pdf_light = li.sample(u[idx])
+                wo = frame.to_local(d)
+                if sampler is not None:
+                    # light sample's MIS weight; then the sampler's own direction
+                    with torch.no_grad():
+                        pdf_bsdf = sampler.pdf(wi, wo, *args)
+                    weight = weight * _balance(pdf_light, pdf_bsdf)[:, None]
+                    acc += _bsdf_sample(material, sampler, li, frame, wi, ub[idx], args)
+            else:
+                raise TypeError(f"unsupported light {type(li).__name__}")
+            with torch.no_grad():
+                f = material(wi, wo, *args)
+            ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0)
+            acc += torch.where(ok, f * weight, torch.zeros_like(f))
+        img[idx] += acc
+    return (img / spp).view(res, res, 3).numpy().astype(np.float32)
+
+
+class BsdfSampler:
+    """What :func:`render_scene` needs of a direction sampler (local shading frame, solid angle).
+
+    ``sample(wi, u, uv, lod, u_level) -> (wo [N,3], pdf [N])`` from ``u`` [N,2] uniform, and
+    ``pdf(wi, wo, uv, lod, u_level) -> [N]``, the density of ``sample`` (0 where it never goes).
+    """
+
+    def __init__(self, sample, pdf):
+        self.sample, self.pdf = sample, pdf
+
+
+def reference_sampler(reference) -> BsdfSampler:
+    """The reference material's own importance sampler (its lobe mixture) as a :class:`BsdfSampler`."""
+    def sample(wi, u, uv, lod, u_level):
+        wo, _, pdf = reference.sample(wi, u, uv)
+        return wo, pdf
+
+    return BsdfSampler(sample, lambda wi, wo, uv, lod, u_level: reference.pdf(wi, wo, uv))
+
+
+def neural_sampler(model) -> BsdfSampler:
+    """A neural material's learned sampler (its analytic proxy) as a :class:`BsdfSampler`."""
+    return BsdfSampler(model.sample_direction, model.pdf)
+
+
+def _balance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Balance-heuristic weight p / (p + q) of the strategy with density ``p``; 0 where both are 0."""
+    return torch.where(p > 0, p / (p + q).clamp_min(1e-30), torch.zeros_like(p))
+
+
+def _bsdf_sample(material, sampler, env, frame, wi, u, args) -> torch.Tensor:
+    """One sampler direction's MIS-weighted contribution f*cos * L * w / pdf [N,3] under ``env``."""
+    with torch.no_grad():
+        wo, pdf = sampler.sample(wi, u, *args)
+        d = frame.to_world(wo)
+        w = _balance(pdf, env.pdf(d))
+        f = material(wi, wo, *args)
+    ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0) & (pdf[:, None] > 0)
+    contrib = f * env.radiance(d) * (w / pdf.clamp_min(1e-30))[:, None]
+    return torch.where(ok & torch.isfinite(contrib), contrib, torch.zeros_like(contrib))
+
+
+def reference_fn(reference):
+    return lambda wi, wo, uv, lod, u: reference.eval(wi, wo, uv)
+
+
+def neural_fn(model):
+    return lambda wi, wo, uv, lod, u: model.eval(wi, wo, uv, lod, u)
+
+
+def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
+    """HDR FLIP (mean, and flip-evaluator's colour-mapped error map), mean absolute error and
+    relative MSE (eps 1e-2)."""
+    import flip_evaluator
+
+    fmap, mean, _ = flip_evaluator.evaluate(np.clip(ref, 0, None), np.clip(test, 0, None), "HDR")
+    rel = ((test - ref) ** 2 / (ref ** 2 + 1e-2)).mean()
+    return {"flip": float(mean), "flip_map": fmap, "mae": float(np.abs(test - ref).mean()), "relmse": float(rel)}
+
+
+def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
+            geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> list[dict]:
+    """Per view: reference and neural renders and their errors.
+
+    ``spp`` sub-pixel samples make both renders converge to the pixel-filtered
+    appearance: the reference point-samples full-resolution textures, so with few
+    samples it aliases where a pixel covers many texels (a brushed-metal normal
+    map at 4 spp adds ~0.05 HDR FLIP of pure aliasing), while the neural model is
+    prefiltered by its level of detail, that of one sample's share of the pixel
+    (:func:`sample_footprint_scale`): the samples do the pixel's averaging.
+
+    By default the orthographic sphere under each view's directional light
+    (:func:`render`). With ``geometry`` and/or ``lights`` (a sequence of lights,
+    default each view's directional light) the views are rendered by
+    :func:`render_scene` with a perspective :class:`.geometry.Camera` at the
+    view's azimuth/elevation and ``distance`` bounding radii (default geometry:
+    the sphere). Both renders of a view share its seed and, under environment maps,
+    the reference's BSDF samples (``mis``, see :func:`compare_many`).
+    """
+    return compare_many(reference, {"neural": model}, texels, views, res, spp, geometry, lights, distance,
+                        mis)["neural"]
+
+
+def compare_many(reference, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
+                 geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> dict:
+    """:func:`compare` for several models (``{label: model}``) against one reference render per
+    view: ``{label: [per-view dict with "reference", "neural" (that model's render) and errors]}``.
+    Under environment maps every render, the reference's included, also samples the reference's
+    BSDF (``mis``; :func:`render_scene`'s ``sampler``), so the models see the same directions."""
+    out = {label: [] for label in models}
+    for i, view in enumerate(views):
+        if geometry is None and lights is None:
+            def draw(fn, view=view, i=i):
+                return render(fn, view, res, spp, texels, seed=i)
+        else:
+            scene = (geometry if geometry is not None else Sphere(), Camera(view.azimuth, view.elevation, distance),
+                     lights if lights is not None else [DirectionalLight(view.light, view.intensity)])
+
+            sampler = reference_sampler(reference) if mis else None
+
+            def draw(fn, scene=scene, i=i, sampler=sampler):
+                return render_scene(fn, *scene, res, spp, texels, seed=i, sampler=sampler)
+        ref = draw(reference_fn(reference))
+        for label, model in models.items():
+            test = draw(neural_fn(model))
+            out[label].append({"view": view, "reference": ref, "neural": test, **image_errors(ref, test)})
+    return out
+
+
+def save_png(path, img: np.ndarray, exposure: float = 1.0, linear: bool = True) -> None:
+    """Write an 8-bit PNG: a linear HDR image is exposed, clamped and sRGB-encoded;
+    ``linear=False`` writes display-ready values as they are (e.g. FLIP's colour-mapped error)."""
+    import OpenImageIO as oiio
+
+    x = img if img.ndim == 3 else np.repeat(img[..., None], 3, -1)
+    x = np.clip(x * exposure, 0, 1)
+    if linear:
+        x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(x.shape[1], x.shape[0], 3, "uint8"))
+    out.write_image((x * 255 + 0.5).astype(np.uint8))
+    out.close()

@@ -1,0 +1,1 @@
+"""Statistical checks of a material's sampling: chi-square goodness of fit and sampling efficiency."""

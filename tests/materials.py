@@ -1,0 +1,67 @@
+"""MaterialX documents shared by the tests, built from a few fragments instead of retyped XML.
+
+``document(*fragments)`` wraps element fragments in a MaterialX 1.39 document;
+``standard_surface(material, shader, **inputs)`` is a standard_surface node and the
+surfacematerial over it; ``image(name, file, ...)`` is an image node. Input values are
+typed from their Python form: a 3-tuple is a ``color3``, a number a ``float``, a string
+naming another node (``node=...``) a connection.
+"""
+
+from __future__ import annotations
+
+HEADER = '<?xml version="1.0"?>\n<materialx version="1.39">\n'
+FOOTER = "</materialx>\n"
+
+
+def _input(name: str, value) -> str:
+    if isinstance(value, dict):  # {"node": "img"}: a connection (type from "type", default color3)
+        return f'    <input name="{name}" type="{value.get("type", "color3")}" nodename="{value["node"]}" />\n'
+    if isinstance(value, tuple):
+        return f'    <input name="{name}" type="color3" value="{", ".join(str(v) for v in value)}" />\n'
+    return f'    <input name="{name}" type="float" value="{value}" />\n'
+
+
+def standard_surface(material: str, shader: str = "SR", **inputs) -> str:
+    """A standard_surface named ``shader`` with ``inputs`` and a surfacematerial ``material`` over it."""
+    body = "".join(_input(k, v) for k, v in inputs.items())
+    return (f'  <standard_surface name="{shader}" type="surfaceshader">\n{body}  </standard_surface>\n'
+            f'  <surfacematerial name="{material}" type="material">\n'
+            f'    <input name="surfaceshader" type="surfaceshader" nodename="{shader}" />\n'
+            "  </surfacematerial>\n")
+
+
+def image(name: str, file: str, type: str = "color3", colorspace: str | None = None) -> str:
+    """An ``image`` node reading ``file`` (relative paths resolve against the document's folder)."""
+    cs = f' colorspace="{colorspace}"' if colorspace else ""
+    return (f'  <image name="{name}" type="{type}">\n'
+            f'    <input name="file" type="filename" value="{file}"{cs} />\n  </image>\n')
+
+
+def closure(material: str, category: str, node: str = "lobe") -> str:
+    """A single pbrlib closure ``category`` under a surface and a surfacematerial ``material``."""
+    return (f'  <{category} name="{node}" type="BSDF" />\n'
+            '  <surface name="surf" type="surfaceshader">\n'
+            f'    <input name="bsdf" type="BSDF" nodename="{node}" />\n  </surface>\n'
+            f'  <surfacematerial name="{material}" type="material">\n'
+            '    <input name="surfaceshader" type="surfaceshader" nodename="surf" />\n'
+            "  </surfacematerial>\n")
+
+
+def document(*fragments: str) -> str:
+    """A MaterialX document holding ``fragments`` in order."""
+    return HEADER + "".join(fragments) + FOOTER
+
+
+# A minimal valid material (a red standard_surface named Red); needs nothing from ../shared.
+SIMPLE_MTLX = document(standard_surface("Red", "SR_red", base_color=(0.8, 0.1, 0.1)))
+
+# Two materials sharing nothing.
+TWO_MTLX = document(standard_surface("Red", "SR_red", base_color=(0.8, 0.1, 0.1)),
+                    standard_surface("Blue", "SR_blue", base_color=(0.1, 0.1, 0.8), specular_roughness=0.6))
+
+# A textured material whose only varying parameter is the base colour (albedo.png beside the document).
+TEXTURED_MTLX = document(image("albedo", "albedo.png", colorspace="srgb_texture"),
+                         standard_surface("Tex", "SR_tex", base_color={"node": "albedo"}, specular_roughness=0.4))
+
+# A material whose only closure has no torch implementation (hair).
+HAIR_MTLX = document(closure("M", "chiang_hair_bsdf", node="hair"))
