@@ -3,7 +3,7 @@
 The baseline (:mod:`mtlx2neural.baseline.analytic_model`, Lambert + GGX with 8 channels) has a
 hand-written Slang twin, so it can be timed in the same harness as the generated neural
 modules (``benchmarks/bench_shaders.py``, ``benchmarks/bench_tradeoff.py``) and checked against
-its torch model (``tests/test_codegen_analytic.py``).
+its torch model (``tests/baseline/test_shader_harness.py``).
 
 The shader reads **decoded** channels, as the exported textures store them
 (:func:`decoded_channels`): base RGB, roughness, metalness, specular, normal slopes (x, y).

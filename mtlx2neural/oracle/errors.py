@@ -1,8 +1,8 @@
 """Errors of the MaterialX Slang oracle (:mod:`mtlx2neural.oracle.runner`).
 
-They live in their own module so that shader generation (:mod:`.mtlx_oracle_source`) and texture
-reading (:mod:`.mtlx_oracle_textures`) can raise them without importing the evaluator;
-:mod:`.mtlx_oracle` re-exports both.
+They live in their own module so that shader generation (:mod:`mtlx2neural.oracle.source`) and texture
+reading (:mod:`mtlx2neural.oracle.textures`) can raise them without importing the evaluator;
+:mod:`mtlx2neural.oracle.runner` re-exports both.
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Oracle: evaluate a MaterialX material with MaterialX's own generated Slang code, on the CPU.
 
 MaterialX's Slang generator writes a pixel shader for a ``surfacematerial``;
-:mod:`.mtlx_oracle_source` patches it into a compute kernel for chosen direction pairs (one
+:mod:`mtlx2neural.oracle.source` patches it into a compute kernel for chosen direction pairs (one
 directional light, no specular environment, zero screen-space derivatives, a flat surface at the
-origin, textures sampled at uv (0.5, 0.5) as described in :mod:`.mtlx_oracle_textures`).  This
+origin, textures sampled at uv (0.5, 0.5) as described in :mod:`mtlx2neural.oracle.textures`).  This
 module compiles that kernel on slangpy's CPU device, caches it, and dispatches it.
 
 The kernel calls the generated fragment function twice: with the light at intensity

@@ -3,7 +3,7 @@
 The MaterialX Slang generator (``MaterialX.PyMaterialXGenSlang``) writes a pixel shader for a
 ``surfacematerial`` (colour management as MaterialX's viewers set it up; no specular environment,
 no output transform).  :func:`generate_oracle_source` patches that pixel shader so that it runs as
-a compute kernel on slangpy's CPU device (:mod:`.mtlx_oracle` compiles and dispatches it) for
+a compute kernel on slangpy's CPU device (:mod:`mtlx2neural.oracle.runner` compiles and dispatches it) for
 chosen direction pairs:
 
 * the uniform constant buffer becomes ``static`` globals initialised with the values that the
@@ -13,7 +13,7 @@ chosen direction pairs:
 * the specular environment is off (``SPECULAR_ENVIRONMENT_NONE``), so the indirect and refraction
   terms are zero; screen-space derivatives (``fwidth``/``ddx``/``ddy``/``dFdx``/``dFdy``) are zero,
   as on a flat plane, and the subsurface approximation sees zero curvature;
-* image textures become oracle samplers over one texel buffer (:mod:`.mtlx_oracle_textures`);
+* image textures become oracle samplers over one texel buffer (:mod:`mtlx2neural.oracle.textures`);
 * a ``[numthreads(32,1,1)]`` compute kernel fills the vertex data of a flat surface at the origin
   (normal +Z, tangent +X, bitangent +Y, texcoords (0.5, 0.5), vertex colours 1), places the
   viewer along ``wi``, and calls the generated fragment function twice: with the light at
@@ -51,7 +51,7 @@ _LIGHT_SCALE = 65536.0
 _ENTRY = "mxo_eval"
 _GROUP = 32
 
-# Shared with mtlx_oracle (device, kernel cache and dispatch): one lock for the whole oracle.
+# Shared with oracle.runner (device, kernel cache and dispatch): one lock for the whole oracle.
 _lock = threading.RLock()
 _stdlib = None  # cached mx.Document with the standard data libraries
 _sources: dict[tuple[str, str, str], _OracleSource] = {}  # keyed by (XML hash, base dir, material)

@@ -5,7 +5,7 @@ and sampled in the shader at mip level 0 with the node's address modes and filte
 default), following the MaterialX convention that uv (0, 0) is the lower-left corner of the image.
 ``_TEXTURE_SLANG`` replaces the generator's ``SamplerTexture2D`` and its sampling helpers.
 Which uniforms become textures, and with which sampling properties, is decided where the uniforms
-are patched (:mod:`.mtlx_oracle_source`); a file that cannot be read is replaced by the image
+are patched (:mod:`mtlx2neural.oracle.source`); a file that cannot be read is replaced by the image
 node's ``default`` value, as MaterialX specifies.
 """
 
