@@ -310,17 +310,21 @@ def test_every_preset_is_a_choice_and_overrides_apply(capsys):
     override its fields, and an unknown name is a usage error (argparse: exit 2)."""
     import dataclasses
 
-    from mtlx2neural.cli import _config, _parser
+    from mtlx2neural.commands.convert import options_of
+    from mtlx2neural.commands.parser import build_parser
     from mtlx2neural.train.config import PRESETS
 
+    def parse(*argv):
+        return build_parser()[0].parse_args(["convert", "a.usda", *argv])
+
     for name, cfg in PRESETS.items():
-        assert _config(_parser().parse_args(["convert", "a.usda", "--preset", name])) == cfg
-    args = _parser().parse_args(["convert", "a.usda", "--preset", "standard", "--iterations", "20", "--seed", "3"])
-    assert _config(args) == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
+        assert options_of(parse("--preset", name)).train_config() == cfg
+    args = parse("--preset", "standard", "--iterations", "20", "--seed", "3")
+    assert options_of(args).train_config() == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
     # standard is fast for longer: the same sampling and schedule shapes, 8x the steps.
     assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations) == PRESETS["fast"]
     with pytest.raises(SystemExit) as exc:
-        _parser().parse_args(["convert", "a.usda", "--preset", "nope"])
+        parse("--preset", "nope")
     assert exc.value.code == 2 and "standard" in capsys.readouterr().err
 
 

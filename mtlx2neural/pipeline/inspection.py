@@ -13,14 +13,19 @@ share an earlier one's result. Materials the scene skips are listed with the rea
 from __future__ import annotations
 
 from mtlx2neural.errors import InputError
+from mtlx2neural.pipeline.options import InspectOptions
 from mtlx2neural.pipeline.plan import plan_materials
 from mtlx2neural.scene import load_asset
 from mtlx2neural.train.config import preset
 
 
-def inspect_asset(path, material: str | None = None, allow_missing_textures: bool = False, cfg=None,
-                  texel_density: float | None = None) -> dict:
+def inspect_asset(path, material: str | InspectOptions | None = None, allow_missing_textures: bool = False,
+                  cfg=None, texel_density: float | None = None) -> dict:
     """JSON-friendly report of ``path`` (a .mtlx file or USD stage).
+
+    ``inspect_asset(path, options)`` takes an :class:`~mtlx2neural.pipeline.options.InspectOptions`
+    (``material``, ``allow_missing_textures``, the preset and ``train`` overrides, ``texel_density``)
+    in place of the separate arguments.
 
     ``cfg`` (default: the ``fast`` preset) is the training configuration the latent grid
     and the hashes are computed for; ``texel_density`` (latent texels per metre of surface,
@@ -33,6 +38,10 @@ def inspect_asset(path, material: str | None = None, allow_missing_textures: boo
     ``warnings``.
     """
 
+    if isinstance(material, InspectOptions):
+        options = material
+        material, allow_missing_textures = options.material, options.allow_missing_textures
+        cfg, texel_density = options.train_config(), options.texel_density
     cfg = cfg or preset("fast")
     scene = load_asset(path)
     report = {"asset": str(scene.asset), "materials": [], "skipped": [

@@ -1,10 +1,13 @@
-"""What a conversion is asked to do: one options dataclass, the single source for the library
-entry point (:func:`mtlx2neural.convert`), the command line (every field is a flag, its
-docstring the help), README's option table and ``summary.json``.
+"""What a conversion (or an inspection) is asked to do: one options dataclass per entry point, the
+single source for the library entry point (:func:`mtlx2neural.convert`), the command line (every
+field is a flag, its docstring the help: :mod:`mtlx2neural.commands.options_cli`), README's option
+table and ``summary.json``.
 
-Each field's docstring is its documentation; ``flag`` metadata names the command-line flag
-where it differs from ``--field-name``. ``train`` nests the :class:`TrainConfig` whose
-fields are flags too. Values are checked by :func:`check_options` before any work.
+Each field's docstring is its documentation; ``metadata`` names the command-line flag where it
+differs from ``--field-name`` (``flag``: names separated by ``/``), keeps a field off the command
+line (``cli: False``), or gives its ``choices`` or ``metavar``. ``train`` nests the
+:class:`TrainConfig` whose fields are flags too (given ones override the preset's). Values are
+checked by :func:`check_options` before any work.
 """
 
 from __future__ import annotations
@@ -16,30 +19,40 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
 
 
+def _preset_config(preset: str, train: TrainConfig | None) -> TrainConfig:
+    """``train`` if given, else a copy of the preset's settings (InputError for an unknown preset)."""
+    if train is not None:
+        return train
+    if preset not in PRESETS:
+        raise InputError(f"--preset {preset!r}: unknown; choose one of {', '.join(PRESETS)}")
+    return dataclasses.replace(PRESETS[preset])
+
+
 @dataclass
 class ConvertOptions:
     """Options of one conversion (``mtlx2neural ASSET`` / ``mtlx2neural.convert``)."""
 
-    out: str | None = field(default=None, metadata={"flag": "-o/--output"})
+    out: str | None = field(default=None, metadata={"flag": "-o/--output", "metavar": "OUT"})
     """Output folder (default: ``<asset stem>_neural`` beside a file input; required for an
     in-memory stage), or the layer's path when it ends in ``.usda``/``.usd``/``.usdc`` (the folder is
     then that path without its suffix). Never the input, a file it reads, or a file mtlx2neural did not
     write."""
-    preset: str = "fast"
+    preset: str = field(default="fast", metadata={"choices": tuple(PRESETS)})
     """Training settings the ``train`` fields start from: fast (minutes per material on a CPU),
     standard (8x fast's steps: the CPU's quality setting), balanced (a GPU), paper (300k steps)."""
-    material: str | None = None
+    material: str | None = field(default=None, metadata={"metavar": "M"})
     """Only this material (USD prim path, prim name or MaterialX material name); an existing layer
     keeps its other materials."""
     device: str = "auto"
     """cpu, cuda, cuda:N or auto (CUDA when present)."""
-    workers: int | str | None = None
+    workers: int | str | None = field(default=None, metadata={"metavar": "N|ray|ray://HOST:PORT"})
     """Materials trained in parallel: N local processes (1: this process), ``ray`` (a local cluster or
     $RAY_ADDRESS) or ``ray://HOST:PORT``; None: one per material up to the CPU (or GPU) count."""
-    max_error: float | None = None
+    max_error: float | None = field(default=None, metadata={"metavar": "F"})
     """HDR FLIP budget: per material, the smallest decoder of 2x16, 2x32, 3x64 that meets it (the
-    preset's decoder is then ignored); when even 3x64 misses, the best is kept with a warning."""
-    texel_density: float | None = None
+    preset's decoder is then ignored; conflicts with ``--decoder``); when even 3x64 misses, the best
+    is kept with a warning."""
+    texel_density: float | None = field(default=None, metadata={"metavar": "D"})
     """Latent texels per metre of surface (512 = 5.12 texels/cm): each material's grid is scaled down
     to what its bound meshes' UVs need (never up; USD input only)."""
     resume: bool = False
@@ -50,20 +63,43 @@ class ConvertOptions:
     """Use an image node's declared default when its file is missing, instead of failing."""
     allow_untrained: bool = False
     """Accept ``iterations = 0``: export the untrained network (for pipeline tests)."""
-    progress: bool = True
-    """Progress bars (a terminal) or progress lines (a log) while training."""
+    progress: bool = field(default=True, metadata={"flag": "--quiet/--no-progress"})
+    """Progress bars (a terminal) or progress lines (a log) while training; the flag turns them
+    off."""
     usda: str | None = field(default=None, metadata={"cli": False})
     """The layer's path, overriding the one ``out`` implies (library use)."""
     train: TrainConfig | None = None
-    """Training settings; None: the preset's. Fields given here override the preset's."""
+    """Training settings; None (the default): the preset's. On the command line each of its fields
+    is a flag that overrides the preset's value."""
 
     def train_config(self) -> TrainConfig:
         """The training settings this conversion uses: ``train`` if given, else the preset's."""
-        if self.train is not None:
-            return self.train
-        if self.preset not in PRESETS:
-            raise InputError(f"--preset {self.preset!r}: unknown; choose one of {', '.join(PRESETS)}")
-        return dataclasses.replace(PRESETS[self.preset])
+        return _preset_config(self.preset, self.train)
+
+
+@dataclass
+class InspectOptions:
+    """Options of ``mtlx2neural inspect ASSET`` (:func:`mtlx2neural.pipeline.inspection.inspect_asset`)."""
+
+    material: str | None = field(default=None, metadata={"metavar": "M"})
+    """Only this material (USD prim path, prim name or MaterialX material name)."""
+    json: bool = False
+    """Print the report as JSON (only JSON on stdout) instead of text."""
+    allow_missing_textures: bool = False
+    """Use an image node's declared default when its file is missing, instead of failing."""
+    preset: str = field(default="fast", metadata={"choices": tuple(PRESETS)})
+    """Training settings the latent grid and the source hashes are shown for (the ``train`` fields
+    start from them)."""
+    texel_density: float | None = field(default=None, metadata={"metavar": "D"})
+    """Latent texels per metre of surface (512 = 5.12 texels/cm): each material's grid is scaled down
+    to what its bound meshes' UVs need (never up; USD input only)."""
+    train: TrainConfig | None = None
+    """Training settings; None (the default): the preset's. On the command line each of its fields
+    is a flag that overrides the preset's value."""
+
+    def train_config(self) -> TrainConfig:
+        """The training settings shown: ``train`` if given, else the preset's."""
+        return _preset_config(self.preset, self.train)
 
 
 def check_options(options: ConvertOptions) -> TrainConfig:
@@ -77,3 +113,20 @@ def check_options(options: ConvertOptions) -> TrainConfig:
         if v is not None and not (isinstance(v, (int, float)) and 0 < v < float("inf")):
             raise InputError(f"--{name.replace('_', '-')} {v!r}: must be a positive number")
     return cfg
+
+
+def options_record(options) -> dict:
+    """``dataclasses.asdict(options)`` for ``summary.json``: JSON-friendly (paths and other objects
+    as strings, tuples as lists), with ``train`` left out (the summary's ``config`` records the
+    training settings each material used, ``dataclasses.asdict`` of its :class:`TrainConfig`)."""
+
+    def plain(v):
+        if v is None or isinstance(v, (bool, int, float, str)):
+            return v
+        if isinstance(v, dict):
+            return {str(k): plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return str(v)
+
+    return {k: plain(v) for k, v in dataclasses.asdict(options).items() if k != "train"}

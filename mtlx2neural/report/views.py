@@ -36,6 +36,7 @@ from mtlx2neural.render.renderer import (
     render_scene,
     save_png,
 )
+from mtlx2neural.report.options import RenderOptions
 from mtlx2neural.scene import find_material
 
 GEOMETRIES = ("sphere", "plane", "teapot")
@@ -108,7 +109,8 @@ def default_checkpoint(asset, material_name: str) -> Path:
     return legacy if legacy.is_file() and not current.is_file() else current
 
 
-def render_asset(asset, output, material: str | None = None, model: str = "reference", checkpoint=None,
+def render_asset(asset, output: str | Path | RenderOptions, material: str | None = None, model: str = "reference",
+                 checkpoint=None,
                  geometry: str = "sphere", env: str | None = "sky", res: int = 256, spp: int = 16,
                  azimuth: float = 30.0, elevation: float = 20.0, distance: float = 4.0, fov: float = 30.0,
                  seed: int = 0, allow_missing_textures: bool = False, mis: str = "own") -> dict:
@@ -119,7 +121,12 @@ def render_asset(asset, output, material: str | None = None, model: str = "refer
     mixture, or the neural model's learned proxy) to the environment's light sample, combined by
     the balance heuristic: a sharp coat reflecting the sky converges instead of sparkling. The
     two models then draw different BSDF directions, so their renders share only the light
-    samples; ``mis="none"`` (light samples only) keeps every random number common to both."""
+    samples; ``mis="none"`` (light samples only) keeps every random number common to both.
+
+    ``render_asset(asset, options)`` takes a :class:`~mtlx2neural.report.options.RenderOptions`
+    (``output`` and every argument after it) instead."""
+    if isinstance(output, RenderOptions):
+        return render_asset(asset, **output.kwargs())
 
     output = Path(output)
     if output.suffix.lower() != ".exr":

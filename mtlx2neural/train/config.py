@@ -3,20 +3,25 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
 
 
 @dataclass
 class TrainConfig:
-    iterations: int = 2000
-    """Total optimisation steps over all three phases."""
-    batch: int = 4096
+    """Training settings. Each field's docstring is its documentation (the command line's help
+    and README's option table, :mod:`mtlx2neural.commands.options_cli`); ``metadata`` gives the
+    flag where it differs from ``--field-name``, a metavar, or the choices the command line offers."""
+
+    iterations: int = field(default=2000, metadata={"metavar": "N"})
+    """Total optimisation steps over all three phases (0 exports an untrained network: only with
+    ``allow_untrained``)."""
+    batch: int = field(default=4096, metadata={"metavar": "N"})
     """Samples per batch; two batches (BRDF and sampler) per step."""
-    decoder: str = "2x32"
+    decoder: str = field(default="2x32", metadata={"choices": ("2x16", "2x32", "3x64")})
     """Decoder hidden layers: 2x16, 2x32 or 3x64."""
-    frames: int = 2
+    frames: int = field(default=2, metadata={"metavar": "N"})
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
     """Latent channels."""
@@ -29,6 +34,7 @@ class TrainConfig:
     lr_start: float = 1e-3
     """Adam learning rate at the start; cosine decay to ``lr_end``."""
     lr_end: float = 1e-4
+    """Adam learning rate at the end of the cosine decay from ``lr_start``."""
     mollify_degrees: float = 10.0
     """Initial half-angle of the mollification cone; decays linearly to 0."""
     mollify_min_degrees: float = 0.0
@@ -63,9 +69,12 @@ class TrainConfig:
     """Train the optional albedo head (L2 against one-sample Monte Carlo estimates)."""
     checkpoint_every: int = 500
     """Steps between checkpoints."""
-    max_resolution: int | None = 256
-    """Cap on the latent/parameter pyramid's finest level (texels per side); None: the texture's own."""
-    seed: int = 0
+    max_resolution: int | None = field(default=256, metadata={"flag": "--max-texels", "metavar": "N"})
+    """Cap on the latent/parameter pyramid's finest level (texels per side); None (``--max-texels 0``):
+    the textures' own grid. A cap below the textures' grid prefilters their finer detail, with a
+    warning."""
+    seed: int = field(default=0, metadata={"metavar": "N"})
+    """Seed of the initial weights and of the training data (0 to 2^63 - 1)."""
     compile: bool = False
     """torch.compile the decoder/sampler losses (and a uniform material's reference): faster
     steps after tens of seconds of compilation; worth it for long runs only."""

@@ -1,0 +1,113 @@
+"""``mtlx2neural ASSET`` / ``mtlx2neural convert ASSET``: train a neural material for every selected
+material and export them (:class:`~mtlx2neural.pipeline.options.ConvertOptions`, every field a flag,
+and every :class:`~mtlx2neural.train.config.TrainConfig` field a flag overriding the preset's)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+from mtlx2neural.commands import values
+from mtlx2neural.commands.options_cli import add_options, options_from_args
+from mtlx2neural.errors import InputError
+from mtlx2neural.pipeline.options import ConvertOptions
+from mtlx2neural.train.config import PRESETS, TrainConfig
+
+NAME = "convert"
+USAGE = "mtlx2neural [convert] ASSET"
+HELP = "train a neural material for every selected material (default command)"
+
+PARSERS = {"workers": values.workers, "max_error": values.flip_budget, "texel_density": values.texel_density,
+           "max_resolution": values.texel_cap}
+"""Fields whose flag values argparse cannot type by itself (convert and inspect)."""
+TRAIN_BASES = {"train": ("the preset's; fast", PRESETS["fast"])}
+"""The training flags override the preset's values: shown as fast's."""
+
+
+def preset_settings(_field: str, top: dict) -> TrainConfig:
+    """The settings the training flags override: the given ``--preset``'s, else the default's."""
+    return dataclasses.replace(PRESETS[top.get("preset", ConvertOptions.preset)])
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}.")
+    p.add_argument("asset", metavar="ASSET", help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz)")
+    add_options(p, ConvertOptions, parsers=PARSERS, bases=TRAIN_BASES)
+    return p
+
+
+def options_of(args: argparse.Namespace) -> ConvertOptions:
+    """The :class:`ConvertOptions` of the flags given (InputError for ``--decoder`` with ``--max-error``)."""
+    decoder, budget = getattr(args, "train.decoder", None), getattr(args, "max_error", None)
+    if decoder and budget is not None:
+        raise InputError(f"--decoder {decoder} and --max-error {budget} conflict: --decoder forces "
+                         f"one size, --max-error picks the smallest of 2x16, 2x32, 3x64 that meets the budget. "
+                         f"Give one of them.")
+    return options_from_args(ConvertOptions, args, base=preset_settings)
+
+
+def run(args: argparse.Namespace) -> int:
+    return convert(args.asset, options_of(args))
+
+
+def convert(asset, options: ConvertOptions) -> int:
+    """Convert ``asset`` with ``options``, print a line per material; the exit code."""
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.pipeline.convert import convert_asset
+
+    # Local: --help and option errors answer without importing torch.
+    from mtlx2neural.train.trainer import TrainingInterrupted
+
+    try:
+        summaries = convert_asset(asset, options.train_config(), options.out, options.material, options.device,
+                                  options.resume, options.progress, options.allow_missing_textures,
+                                  force=options.force, preset=options.preset, usda=options.usda,
+                                  workers=options.workers, max_error=options.max_error,
+                                  texel_density=options.texel_density, allow_untrained=options.allow_untrained)
+    except TrainingInterrupted as exc:
+        print(f"mtlx2neural: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # writing failed after the up-front checks (disk full...); nothing partial was left
+        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"mtlx2neural: error: cannot write the output{where} ({exc.strerror or exc}); the previous export, "
+              f"if any, is unchanged", file=sys.stderr)
+        return 1
+    print_summaries(summaries)
+    return 0
+
+
+def print_summaries(summaries) -> None:
+    """A line per material (how it was obtained, decoder, errors; budget, warnings, notes), then the
+    folder and layer written."""
+    for s in summaries:
+        if s.get("shared_with"):
+            how = f"identical to {s['shared_with']} (same graph, textures and settings): trained once, shared"
+        elif s["cached"]:
+            how = "reused (unchanged; --force retrains)"
+        else:
+            how = f"{s['steps']} steps in {s['seconds']} s"
+        print(f"{s['material']}: {how}, decoder {s.get('decoder', s['config']['decoder'])}, held-out log-L1 "
+              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})")
+        budget = s.get("budget")
+        if budget:
+            tried = ", ".join(f"{k} {v:.4f}" for k, v in budget["flip_by_decoder"].items())
+            print(f"  budget HDR FLIP <= {budget['max_error']}: {'met' if budget['met'] else 'NOT met'} "
+                  f"(tried {tried})")
+        for w in s.get("warnings", []):
+            print(f"  warning: {w}")
+        for n in s.get("latent", {}).get("notes", []):
+            print(f"  note: {n}")
+        notes = s.get("export_notes", [])
+        for note in notes[:3]:
+            print(f"  fp16: {note}")
+        if len(notes) > 3:
+            print(f"  fp16: ... and {len(notes) - 3} more (see neural/weights.json and export.json)")
+    for k in getattr(summaries, "skipped", []):
+        print(f"{k['material']}: skipped ({k['reason']})")
+    print(f"wrote {summaries.folder} (checkpoints, training curves, summaries, latent EXRs, weights)")
+    if summaries:
+        kept = getattr(summaries, "kept", [])
+        also = f"; kept from earlier runs: {', '.join(kept)}" if kept else ""
+        print(f"wrote {summaries[0]['usd']} (USD layer with the neural materials{also})")
+
