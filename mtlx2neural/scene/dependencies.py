@@ -8,6 +8,11 @@ document a selected material comes from: the document's own file, the files it
 ``xi:include``s, and every ``filename`` input (textures), resolved as the
 compiler resolves them. Paths are absolute and normalised (symbolic links
 resolved), so two spellings of one file compare equal.
+
+An open ``Usd.Stage`` counts like its files: its root layer's file (none for an
+in-memory root) and the dependencies of its root and session layers, anonymous or
+not (``ComputeAllDependencies`` walks their file sublayers, references, payloads and
+assets; an anonymous layer itself has no file to protect).
 """
 
 from __future__ import annotations
@@ -26,7 +31,12 @@ def canonical(path) -> Path:
     return Path(os.path.realpath(os.path.abspath(os.fspath(path))))
 
 
-def _usd_dependencies(asset: Path) -> set[Path]:
+def _is_anonymous(identifier: str) -> bool:
+    return identifier.startswith("anon:")  # Sdf's prefix for anonymous layer identifiers
+
+
+def _usd_dependencies(asset) -> set[Path]:
+    """Dependencies of the USD layer ``asset`` (a file path, or an anonymous layer's identifier)."""
     from pxr import UsdUtils
 
     found: set[Path] = set()
@@ -48,26 +58,39 @@ def _mtlx_dependencies(document) -> set[Path]:
     """The document's files (``xi:include`` included) and its ``filename`` inputs."""
     found: set[Path] = set()
     for uri in [document.getSourceUri(), *document.getReferencedSourceUris()]:
-        if uri:
+        if uri and not _is_anonymous(uri):
             found.add(canonical(uri))
     for elem in document.traverseTree():
         if elem.getCategory() == "input" and elem.getAttribute("type") == "filename":
             value = elem.getResolvedValueString()
             if value and "<UDIM>" not in value:
                 base = elem.getActiveSourceUri()
+                base = "" if _is_anonymous(base) else base
                 path = value if os.path.isabs(value) or not base else os.path.join(os.path.dirname(base), value)
                 found.add(canonical(path))
     return found
 
 
+def _stage_dependencies(stage) -> set[Path]:
+    root = stage.GetRootLayer()
+    found = {canonical(root.realPath)} if not root.anonymous and root.realPath else set()
+    for layer in (root, stage.GetSessionLayer()):
+        found |= _usd_dependencies(layer.identifier)
+    return found
+
+
 def input_files(asset, sources=()) -> set[Path]:
-    """Every file the asset ``asset`` and the material ``sources`` (:class:`MaterialSource`) read."""
-    asset = canonical(asset)
-    found = {asset}
-    if asset.suffix.lower() in USD_SUFFIXES:
-        found |= _usd_dependencies(asset)
+    """Every file the asset ``asset`` (a path, or an open ``Usd.Stage``) and the material
+    ``sources`` (:class:`MaterialSource`) read."""
+    if hasattr(asset, "GetRootLayer"):  # a Usd.Stage (duck-typed: this module imports pxr lazily)
+        found = _stage_dependencies(asset)
+    else:
+        asset = canonical(asset)
+        found = {asset}
+        if asset.suffix.lower() in USD_SUFFIXES:
+            found |= _usd_dependencies(asset)
     for src in sources:
-        if src.source_file:
+        if src.source_file and not _is_anonymous(src.source_file):
             found.add(canonical(src.source_file))
         found |= _mtlx_dependencies(src.document)
     return found

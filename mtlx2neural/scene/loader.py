@@ -1,4 +1,4 @@
-"""Entry points of the scene stage: dispatch on the file type, select, convert."""
+"""Entry points of the scene stage: dispatch on the file type (or take an open ``Usd.Stage``), select, convert."""
 
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ MTLX_EXTENSIONS = (".mtlx",)
 
 
 def _candidates(path) -> tuple[str, list[Candidate]]:
+    if usd_stage.is_stage(path):
+        return usd_stage.stage_name(path), usd_stage.candidates(path)
     asset = os.path.abspath(os.fspath(path))
     ext = os.path.splitext(asset)[1].lower()
     if ext in MTLX_EXTENSIONS:
@@ -54,7 +56,11 @@ def load_asset(path) -> SceneMaterials:
     ``path`` is a ``.mtlx`` file (every ``surfacematerial`` is a material) or a
     USD file (``.usd``/``.usda``/``.usdc``/``.usdz``), whose Materials are
     selected only when bound to visible gprims of purpose ``default`` or
-    ``render``; the others are listed in ``skipped`` with the reason. Each
+    ``render``; the others are listed in ``skipped`` with the reason. ``path``
+    may also be an open ``Usd.Stage`` (in memory or not): its composed scene,
+    unsaved and session-layer edits included, is read the same way through a
+    private view (:func:`~mtlx2neural.scene.usd_stage.stage_view`; the stage
+    itself is not changed). Each
     selected material is converted to its own MaterialX document. Nothing is
     written to disk. Raises InputError for missing, malformed or unsupported
     input.
@@ -66,7 +72,8 @@ def load_asset(path) -> SceneMaterials:
 
 
 def find_material(path, material: str | None = None) -> MaterialSource:
-    """Return one material of the asset at ``path`` as a MaterialX document.
+    """Return one material of the asset at ``path`` (a file, or an open ``Usd.Stage`` as for
+    :func:`load_asset`) as a MaterialX document.
 
     ``material`` may be a full USD prim path (``/World/Looks/Brass``), a prim
     or surfacematerial name (``Brass``), or None for the only material that

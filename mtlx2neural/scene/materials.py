@@ -23,9 +23,14 @@ class MaterialSource:
     material: str
     """Name of the ``surfacematerial`` node inside ``document``."""
     source_file: str
-    """Absolute path of the file the network was read from (``.usda``/``.usdc``/``.mtlx``), for messages."""
+    """Absolute path of the file the network was read from (``.usda``/``.usdc``/``.mtlx``), for messages
+    and for loading it again; for a network defined in an in-memory layer, that layer's identifier
+    (``anon:...``), which a conversion replaces with its snapshot of the stage."""
     bound_prims: list[str] = field(default_factory=list)
     """USD paths of the renderable gprims (or GeomSubsets) bound to it; empty for plain ``.mtlx`` input."""
+    network: bool = False
+    """True when converted from a UsdShade network of the stage (``source_file`` is then the layer that
+    defines the Material); False for a ``.mtlx`` file or a ``.mtlx`` file the stage references."""
 
 
 @dataclass
@@ -33,7 +38,8 @@ class SceneMaterials:
     """Every material of an asset: the ones renderable geometry needs, and the ones skipped."""
 
     asset: str
-    """Absolute path of the input asset."""
+    """Absolute path of the input asset; for an open stage, its root layer's file, or
+    ``in-memory stage <identifier>`` when that layer is anonymous."""
     materials: list[MaterialSource]
     """Materials to compile, in stage/document order."""
     skipped: list[tuple[str, str]] = field(default_factory=list)

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mtlx2neural.scene.usd_stage import open_stage
+from mtlx2neural.scene.usd_stage import is_stage, open_stage, stage_view
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -87,7 +87,10 @@ def texels_per_uv(texels_per_metre: float, metres_per_uv: float) -> int:
 
 
 def open_stage_for(asset) -> object | None:
-    """The USD stage of ``asset`` (a path), or None when it is not a USD file (plain ``.mtlx``)."""
+    """The USD stage of ``asset`` (a path, or an open ``Usd.Stage``: its private
+    :func:`~.usd_stage.stage_view`), or None when it is not a USD file (plain ``.mtlx``)."""
+    if is_stage(asset):
+        return stage_view(asset)
     if os.path.splitext(os.fspath(asset))[1].lower() not in USD_EXTENSIONS:
         return None
 

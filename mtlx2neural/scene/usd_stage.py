@@ -8,6 +8,11 @@ selected when renderable geometry binds it (see ``binding``).
 The stage is opened read-only in spirit: the only edits go to its in-memory
 session layer (placeholder Material prims for ``.mtlx`` references) and are
 never saved.
+
+An already open ``Usd.Stage`` (a DCC's scene, possibly in memory) is read through
+:func:`stage_view`: a private stage over the very same root and session layers
+(their unsaved edits included), so the caller's stage is never edited and the
+materials are selected by the same code as for a file.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ import logging
 import os
 import re
 
-from pxr import Pcp, Tf, Usd, UsdShade
+from pxr import Pcp, Sdf, Tf, Usd, UsdShade
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.scene import binding, mtlx_file, mxlib
@@ -44,11 +49,45 @@ def open_stage(path: str) -> Usd.Stage:
         raise InputError(f"{path}: not a readable USD file: {_tf_message(exc)}. Fix the file and try again.") from exc
     if stage is None:
         raise InputError(f"{path}: not a readable USD file. Fix the file and try again.")
+    _log_composition_errors(stage, path)
+    return stage
+
+
+def _log_composition_errors(stage: Usd.Stage, name: str) -> None:
     for err in stage.GetCompositionErrors():
         if isinstance(err, Pcp.ErrorInvalidAssetPath) and ".mtlx" in str(err):
             continue  # handled by mtlx_refs
-        log.warning("%s: composition error: %s", path, err)
-    return stage
+        log.warning("%s: composition error: %s", name, err)
+
+
+def is_stage(asset) -> bool:
+    """Whether ``asset`` is an open ``Usd.Stage`` (rather than a path)."""
+    return isinstance(asset, Usd.Stage)
+
+
+def stage_name(stage: Usd.Stage) -> str:
+    """How messages name an open stage: its root layer's file, or ``in-memory stage <identifier>``."""
+    root = stage.GetRootLayer()
+    return root.realPath if not root.anonymous and root.realPath else f"in-memory stage {root.identifier}"
+
+
+def stage_view(stage: Usd.Stage) -> Usd.Stage:
+    """A private stage composing exactly what ``stage`` composes, with every payload loaded.
+
+    It opens the same root layer object (so unsaved edits count) with a fresh anonymous
+    session layer that sublayers ``stage``'s session layer (so session-layer edits and
+    variant selections count too) and ``stage``'s path resolver context. Edits made to
+    the view (the ``.mtlx`` placeholders) go to its own session layer: ``stage`` is not
+    changed. Like a file input, everything is loaded (``Usd.Stage.LoadAll``), whatever
+    ``stage`` has loaded, and no population mask applies.
+    """
+    if not stage or not stage.GetPseudoRoot():
+        raise InputError("the USD stage given is not valid (expired or closed); pass an open Usd.Stage.")
+    session = Sdf.Layer.CreateAnonymous("mtlx2neural-view.usda")
+    session.subLayerPaths.append(stage.GetSessionLayer().identifier)
+    view = Usd.Stage.Open(stage.GetRootLayer(), session, stage.GetPathResolverContext(), Usd.Stage.LoadAll)
+    _log_composition_errors(view, stage_name(stage))
+    return view
 
 
 def _tf_message(exc: Exception) -> str:
@@ -56,12 +95,13 @@ def _tf_message(exc: Exception) -> str:
     return "; ".join(m.strip() for m in messages) or str(exc).strip()
 
 
-def candidates(path: str) -> list[Candidate]:
-    """Every Material on the USD stage at ``path``, each with its skip reason and a loader.
+def candidates(path) -> list[Candidate]:
+    """Every Material on the USD stage at ``path`` (a file path, or an open ``Usd.Stage``, read
+    through :func:`stage_view`), each with its skip reason and a loader.
 
     Order: stage traversal order, then materials only reachable through bindings.
     """
-    stage = open_stage(path)
+    stage = stage_view(path) if is_stage(path) else open_stage(path)
     refs = {r.stage_path: r for r in find_mtlx_references(stage)}
     add_placeholders(stage, list(refs.values()))
     bindings = binding.collect_bindings(stage)
@@ -119,11 +159,13 @@ def _from_mtlx_reference(ref: MtlxReference, bound: list[str]) -> MaterialSource
 def _from_network(stage: Usd.Stage, mat_path: str, bound: list[str]) -> MaterialSource:
     prim = stage.GetPrimAtPath(mat_path)
     if not prim or not prim.IsA(UsdShade.Material):
-        root = stage.GetRootLayer().realPath
+        root = stage.GetRootLayer().realPath or stage.GetRootLayer().identifier
         raise InputError(
             f"{root}: <{mat_path}> is bound as a material but is not a Material prim. Fix the material:binding target."
         )
-    source_file = os.path.abspath(defining_file(prim))
+    source_file = defining_file(prim)
+    if not Sdf.Layer.IsAnonymousLayerIdentifier(source_file):
+        source_file = os.path.abspath(source_file)
     doc, node_name = convert_material(UsdShade.Material(prim), source_file)
     mxlib.validate(doc, f"{source_file}: <{mat_path}> (converted to MaterialX)")
     return MaterialSource(
@@ -132,4 +174,5 @@ def _from_network(stage: Usd.Stage, mat_path: str, bound: list[str]) -> Material
         material=node_name,
         source_file=source_file,
         bound_prims=bound,
+        network=True,
     )
