@@ -6,6 +6,12 @@ Public API (see docs/ARCHITECTURE.md):
 >>> m = m2n.load_reference("asset.usda", material="/World/Looks/Brass")
 >>> m.eval(wi, wo)   # [N,3] f * cos
 >>> n = m2n.load_neural("asset_neural.usda", material="/World/Looks/Brass")  # the same methods
+
+Converting from a pipeline (a DCC's open ``Usd.Stage``, unsaved edits included, or a file):
+
+>>> from mtlx2neural.pipeline.options import ConvertOptions
+>>> result = m2n.convert(stage, ConvertOptions(out="/shots/s010/neural"))
+>>> result.layer, result.layer_path, result.summaries, result.skipped
 """
 
 from __future__ import annotations
@@ -69,4 +75,19 @@ def load_neural(path, material: str | None = None, device: str = "cpu"):
     return _load(path, material, device)
 
 
-__all__ = ["__version__", "load_neural", "load_reference", "usd_plugin_path"]
+def convert(stage_or_path, options=None):
+    """Convert the materials of an open ``Usd.Stage`` (session-layer and unsaved edits included) or of
+    a USD or ``.mtlx`` file into neural materials, and write the neural USD layer.
+
+    ``options``: a :class:`mtlx2neural.pipeline.options.ConvertOptions` (None: the defaults; an
+    in-memory stage needs ``out``). Returns a :class:`mtlx2neural.api.ConversionResult`: ``layer``
+    (the neural ``Sdf.Layer``), ``layer_path``, ``folder``, ``summaries`` and ``skipped``. See
+    :func:`mtlx2neural.api.convert`.
+    """
+    # Local: keeps `import mtlx2neural` cheap (no torch, USD or MaterialX until a conversion runs).
+    from mtlx2neural.api import convert as _convert
+
+    return _convert(stage_or_path, options)
+
+
+__all__ = ["__version__", "convert", "load_neural", "load_reference", "usd_plugin_path"]

@@ -1,6 +1,8 @@
 """The neural USD layer: NeuralMaterialAPI, a NeuralBSDF shader and the ``neuralMaterial`` variant set.
 
-USD input: the new layer **sublayers the input** (a path relative to the new layer)
+USD input: the new layer **sublayers the input** (a path relative to the new layer;
+for an open stage with unsaved or in-memory edits, the input is the stage's flattened
+snapshot that the conversion wrote into its output folder, :mod:`mtlx2neural.scene.snapshot`)
 and authors only ``over`` opinions on the converted Material prims (also on those
 that come from a referenced ``.mtlx`` file, which usd-core cannot compose but a USD
 build with usdMtlx does), so binding,
@@ -248,7 +250,11 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
         UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.LinearUnits.meters)
     else:
-        src = Sdf.Layer.FindOrOpen(str(asset))
+        # The file on disk, not the registry's copy (stale or with unsaved edits when the same
+        # process opened it before, e.g. a rewritten stage snapshot); only its metadata is needed.
+        src = Sdf.Layer.OpenAsAnonymous(str(asset), True)
+        if src is None:
+            raise ValueError(f"{asset}: cannot read the input layer the neural layer sublayers")
         info = src.pseudoRoot
         for key in info.ListInfoKeys():
             if key not in ("subLayers", "subLayerOffsets", "documentation", "comment"):

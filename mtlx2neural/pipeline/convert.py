@@ -2,9 +2,9 @@
 
 Steps (the library behind the default command):
 
-0. check every setting and the device (:func:`mtlx2neural.train.config.validate_config`,
+0. check every setting and the device (:func:`mtlx2neural.pipeline.options.check_options`,
    :func:`mtlx2neural.pipeline.jobs.check_device`), then, once the materials are selected, every
-   path the run will write (:mod:`.export.outputs`): nothing is trained for a run that
+   path the run will write (:mod:`.layout`): nothing is trained for a run that
    could not finish or would overwrite the input;
 1. select: the materials renderable geometry binds (:func:`mtlx2neural.scene.load_asset`;
    the others are reported as skipped, with the reason), or only ``material``;
@@ -15,7 +15,7 @@ Steps (the library behind the default command):
    materials are identical (same name-free content hash, grid included): those train
    once and share the first one's result;
 3. reuse: a material whose ``summary.json`` carries the same source hash (document,
-   texture bytes, settings: :mod:`.export.cache`) is not trained again (``force``
+   texture bytes, settings: :mod:`.source_hash`) is not trained again (``force``
    retrains);
 4. train the rest as jobs (:mod:`.jobs`): in this process, a local process pool
    (``workers``) or Ray; with ``max_error`` each job picks the smallest decoder whose
@@ -30,8 +30,12 @@ Steps (the library behind the default command):
 
 ``OUT`` defaults to ``<asset folder>/<asset stem>_neural`` (``-o`` may also name the
 layer: ``OUT.usda``); the input is never modified. One run at a time holds ``OUT``
-(:mod:`.export.lock`). A ``--material`` run updates that material in an existing layer
+(:mod:`.lock`). A ``--material`` run updates that material in an existing layer
 and keeps the others (the layer's record lists them, with their source hashes).
+
+The asset may also be an open ``Usd.Stage`` (:func:`convert_asset`; the library entry
+point is :func:`mtlx2neural.convert`): it is read as composed, and one with unsaved or
+in-memory edits is converted from a flattened snapshot written into ``OUT``.
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ from mtlx2neural.pipeline.jobs import (  # noqa: F401
     write_summary,
 )
 from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
+    SNAPSHOT_NAME,
     OutputLayout,
     check_output,
     default_output,
@@ -71,11 +76,14 @@ from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
     resolve_output,
 )
 from mtlx2neural.pipeline.lock import output_lock
+from mtlx2neural.pipeline.options import ConvertOptions, check_options
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
 from mtlx2neural.pipeline.source_hash import cached_summary
 from mtlx2neural.scene import find_material, load_asset
 from mtlx2neural.scene.dependencies import input_files
-from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
+from mtlx2neural.scene.snapshot import flatten, unsaved_layers, write_snapshot
+from mtlx2neural.scene.usd_stage import is_stage, stage_name
+from mtlx2neural.train.config import PRESETS, TrainConfig
 from mtlx2neural.version import __version__
 
 
@@ -113,12 +121,13 @@ def _reuse(folder: Path, digest: str):
 class Summaries(list):
     """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
     left out (``{"material", "reason"}``; only when no ``material`` was named), ``kept``: the
-    materials an existing layer kept from earlier runs (a ``--material`` run), and ``folder``: the
-    output folder."""
+    materials an existing layer kept from earlier runs (a ``--material`` run), ``folder``: the
+    output folder, and ``layer``: the neural layer written."""
 
     skipped: list[dict]
     kept: list[str]
     folder: Path
+    layer: Path
 
 
 def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict:
@@ -178,72 +187,155 @@ def _kept_materials(layout: OutputLayout, record, names, material) -> KeptMateri
     return KeptMaterials(layout.layer, entries)
 
 
-def convert_asset(asset, cfg: TrainConfig, out=None, material: str | None = None, device: str = "cpu",
-                  resume: bool = False, progress: bool = True, allow_missing_textures: bool = False,
-                  force: bool = False, preset: str | None = None, usda=None, workers=None,
-                  max_error: float | None = None, texel_density: float | None = None,
-                  allow_untrained: bool = False) -> Summaries:
-    """Train (or reuse, or share) every selected material (or only ``material``), then export them.
+LEGACY_ARGUMENTS = ("out", "material", "device", "resume", "progress", "allow_missing_textures", "force",
+                    "preset", "usda", "workers", "max_error", "texel_density", "allow_untrained")
+"""The arguments ``convert_asset`` took after ``cfg`` before :class:`ConvertOptions`, in order."""
 
-    ``out``: the output folder, or the layer's path when it ends in ``.usda``/``.usd``/``.usdc``
-    (:func:`mtlx2neural.pipeline.layout.resolve_output`; default ``<asset stem>_neural``);
-    ``usda`` overrides the layer's path. Every setting, device and output path is checked
-    before any training (:class:`InputError` otherwise): the outputs never touch the input
-    or the files it reads, nor files this tool did not write (:mod:`.export.outputs`); one
-    run at a time holds the output folder (:mod:`.export.lock`). With ``material``, an
-    existing layer keeps its other materials. ``iterations = 0`` (an untrained network)
-    needs ``allow_untrained``.
 
-    ``workers``: None (min(materials, CPUs or GPUs)), a number of local processes (1: this
-    process), ``"ray"`` or ``"ray://host:port"`` (:mod:`.jobs`). ``max_error``: an HDR FLIP
-    budget; each material gets the smallest decoder meeting it (``cfg.decoder`` is then
-    ignored). ``texel_density``: latent texels per metre of surface (``--texel-density``,
-    :mod:`.plan`); each material trains with its plan's settings. Returns one summary per
-    material, with ``latent`` (the plan's grid decision), ``cached`` (True: reused, nothing
-    trained), ``shared_with`` (the material whose result it shares, else absent),
-    ``warnings``, ``usd`` (the layer written) and ``export_notes`` (FP16 range-check
-    notes) added. ``preset`` names the preset for ``neural:metrics:preset`` (default: the
-    preset ``cfg`` equals, else "custom").
+def _legacy_options(cfg: TrainConfig, args: tuple, kwargs: dict) -> tuple[ConvertOptions, str]:
+    """(options, preset label) for the deprecated ``convert_asset(asset, cfg, out, material, ...)`` call."""
+    if len(args) > len(LEGACY_ARGUMENTS):
+        raise TypeError(f"convert_asset() takes at most {2 + len(LEGACY_ARGUMENTS)} positional arguments")
+    given = dict(zip(LEGACY_ARGUMENTS, args))
+    for k, v in kwargs.items():
+        if k not in LEGACY_ARGUMENTS or k in given:
+            raise TypeError(f"convert_asset() got an unexpected or repeated keyword argument {k!r}")
+        given[k] = v
+    label = given.pop("preset", None) or preset_name(cfg)
+    given.setdefault("device", "cpu")  # the old default; ConvertOptions' is "auto"
+    return ConvertOptions(**given, preset=label if label in PRESETS else "fast", train=cfg), label
+
+
+def convert_asset(asset, options: ConvertOptions | None = None, *legacy, **legacy_kwargs) -> Summaries:
+    """Train (or reuse, or share) every selected material (or only ``options.material``), then export them.
+
+    ``asset``: a ``.mtlx`` or USD file, or an open ``Usd.Stage`` (below). ``options``
+    (:class:`~mtlx2neural.pipeline.options.ConvertOptions`, checked first by ``check_options``;
+    None: the defaults) holds every setting; its field docstrings document them. ``out``:
+    the output folder, or the layer's path when it ends in ``.usda``/``.usd``/``.usdc``
+    (:func:`mtlx2neural.pipeline.layout.resolve_output`; default ``<asset stem>_neural``
+    beside the file); ``usda`` overrides the layer's path. Every setting, device and output
+    path is checked before any training (:class:`InputError` otherwise): the outputs never
+    touch the input or the files it reads, nor files this tool did not write
+    (:mod:`.layout`); one run at a time holds the output folder (:mod:`.lock`). With
+    ``material``, an existing layer keeps its other materials.
+
+    A ``Usd.Stage`` is read as composed, session-layer and unsaved edits included
+    (:func:`mtlx2neural.scene.load_asset`). When its root layer is a file and nothing is
+    unsaved, the run is exactly that of the file. Otherwise (an in-memory root layer, a
+    non-empty session or anonymous layer, a dirty file layer) the composed stage is
+    flattened into ``OUT/stage-snapshot.usda`` (:mod:`mtlx2neural.scene.snapshot`, written
+    atomically just before the export), which the neural layer sublayers and the summaries
+    name as ``source``, so ``report`` and ``render`` can load the reference later; a file
+    stage with unsaved edits warns that the snapshot, not the file, is converted. An
+    in-memory root layer has no folder, so ``out`` (or ``usda``) is then required. The
+    stage is never changed and nothing is written outside the output folder and the layer.
+
+    Returns one summary per material, with ``latent`` (the plan's grid decision),
+    ``cached`` (True: reused, nothing trained), ``shared_with`` (the material whose result
+    it shares, else absent), ``warnings``, ``usd`` (the layer written) and
+    ``export_notes`` (FP16 range-check notes) added; the list also carries ``skipped``,
+    ``kept``, ``folder`` and ``layer`` (:class:`Summaries`). ``neural:metrics:preset``
+    records ``options.preset`` (or the preset ``options.train`` equals).
+
+    Deprecated: the former signature ``convert_asset(asset, cfg, out=None, material=None,
+    device="cpu", resume=False, progress=True, allow_missing_textures=False, force=False,
+    preset=None, usda=None, workers=None, max_error=None, texel_density=None,
+    allow_untrained=False)`` with a ``TrainConfig`` still works (a ``DeprecationWarning``)
+    while callers move to :class:`ConvertOptions`.
     """
+    if isinstance(options, TrainConfig) or legacy or legacy_kwargs:
+        if not isinstance(options, TrainConfig):
+            raise TypeError("convert_asset(asset, options): give a ConvertOptions (extra arguments belong to "
+                            "the deprecated convert_asset(asset, cfg, ...) form, whose cfg is a TrainConfig)")
+        warnings.warn("convert_asset(asset, cfg, out, ...) is deprecated: pass a ConvertOptions "
+                      "(mtlx2neural.pipeline.options)", DeprecationWarning, stacklevel=2)
+        options, label = _legacy_options(options, legacy, legacy_kwargs)
+    else:
+        options = ConvertOptions() if options is None else options
+        label = None
+    return _convert(asset, options, label)
+
+
+def _stage_layout(stage, options: ConvertOptions) -> OutputLayout:
+    """The layout for an open stage: beside its root layer's file, or ``out`` (required in memory)."""
+    root = stage.GetRootLayer()
+    if root.anonymous and not (options.out or options.usda):
+        raise InputError(f"{stage_name(stage)}: the stage's root layer is in memory (anonymous), so there is "
+                         f"no folder to write beside; give an output folder (ConvertOptions.out, or -o)")
+    return resolve_output(root.realPath if root.realPath else None, options.out or options.usda)
+
+
+def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     # 1. options, before reading anything
-    validate_config(cfg, allow_untrained)
-    device = check_device(device)
-    workers = check_workers(workers)
+    cfg = check_options(options)
+    if label is None:
+        named = preset_name(cfg) if options.train is not None else "custom"
+        label = named if named != "custom" else options.preset
+    device = check_device(options.device)
+    workers = check_workers(options.workers)
+    material = options.material
     register_schema()  # before USD's schema registry is first built
+    stage = asset if is_stage(asset) else None
+    layout = _stage_layout(stage, options) if stage is not None else None  # an in-memory stage needs out
     # 2. the scene and the materials to convert
     scene = load_asset(asset)
     sources = _select(scene, asset, material)
     # 3. where everything goes, checked against the files the input reads (nothing written yet)
-    layout = resolve_output(asset, out)
-    if usda:
-        layout = OutputLayout(layout.folder, Path(os.path.abspath(usda)))
+    layout = layout or resolve_output(asset, options.out)
+    if options.usda:
+        layout = OutputLayout(layout.folder, Path(os.path.abspath(options.usda)))
     names = material_folders([s.name for s in sources])
     folders = [layout.folder / names[s.name] for s in sources]
     read = list({id(s): s for s in [*scene.materials, *sources]}.values())  # a named material may be both
-    record = check_output(layout, scene.asset, input_files(scene.asset, read), folders)
+    inputs = input_files(asset, read)
+    source, flat = _stage_source(stage, layout) if stage is not None else (scene.asset, None)
+    if flat is not None:  # the materials' networks are reloaded from the snapshot (report, render)
+        sources = [dataclasses.replace(s, source_file=str(source)) if s.network else s for s in sources]
+    record = check_output(layout, source, inputs, folders)
     # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
-    plans = plan_materials(sources, cfg, allow_missing_textures, max_error, texel_density, scene.asset)
+    plans = plan_materials(sources, cfg, options.allow_missing_textures, options.max_error,
+                           options.texel_density, stage if stage is not None else scene.asset)
     for p in plans:
         p.compiled = None  # the workers compile again (on their device); keep the parent small
-    if resume:
-        _check_resume(plans, folders, max_error)
+    if options.resume:
+        _check_resume(plans, folders, options.max_error)
     keep = _kept_materials(layout, record, {s.name for s in sources}, material)
     # 5. the output folder: writable, ours, and held by this run alone
-    prepare_folder(layout, scene.asset, __version__)
+    prepare_folder(layout, source, __version__)
     with output_lock(layout.folder):
-        summaries, trained = _train_and_share(plans, folders, cfg, device, resume, progress,
-                                              allow_missing_textures, force, workers, max_error)
+        summaries, trained = _train_and_share(plans, folders, cfg, device, options.resume, options.progress,
+                                              options.allow_missing_textures, options.force, workers,
+                                              options.max_error)
         summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
         if cfg.iterations == 0:
             for s in summaries:
                 s.setdefault("warnings", []).append("exported untrained (--iterations 0 --allow-untrained)")
-        layer, exported = export_asset(scene.asset, trained, layout.folder, preset or preset_name(cfg),
-                                       layout.layer, keep=keep, tool_version=__version__)
+        if flat is not None:
+            write_snapshot(flat, source)
+        layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
+                                       tool_version=__version__)
     for s, e in zip(summaries, exported):
         s["usd"], s["export_notes"] = str(layer), e.notes
     summaries.kept = sorted(keep.entries) if keep else []
-    summaries.folder = layout.folder
+    summaries.folder, summaries.layer = layout.folder, Path(layer)
     return summaries
+
+
+def _stage_source(stage, layout: OutputLayout):
+    """(the input as a file, the flattened layer to write there or None) for an open ``stage``: its
+    root layer's file when nothing is unsaved, else ``OUT/stage-snapshot.usda`` (with a warning
+    for a file stage, whose file is then not what is converted)."""
+    root = stage.GetRootLayer()
+    unsaved = unsaved_layers(stage)
+    if not root.anonymous and not unsaved:
+        return root.realPath, None
+    target = layout.folder / SNAPSHOT_NAME
+    if not root.anonymous:
+        warnings.warn(f"{root.realPath}: the stage has unsaved edits (in {', '.join(unsaved)}); converting a "
+                      f"snapshot of the composed stage, {target}, which the neural layer sublayers instead of "
+                      f"the file. Save the stage first to convert the file itself", stacklevel=4)
+    return target, flatten(stage)
 
 
 def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
@@ -256,7 +348,11 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
             continue
         reused = None if force else _reuse(folder, plan.digest)
         if reused is not None:
-            results[i] = (reused[0], reused[1], True)
+            model, summary = reused
+            if summary.get("source") != plan.source.source_file:  # e.g. a stage snapshot, now the saved file
+                summary = {**summary, "source": plan.source.source_file}
+                write_summary(folder, summary)
+            results[i] = (model, summary, True)
             if progress:
                 print(f"{plan.name}: unchanged since the last run (source hash {plan.digest[:12]}): "
                       f"reusing {folder}", flush=True)

@@ -14,7 +14,9 @@ Safety (:func:`check_output`), before anything is written:
    and textures: :func:`mtlx2neural.scene.dependencies.input_files`), and the
    output folder contains none of them;
 2. an existing layer at the layer path was written by mtlx2neural (the
-   ``customLayerData`` record :data:`~.usd_writer.RECORD_KEY`) for this same input;
+   ``customLayerData`` record :data:`~.usd_writer.RECORD_KEY`) for this same input
+   (or for a stage snapshot in this output folder, :data:`SNAPSHOT_NAME`: an earlier
+   conversion of an open stage with unsaved edits);
 3. an existing output folder is empty or carries this tool's marker file
    (:data:`FOLDER_MARKER`; folders written before the marker existed are recognised
    by their ``summary.json`` files).
@@ -39,6 +41,11 @@ from mtlx2neural.scene.dependencies import canonical
 
 LAYER_SUFFIXES = (".usda", ".usd", ".usdc")
 """``-o`` values with these suffixes name the layer, not the folder."""
+
+SNAPSHOT_NAME = "stage-snapshot.usda"
+"""The flattened snapshot of an in-memory or edited ``Usd.Stage`` input, in the output folder
+(:mod:`mtlx2neural.scene.snapshot`). No material folder can have this name: ``-`` appears in
+those only as ``-<hex digits>-`` or before a hash, and "snapshot" is not hex."""
 
 FOLDER_MARKER = ".mtlx2neural.json"
 """The file that marks an output folder as this tool's: ``{"source": input path, "tool": version}``."""
@@ -178,7 +185,7 @@ def check_output(layout: OutputLayout, asset, inputs: set[Path], folders: list[P
         if record is None:
             raise _refuse(f"{layer}: a file that mtlx2neural did not write is already there (it carries no "
                           f"'{RECORD_KEY}' record in its customLayerData), and the USD layer would replace it")
-        if record.source is not None and record.source != asset:
+        if record.source is not None and record.source not in (asset, canonical(layout.folder / SNAPSHOT_NAME)):
             raise _refuse(f"{layer}: this neural layer was written for another input ({record.source}), and "
                           f"this run would replace it")
     if folder.exists() and not folder.is_dir():

@@ -46,6 +46,7 @@ from mtlx2neural.model.checkpoint import load_checkpoint
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.layout import material_folder
+from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -266,7 +267,7 @@ def converted(tmp_path_factory):
     asset = folder / SAMPLE.name
     shutil.copyfile(SAMPLE, asset)
     before = sha(asset)
-    summaries = convert_asset(asset, TINY, progress=False, device="cpu", preset="fast")
+    summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", preset="fast"))
     return {"asset": asset, "before": before, "summaries": summaries, "usda": folder / "layered_spheres_neural.usda",
             "out": folder / "layered_spheres_neural"}
 
@@ -413,7 +414,7 @@ def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path
 
     asset = tmp_path / SAMPLE.name
     shutil.copyfile(SAMPLE, asset)
-    first = convert_asset(asset, TINY, material="Plastic", progress=False, device="cpu")
+    first = convert_asset(asset, ConvertOptions(train=TINY, material="Plastic", progress=False, device="cpu"))
     assert first[0]["cached"] is False
     weights = tmp_path / "layered_spheres_neural" / "World.Looks.Plastic" / "neural" / "weights.bin"
     trained = weights.read_bytes()
@@ -423,16 +424,16 @@ def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path
 
     with monkeypatch.context() as mp:
         mp.setattr(Trainer, "run", no_training)
-        again = convert_asset(asset, TINY, material="Plastic", progress=False, device="cpu")
+        again = convert_asset(asset, ConvertOptions(train=TINY, material="Plastic", progress=False, device="cpu"))
     assert again[0]["cached"] is True and again[0]["source_hash"] == first[0]["source_hash"]
     assert weights.read_bytes() == trained and Path(again[0]["usd"]).is_file()
 
-    changed = convert_asset(asset, preset("fast", iterations=31, batch=256), material="Plastic", progress=False,
-                            device="cpu")
+    changed = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=31, batch=256), material="Plastic",
+                                                  progress=False, device="cpu"))
     assert changed[0]["cached"] is False and changed[0]["steps"] == 31
     assert changed[0]["source_hash"] != first[0]["source_hash"]
-    forced = convert_asset(asset, preset("fast", iterations=31, batch=256), material="Plastic", progress=False,
-                           device="cpu", force=True)
+    forced = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=31, batch=256), material="Plastic",
+                                                 progress=False, device="cpu", force=True))
     assert forced[0]["cached"] is False and forced[0]["source_hash"] == changed[0]["source_hash"]
 
 
@@ -520,7 +521,7 @@ def test_mtlx_input_gets_a_materials_scope(tmp_path):
     asset = tmp_path / "red.mtlx"
     asset.write_text(RED_MTLX)
     before = sha(asset)
-    summaries = convert_asset(asset, TINY, progress=False, device="cpu")
+    summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
     usda = Path(summaries[0]["usd"])
     assert usda == tmp_path / "red_neural.usda"
     from pxr import Sdf, Usd, UsdShade
@@ -552,7 +553,8 @@ def test_shared_usd_assets_convert_end_to_end(tmp_path, name):
     asset = tmp_path / "MaterialXTest" / name
     before = sha(asset)
     cfg = preset("fast", iterations=30, batch=256, max_resolution=32)
-    summaries = convert_asset(asset, cfg, progress=False, device="cpu", allow_missing_textures=True)
+    summaries = convert_asset(asset, ConvertOptions(train=cfg, progress=False, device="cpu",
+                                                     allow_missing_textures=True))
     usda = Path(summaries[0]["usd"])
     for s in summaries:
         loaded = m2n.load_neural(usda, s["material"])

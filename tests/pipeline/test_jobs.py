@@ -22,6 +22,7 @@ import mtlx2neural as m2n
 from mtlx2neural.cli import main
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.jobs import choose_decoder, parse_workers
+from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
 
 TINY = preset("fast", iterations=20, batch=256)
@@ -161,7 +162,8 @@ def test_budget_met_by_the_smallest_decoder(tmp_path, monkeypatch):
     asset = tmp_path / "two.mtlx"
     asset.write_text(TWO_MTLX)
     runs = count_trainings(monkeypatch)
-    s = convert_asset(asset, TINY, material="Red", progress=False, device="cpu", max_error=10.0, workers=1)[0]
+    s = convert_asset(asset, ConvertOptions(train=TINY, material="Red", progress=False, device="cpu",
+                                          max_error=10.0, workers=1))[0]
     assert runs == ["2x16"] and s["decoder"] == "2x16" and s["budget_met"] is True
     assert s["budget"]["flip_by_decoder"] == {"2x16": s["flip_mean"]} and not s.get("warnings")
 
@@ -294,7 +296,7 @@ def test_process_pool_trains_two_materials_in_two_workers(tmp_path, capfd):
     asset = tmp_path / "two.mtlx"
     asset.write_text(TWO_MTLX)
     env = os.environ.get("OMP_NUM_THREADS")
-    summaries = convert_asset(asset, TINY, device="cpu", workers=2)
+    summaries = convert_asset(asset, ConvertOptions(train=TINY, device="cpu", workers=2))
     assert os.environ.get("OMP_NUM_THREADS") == env  # set for the workers only
     out, err = capfd.readouterr()  # file descriptors: the workers' output too
     assert [s["material"] for s in summaries] == ["Red", "Blue"]  # scene order, whatever finished first
@@ -315,13 +317,14 @@ def test_ray_local_cluster_runs_the_same_jobs(tmp_path, capsys):
     make_stage(asset, {"A": (0.8, 0.1, 0.1), "B": (0.1, 0.8, 0.1), "C": (0.1, 0.1, 0.8)}, bound=["A", "B", "C"])
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        summaries = convert_asset(asset, TINY, device="cpu", workers="ray")
+        summaries = convert_asset(asset, ConvertOptions(train=TINY, device="cpu", workers="ray"))
         assert m2n.load_neural(tmp_path / "three_neural.usda", "C").usd_info["material"] == "/World/Looks/C"
         # A ray:// address ships the files back with the result (this cluster stands in for a remote one:
         # an initialised Ray is used as it is).
         folder = tmp_path / "three_neural" / "World.Looks.A"
         shutil.rmtree(folder)
-        shipped = convert_asset(asset, TINY, material="A", device="cpu", workers="ray://remote.invalid:10001")
+        shipped = convert_asset(asset, ConvertOptions(train=TINY, material="A", device="cpu",
+                                                           workers="ray://remote.invalid:10001"))
     finally:
         ray.shutdown()
     assert not shipped[0]["cached"] and shipped[0]["flip_mean"] == summaries[0]["flip_mean"]

@@ -21,6 +21,7 @@ import pytest
 from mtlx2neural.cli import main
 from mtlx2neural.export.latents import read_mip_chain
 from mtlx2neural.pipeline.convert import convert_asset
+from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.report.html_report import SECTIONS
 from mtlx2neural.train.config import preset
 
@@ -33,8 +34,8 @@ def report(tmp_path_factory):
     d = tmp_path_factory.mktemp("report")
     asset = d / SAMPLE.name
     shutil.copy(SAMPLE, asset)
-    s = convert_asset(asset, preset("fast", iterations=30, batch=256), material="Plastic", progress=False,
-                      device="cpu", workers=1)
+    s = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=30, batch=256), material="Plastic",
+                                            progress=False, device="cpu", workers=1))
     layer = Path(s[0]["usd"])
     out = d / "rep"
     rc = main(["report", str(layer), "-o", str(out), "--analytic-iterations", "10", "--res", "24", "--spp", "1",
