@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 from conftest import write_float_image
 from materials import SIMPLE_MTLX
-from pxr import Sdf, Usd
+from pxr import Sdf, Usd, UsdGeom
 
 from mtlx2neural.scene import find_material, load_asset
 from mtlx2neural.scene.dependencies import canonical, input_files
 from mtlx2neural.scene.snapshot import flatten, unsaved_layers, write_snapshot
+from mtlx2neural.scene.texel_density import open_stage_for, surface_density
 
 LOOKS = """#usda 1.0
 def Xform "World"
@@ -132,3 +133,19 @@ def test_stage_input_honours_session_edits_and_leaves_the_stage_alone(tmp_path):
     assert canonical(looks) in files and canonical(tmp_path / "parts" / "tex" / "found.exr") in files
     assert canonical(tmp_path / "lib" / "simple.mtlx") in files
     assert not any("anon:" in str(f) for f in files)
+
+
+def test_texel_density_measures_the_open_stage_as_composed():
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    mesh = UsdGeom.Mesh.Define(stage, "/Quad")  # 1 m x 1 m, UVs 0..1: one metre per UV unit
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                            UsdGeom.Tokens.vertex).Set([(0, 0), (1, 0), (1, 1), (0, 1)])
+    with Usd.EditContext(stage, stage.GetSessionLayer()):  # scaled 3x in the session layer only
+        UsdGeom.Xformable(mesh.GetPrim()).AddScaleOp().Set((3.0, 3.0, 3.0))
+    # 9 m^2 over 1 UV unit^2: 3 m per UV unit (float32 points: exact for these small integers).
+    assert surface_density(open_stage_for(stage), ["/Quad"]).metres_per_uv == 3.0
+    assert not stage.GetSessionLayer().empty and stage.GetRootLayer().GetPrimAtPath("/Quad")
