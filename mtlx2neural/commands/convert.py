@@ -60,11 +60,7 @@ def convert(asset, options: ConvertOptions) -> int:
     from mtlx2neural.train.trainer import TrainingInterrupted
 
     try:
-        summaries = convert_asset(asset, options.train_config(), options.out, options.material, options.device,
-                                  options.resume, options.progress, options.allow_missing_textures,
-                                  force=options.force, preset=options.preset, usda=options.usda,
-                                  workers=options.workers, max_error=options.max_error,
-                                  texel_density=options.texel_density, allow_untrained=options.allow_untrained)
+        summaries = convert_asset(asset, options)
     except TrainingInterrupted as exc:
         print(f"mtlx2neural: {exc}", file=sys.stderr)
         return 1
