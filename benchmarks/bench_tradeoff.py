@@ -108,8 +108,8 @@ def save_strip(path: Path, results: dict, neural: str = "3x64") -> None:
     """One row per view: reference | analytic | its FLIP map | neural ``neural`` | its FLIP map."""
     rows = []
     for a, n in zip(results["analytic"], results[neural]):
-        rows.append(np.concatenate([a["reference"], a["neural"], a["flip_map"] ** 2.2,
-                                    n["neural"], n["flip_map"] ** 2.2], 1))
+        rows.append(np.concatenate([a["reference"], a["analytic"], a["flip_map"] ** 2.2,
+                                    n[neural], n["flip_map"] ** 2.2], 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     save_png(path, np.concatenate(rows))
 

@@ -1,7 +1,15 @@
-"""The input contract shared by the reference and the neural material (``eval``/``sample``/``pdf``/``albedo``).
+"""The material contract: one interface (:class:`Material`, a ``typing.Protocol``) and one input
+convention for every material here (``eval``/``sample``/``pdf``/``albedo``/``describe``).
 
-Conventions (docs/ARCHITECTURE.md), the same for :class:`~mtlx2neural.reference.ReferenceMaterial` and
-:class:`~mtlx2neural.model.neural_material.NeuralMaterial`:
+:class:`~mtlx2neural.reference.ReferenceMaterial`, :class:`~mtlx2neural.model.neural_material.NeuralMaterial`
+(and so the ``ExportedNeuralMaterial`` that ``m2n.load_neural`` returns) and
+:class:`~mtlx2neural.baseline.analytic_model.AnalyticMaterial` implement :class:`Material`; renderers and
+reports use only its methods. *Where* on the surface a query is made is a :class:`ShadingPoint` (texture
+coordinates, level of detail, the random number choosing a level, parameter overrides), passed as
+``at``; a plain ``[N, 2]`` tensor there means ``ShadingPoint(uv=tensor)`` (:func:`as_point`). The
+directional albedo of every material is the one batched estimator :func:`estimate_albedo`.
+
+Conventions (docs/ARCHITECTURE.md), the same for all three materials:
 
 - Directions are ``[N, 3]`` in the local shading frame: z the geometric normal, x the tangent; ``wi``
   points to the viewer, ``wo`` to the light, both away from the surface. ``eval`` returns
@@ -23,6 +31,9 @@ Conventions (docs/ARCHITECTURE.md), the same for :class:`~mtlx2neural.reference.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import torch
 
@@ -114,3 +125,149 @@ def zero_below_horizon(x: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> t
     """``x`` ([N] or [N, C]) where both ``wi`` and ``wo`` are above the horizon, else 0."""
     ok = above_horizon(wi, wo)
     return torch.where(ok[:, 0] if x.dim() == 1 else ok, x, torch.zeros_like(x))
+
+
+# ----------------------------------------------------------------------------- where: ShadingPoint
+
+
+@dataclass(frozen=True, eq=False)
+class ShadingPoint:
+    """Where on the surface a material is queried: one row per direction (``N`` rows), every field optional.
+
+    - ``uv`` [N,2]: texture coordinates, MaterialX's convention ((0, 0) an image's bottom-left). ``None``:
+      the material's behaviour without coordinates, as before this type existed: the reference evaluates
+      its graph at (0.5, 0.5), the neural and analytic materials read (0, 0), which for a uniform
+      material (one 1x1 texel) is the only texel.
+    - ``lod`` [N]: level of detail in latent-pyramid levels, i.e. log2 of the footprint in finest-level
+      texels (0 = finest). ``None``: the finest level. The reference is not prefiltered and ignores it
+      (it point-samples its graph at ``uv``).
+    - ``u_level`` [N]: uniform random numbers in [0, 1) choosing between the two levels nearest ``lod``
+      (level floor(lod), or the next one with probability frac(lod)). ``None``: 0 for every row, the
+      deterministic choice of before. Ignored by the reference.
+    - ``params``: ``{name: [N, width]}`` parameter overrides by name (``CompiledMaterial.parameters()``),
+      e.g. prefiltered values from a ``ParameterStack``; the reference's ``params=`` of before. ``None``
+      (or ``{}``): none. Materials without named parameters (neural, analytic) reject a non-empty dict.
+
+    Frozen; equality is identity (fields are tensors). Values are checked (finite, shapes) by the
+    material that receives the point, with errors naming the field."""
+
+    uv: torch.Tensor | None = None
+    lod: torch.Tensor | None = None
+    u_level: torch.Tensor | None = None
+    params: dict | None = None
+
+    def repeat_rows(self, k: int, n: int) -> ShadingPoint:
+        """This point with every row repeated ``k`` times in place (row i becomes rows i*k .. i*k+k-1),
+        to match directions repeated with ``repeat_interleave(k, 0)``. Only fields with ``n`` rows are
+        repeated; others (``None``, or a single row that broadcasts) are kept as they are."""
+
+        def rep(x):
+            if isinstance(x, torch.Tensor) and x.dim() > 0 and x.shape[0] == n:
+                return x.repeat_interleave(k, 0)
+            return x
+
+        params = None if self.params is None else {key: rep(v) for key, v in self.params.items()}
+        return ShadingPoint(rep(self.uv), rep(self.lod), rep(self.u_level), params)
+
+
+def as_point(at) -> ShadingPoint:
+    """``at`` as a :class:`ShadingPoint`: ``None`` -> ``ShadingPoint()`` (the material's defaults), a
+    ShadingPoint -> itself, anything else (a tensor or array-like, expected ``[N, 2]``) ->
+    ``ShadingPoint(uv=at)``, so callers that pass uv positionally keep working. A dict is refused with a
+    ``TypeError`` (parameter overrides go in ``ShadingPoint(params=...)``)."""
+    if at is None:
+        return ShadingPoint()
+    if isinstance(at, ShadingPoint):
+        return at
+    if isinstance(at, dict):
+        raise TypeError("at must be a ShadingPoint or a [N, 2] uv tensor; pass parameter overrides as "
+                        "ShadingPoint(params=...)")
+    return ShadingPoint(uv=at)
+
+
+def prepare_point(at, dtype: torch.dtype, device) -> ShadingPoint:
+    """``at`` (see :func:`as_point`) with ``uv`` ([N,2]), ``lod`` and ``u_level`` checked finite and
+    converted to ``dtype`` on ``device`` (``ValueError`` naming the field otherwise); ``params`` as given."""
+    p = as_point(at)
+    return ShadingPoint(prepare_values("uv", p.uv, dtype, device, width=(2,)),
+                        prepare_values("lod", p.lod, dtype, device),
+                        prepare_values("u_level", p.u_level, dtype, device), p.params)
+
+
+def reject_params(p: ShadingPoint, who: str) -> None:
+    """``ValueError`` when ``p`` carries parameter overrides: ``who`` has no parameters by name."""
+    if p.params:
+        raise ValueError(f"{who} has no named parameters to override; ShadingPoint.params must be None "
+                         f"or empty (got {sorted(p.params)})")
+
+
+# ----------------------------------------------------------------------------- what: the Material protocol
+
+
+@runtime_checkable
+class Material(Protocol):
+    """What every material offers: the reference, the neural and the analytic one alike.
+
+    All methods take directions ``[N, 3]`` in the local shading frame: z is the normal the renderer
+    provides (the geometric normal; a normal map belongs to the material), x the tangent. ``wi`` points
+    towards the viewer, ``wo`` towards the light (or is the sampled direction); both point away from the
+    surface. Directions of any length and real dtype are accepted and normalised (module docstring);
+    at or below the horizon (z <= 0, or a zero vector) every value is 0. ``at`` is where on the surface
+    (:class:`ShadingPoint`, a ``[N, 2]`` uv tensor, or ``None``). NaN/Inf input raises ``ValueError``
+    naming the argument; results come back in the material's dtype on its device.
+    """
+
+    def eval(self, wi, wo, at=None) -> torch.Tensor:
+        """f(wi, wo) * max(0, cos theta_o): ``[N, 3]`` linear RGB, the cosine *included*. cos theta_o is
+        ``wo.z``, or ``wo``'s cosine to the material's own shading normal where it has one (a normal map,
+        the analytic model's slopes). 0 when ``wi`` or ``wo`` is at or below the horizon (z <= 0)."""
+        ...
+
+    def sample(self, wi, u, at=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Importance-sample ``wo`` from uniform numbers ``u`` ``[N, 2]`` (or ``[N, 3]``: the third picks a
+        lobe where the material has a discrete choice, else it is ignored). Returns ``(wo [N, 3] unit,
+        weight [N, 3] = eval / pdf (so the cosine is included), pdf [N] per steradian)``; a ``wo`` at or
+        below the horizon, a failed sample, or ``wi`` at or below the horizon give weight 0 and pdf 0, so
+        ``pdf`` equals :meth:`pdf` of the returned direction."""
+        ...
+
+    def pdf(self, wi, wo, at=None) -> torch.Tensor:
+        """Solid-angle density ``[N]`` (1/sr) of :meth:`sample` at ``wo``; 0 when ``wi`` or ``wo`` is at or
+        below the horizon (so it integrates to 1 minus the probability of a failed sample). No cosine."""
+        ...
+
+    def albedo(self, wi, at=None, samples: int = 256, seed: int = 0) -> torch.Tensor:
+        """Directional albedo ``[N, 3]``: the integral of :meth:`eval` (cosine included) over ``wo``, by
+        :func:`estimate_albedo` with ``samples`` points seeded by ``seed``; 0 when ``wi`` is at or below
+        the horizon."""
+        ...
+
+    def describe(self) -> dict:
+        """A JSON-serialisable summary of the material (what it is made of, its sizes and settings)."""
+        ...
+
+
+# ----------------------------------------------------------------------------- albedo, once for all
+
+
+ALBEDO_DIMENSIONS = 3  # Sobol dimensions: two for the direction, one for a lobe choice (ignored if none)
+
+
+def estimate_albedo(material: Material, wi: torch.Tensor, at=None, samples: int = 256,
+                    seed: int = 0) -> torch.Tensor:
+    """Directional albedo ``[N, 3]`` of ``material`` at ``wi`` (unit ``[N, 3]``, local frame, towards the
+    viewer, already in the material's dtype and device): the mean of ``material.sample``'s weights
+    (eval / pdf, cosine included) over ``samples`` scrambled Sobol points (3-D, seeded by ``seed``; the
+    same points for every row). One batched ``sample`` call over ``N * samples`` rows, no loop, no
+    gradients. 0 where ``wi`` is at or below the horizon (``sample`` gives weight 0 there).
+
+    ``at`` (see :func:`as_point`): fields with ``N`` rows are repeated for the samples, others broadcast.
+    An unbiased estimate when the sampler covers the material's support; its error shrinks faster than
+    1/sqrt(samples) for smooth integrands (quasi-Monte Carlo)."""
+    n = wi.shape[0]
+    point = as_point(at).repeat_rows(samples, n)
+    sobol = torch.quasirandom.SobolEngine(ALBEDO_DIMENSIONS, scramble=True, seed=seed).draw(samples)
+    u = sobol.to(device=wi.device, dtype=wi.dtype).repeat(n, 1)
+    with torch.no_grad():
+        _, weight, _ = material.sample(wi.repeat_interleave(samples, 0), u, point)
+    return weight.view(n, samples, 3).mean(1)

@@ -26,6 +26,9 @@ The model, with all cosines taken about the shading normal n and h = normalize(w
     f   = (1 - metalness) base / pi + D F V
     eval = f * max(0, n.wo)      (0 when wi.z <= 0 or wo.z <= 0, as every material here)
 
+``AnalyticMaterial`` implements :class:`mtlx2neural.contract.Material`; its ``sample``/``pdf`` (a
+cosine + GGX visible-normal mixture) are in :mod:`.analytic_sampling`.
+
 The channels are a texture pyramid (:class:`~mtlx2neural.model.latent.LatentPyramid`):
 1x1 for a uniform material, else the latent grid (``stack.resolution``) halved down
 to 1x1; every level is fitted (queries draw levels like the neural training), and
@@ -41,6 +44,18 @@ import numpy as np
 import torch
 from torch import nn
 
+from mtlx2neural.baseline import analytic_sampling
+from mtlx2neural.contract import (
+    above_horizon,
+    estimate_albedo,
+    normalize_directions,
+    prepare_direction,
+    prepare_directions,
+    prepare_point,
+    prepare_values,
+    reject_params,
+    zero_below_horizon,
+)
 from mtlx2neural.model.latent import LatentPyramid
 from mtlx2neural.staging import Staging
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
@@ -89,7 +104,14 @@ def brdf(p: dict, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
 
 
 class AnalyticMaterial(nn.Module):
-    """Lambert + GGX with 8 channels per texel in a MIP pyramid; ``eval`` has NeuralMaterial's contract."""
+    """Lambert + GGX with 8 channels per texel in a MIP pyramid; a :class:`~mtlx2neural.contract.Material`
+    (eval / sample / pdf / albedo / describe) with the contract's input rules: directions in the local
+    frame (z the geometric normal, x the tangent; ``wi`` to the viewer, ``wo`` to the light, both away
+    from the surface) of any length and real dtype, normalised; NaN/Inf raise ``ValueError``; everything
+    is 0 at or below the horizon; results in the model's dtype. ``at``: a ShadingPoint (``uv`` [N,2],
+    default (0, 0); ``lod`` [N] in finest-level texels, log2; ``u_level`` [N] uniform, choosing between
+    the two nearest levels; no named ``params``) or a [N,2] uv tensor. Sampling:
+    :mod:`.analytic_sampling`."""
 
     def __init__(self, resolution: tuple[int, int] = (1, 1)):
         super().__init__()
@@ -99,10 +121,22 @@ class AnalyticMaterial(nn.Module):
     def resolution(self) -> tuple[int, int]:
         return tuple(self.maps.levels[0].shape[1:])
 
-    def raw(self, n: int, uv=None, lod=None, u_level=None, device="cpu") -> torch.Tensor:
-        uv = torch.zeros(n, 2, device=device) if uv is None else uv
-        lod = torch.zeros(n, device=device) if lod is None else lod
-        u_level = torch.zeros(n, device=device) if u_level is None else u_level
+    @property
+    def dtype(self) -> torch.dtype:
+        """The maps' dtype, in which inputs are converted and results returned."""
+        return self.maps.levels[0].dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.maps.levels[0].device
+
+    def raw(self, n: int, uv=None, lod=None, u_level=None, device=None) -> torch.Tensor:
+        """Unconstrained channels [N, 8] at ``uv``/``lod``/``u_level`` (None: (0, 0), level 0, 0);
+        ``device`` defaults to the maps'."""
+        kw = {"dtype": self.dtype, "device": self.device if device is None else device}
+        uv = torch.zeros(n, 2, **kw) if uv is None else uv
+        lod = torch.zeros(n, **kw) if lod is None else lod
+        u_level = torch.zeros(n, **kw) if u_level is None else u_level
         return self.maps(uv, lod, u_level)
 
     def parameters_at(self, uv=None, lod=None, u_level=None, n: int = 1) -> dict:
@@ -110,16 +144,63 @@ class AnalyticMaterial(nn.Module):
         n = uv.shape[0] if uv is not None else n
         return decode(self.raw(n, uv, lod, u_level))
 
-    def eval(self, wi, wo, uv=None, lod=None, u_level=None):
-        """f(wi, wo) * cos [N,3], linear RGB; ``lod`` in finest-level texels (log2), ``u_level`` [N] uniform."""
-        return brdf(decode(self.raw(wi.shape[0], uv, lod, u_level, wi.device)), wi, wo)
+    def _params_at(self, n: int, at) -> dict:
+        p = prepare_point(at, self.dtype, self.device)
+        reject_params(p, "AnalyticMaterial")
+        return decode(self.raw(n, p.uv, p.lod, p.u_level))
+
+    def eval(self, wi, wo, at=None):
+        """f(wi, wo) * max(0, n.wo) [N,3], linear RGB, the cosine included about the shading normal n (the
+        slopes); 0 when wi or wo is at or below the (geometric) horizon."""
+        wi, wo = prepare_directions(wi, wo, self.dtype, self.device)
+        return brdf(self._params_at(wi.shape[0], at), wi, wo)
+
+    def pdf(self, wi, wo, at=None):
+        """Solid-angle density [N] (1/sr, no cosine) of :meth:`sample` at ``wo``, the exact mixture of
+        :mod:`.analytic_sampling`; 0 when wi or wo is at or below the horizon."""
+        wi, wo = prepare_directions(wi, wo, self.dtype, self.device)
+        return zero_below_horizon(analytic_sampling.pdf(self._params_at(wi.shape[0], at), wi, wo), wi, wo)
+
+    def sample(self, wi, u, at=None):
+        """(wo [N,3] unit; weight [N,3] = eval / pdf, the cosine included; pdf [N] = ``pdf(wi, wo)`` per
+        steradian) from ``u`` [N,2] (or [N,3], the third number picking diffuse or specular sampling);
+        weight and pdf 0 where wi or the sampled wo is at or below the horizon."""
+        wi = prepare_direction("wi", wi, self.dtype, self.device)
+        n = wi.shape[0]
+        u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
+        p = self._params_at(n, at)
+        wo = normalize_directions(analytic_sampling.sample(p, wi, u))  # a failed (zero) sample is below
+        pdf = zero_below_horizon(analytic_sampling.pdf(p, wi, wo), wi, wo)
+        f = brdf(p, wi, wo)
+        ok = above_horizon(wi, wo) & (pdf[:, None] > 0)
+        weight = torch.where(ok, f / pdf.clamp_min(1e-30)[:, None], torch.zeros_like(f))
+        weight = torch.where(torch.isfinite(weight), weight, torch.zeros_like(weight))
+        return wo, weight, pdf
+
+    def albedo(self, wi, at=None, samples: int = 256, seed: int = 0):
+        """Directional albedo [N,3] (eval integrated over wo, cosine included):
+        :func:`~mtlx2neural.contract.estimate_albedo` with :meth:`sample`; 0 when wi is at or below the
+        horizon. ``wi`` and ``at`` as for :meth:`eval`."""
+        return estimate_albedo(self, prepare_direction("wi", wi, self.dtype, self.device), at, samples, seed)
+
+    def describe(self) -> dict:
+        """What the model is: Lambert + isotropic GGX, its channels, the map resolution (h, w) and levels,
+        the final fitting loss when fitted, and the mean decoded parameters of the finest level."""
+        mean = {k: [round(float(x), 4) for x in v.reshape(-1, v.shape[-1]).mean(0)]
+                for k, v in self.level_maps(0).items()}
+        loss = getattr(self, "final_loss", None)
+        return {"kind": "analytic", "model": "Lambert + isotropic GGX (Smith height-correlated, Schlick)",
+                "channels": list(CHANNELS), "resolution": list(self.resolution), "levels": self.maps.num_levels,
+                "sampling": "cosine about the shading normal + GGX visible normals, mixed by lobe energy",
+                "final_loss": None if loss is None or math.isnan(loss) else float(loss), "mean": mean,
+                "dtype": str(self.dtype).removeprefix("torch."), "device": str(self.device)}
 
     def level_maps(self, level: int = 0) -> dict:
         """Decoded maps of ``level`` as [H, W, C] numpy arrays (row 0 = top, v = 1)."""
         lv = self.maps.levels[level].detach()
         c, h, w = lv.shape
         p = decode(lv.reshape(c, -1).T)
-        return {k: v.reshape(h, w, -1).numpy().astype(np.float32) for k, v in p.items()}
+        return {k: v.reshape(h, w, -1).cpu().numpy().astype(np.float32) for k, v in p.items()}
 
 
 def _initial_raw(reference, stack) -> torch.Tensor:

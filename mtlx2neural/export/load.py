@@ -25,24 +25,15 @@ from mtlx2neural.model.neural_material import NeuralMaterial
 
 
 class ExportedNeuralMaterial(NeuralMaterial):
-    """A :class:`NeuralMaterial` read back from USD, with the public API's ``albedo`` and ``describe``."""
+    """A :class:`NeuralMaterial` read back from USD (a :class:`~mtlx2neural.contract.Material` like it);
+    it only adds its USD information (``usd_info``) to :meth:`describe`."""
 
-    def albedo(self, wi, uv=None, samples: int = 256, seed: int = 0):
-        """[N,3] directional albedo: the mean of ``sample``'s weights over ``samples``
-        independent uniform draws (seeded by ``seed``); 0 when wi is at or below the horizon.
-        ``wi`` as for ``eval`` (any length and real dtype; NaN/Inf raise ValueError)."""
-        wi = self._wi(wi)
-        g = torch.Generator().manual_seed(seed)
-        n = wi.shape[0]
-        acc = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
-        with torch.no_grad():
-            for _ in range(samples):
-                _, w, _ = self.sample(wi, torch.rand(n, 2, generator=g).to(self.device), uv)
-                acc += w
-        return acc / samples
+    usd_info: dict = {}
 
     def describe(self) -> dict:
-        return dict(self.usd_info)
+        """:meth:`NeuralMaterial.describe` plus where it came from: ``layer``, ``material`` (prim path),
+        ``source_hash``, ``latent_textures``, ``weights``, the manifest's ``architecture`` and ``notes``."""
+        return {**super().describe(), **self.usd_info}
 
 
 def applied_schemas(prim) -> list[str]:

@@ -1,15 +1,17 @@
 """The neural material: latent pyramid + BRDF decoder + learned sampler (+ encoder for training).
 
-Public methods mirror the reference's contract (docs/ARCHITECTURE.md, "Conventions", and
-:mod:`mtlx2neural.contract`, shared with the reference): directions in the
-local frame (z the geometric normal), of any length and any real dtype (normalised,
-then converted to the model's dtype, in which results come back); NaN or Inf input
-raises ``ValueError``. ``eval`` returns f * cos in linear RGB, ``sample`` returns
+It implements :class:`mtlx2neural.contract.Material` (docs/ARCHITECTURE.md, "Conventions"), as the
+reference and the analytic baseline do: directions in the local frame (z the geometric normal, x the
+tangent; ``wi`` to the viewer, ``wo`` to the light, both away from the surface), of any length and any
+real dtype (normalised, then converted to the model's dtype, in which results come back); NaN or Inf
+input raises ``ValueError``. ``eval`` returns f * cos in linear RGB, ``sample`` returns
 (wo, weight = eval / pdf, pdf), ``pdf`` is a solid-angle density. When ``wi`` or ``wo``
 is at or below the horizon (z <= 0, or a zero vector) eval, pdf and the sample's
 weight and pdf are 0, so ``sample``'s pdf equals ``pdf(wi, wo)`` of the direction it
-returns. Spatial queries take ``uv`` [N,2] and a level of detail ``lod`` [N]
-(0 = finest); the level is chosen stochastically with the random numbers ``u_level`` [N].
+returns. Where: ``at``, a :class:`~mtlx2neural.contract.ShadingPoint` (or a ``[N, 2]`` uv tensor):
+``uv`` [N,2] (default (0, 0)), a level of detail ``lod`` [N] (0 = finest, the default) and
+``u_level`` [N], the random numbers choosing between the two nearest levels (default 0); it has no
+named parameters, so ``params`` must be empty.
 
 Training calls the decoder and sampler networks directly; these methods are the
 inference API (``load_neural``, rendering, evaluation).
@@ -22,10 +24,13 @@ from torch import nn
 
 from mtlx2neural.contract import (
     above_horizon,
+    as_point,
+    estimate_albedo,
     normalize_directions,
     prepare_direction,
     prepare_directions,
     prepare_values,
+    reject_params,
     zero_below_horizon,
 )
 from mtlx2neural.model import proxy
@@ -35,6 +40,12 @@ from mtlx2neural.model.networks import Encoder, SamplerNet
 
 
 class NeuralMaterial(nn.Module):
+    """The neural appearance model; a :class:`~mtlx2neural.contract.Material` (eval / sample / pdf /
+    albedo / describe). ``resolution`` (h, w) of the finest latent level, ``in_dim`` parameter channels
+    the encoder reads in training, ``latent_dim`` channels per texel, ``frames`` learned shading frames,
+    ``decoder`` the MLP's hidden layers ("2x16", "2x32", "3x64"), ``albedo_head`` an extra albedo output
+    for training, ``analytic_cosine`` whether the decoder multiplies by max(0, wo.z) itself."""
+
     def __init__(self, resolution: tuple[int, int], in_dim: int, latent_dim: int = 8, frames: int = 2,
                  decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True):
         super().__init__()
@@ -59,6 +70,7 @@ class NeuralMaterial(nn.Module):
         return prepare_direction("wi", wi, self.dtype, self.device)
 
     def _latent(self, n, uv, lod, u_level):
+        """Latent codes [N, latent_dim] at ``uv``/``lod``/``u_level`` (checked; None: (0, 0), level 0, 0)."""
         dt, dev = self.dtype, self.device
         uv = prepare_values("uv", uv, dt, dev, width=(2,))
         lod = prepare_values("lod", lod, dt, dev)
@@ -69,30 +81,39 @@ class NeuralMaterial(nn.Module):
         u_level = torch.zeros(n, dtype=dt, device=dev) if u_level is None else u_level
         return self.latents(uv, lod, u_level)
 
-    def eval(self, wi, wo, uv=None, lod=None, u_level=None):
-        """f(wi, wo) * cos(wo) [N,3]; 0 when either direction is at or below the horizon."""
+    def _latent_at(self, n, at):
+        p = as_point(at)
+        reject_params(p, "NeuralMaterial")
+        return self._latent(n, p.uv, p.lod, p.u_level)
+
+    def eval(self, wi, wo, at=None):
+        """f(wi, wo) * max(0, wo.z): [N,3] linear RGB, the cosine included (exactly, with
+        ``analytic_cosine``; learned otherwise); 0 when either direction is at or below the horizon.
+        ``wi`` (to the viewer), ``wo`` (to the light) [N,3] in the local frame (z normal, x tangent);
+        ``at`` a ShadingPoint or a [N,2] uv tensor."""
         wi, wo = self._directions(wi, wo)
-        f = self.decoder(self._latent(wi.shape[0], uv, lod, u_level), wi, wo)
+        f = self.decoder(self._latent_at(wi.shape[0], at), wi, wo)
         return zero_below_horizon(f, wi, wo)
 
-    def pdf(self, wi, wo, uv=None, lod=None, u_level=None):
-        """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi or wo is at or below the horizon."""
+    def pdf(self, wi, wo, at=None):
+        """Solid-angle density [N] (1/sr, no cosine) of :meth:`sample` at ``wo`` (the learned proxy's);
+        0 when wi or wo is at or below the horizon. Inputs as for :meth:`eval`."""
         wi, wo = self._directions(wi, wo)
-        pdf = self.sampler.pdf(wi, wo, self._latent(wi.shape[0], uv, lod, u_level))
+        pdf = self.sampler.pdf(wi, wo, self._latent_at(wi.shape[0], at))
         return zero_below_horizon(pdf, wi, wo)
 
-    def sample_direction(self, wi, u, uv=None, lod=None, u_level=None):
-        """(wo [N,3], pdf [N] per steradian) from the learned sampler, without evaluating the BRDF;
-        ``u`` [N,2] uniform random numbers (a third column is ignored). pdf is 0 where wi or wo is at
-        or below the horizon."""
-        wi, wo, pdf, _ = self._sample(wi, u, uv, lod, u_level)
+    def sample_direction(self, wi, u, at=None):
+        """(wo [N,3], pdf [N] per steradian) from the learned sampler without evaluating the decoder: the
+        first and last of :meth:`sample`'s results, cheaper (for sampling-efficiency measurements).
+        ``u`` [N,2] uniform random numbers (a third column is ignored)."""
+        wi, wo, pdf, _ = self._sample(wi, u, at)
         return wo, pdf
 
-    def _sample(self, wi, u, uv, lod, u_level):
+    def _sample(self, wi, u, at):
         wi = self._wi(wi)
         n = wi.shape[0]
         u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
-        lat = self._latent(n, uv, lod, u_level)
+        lat = self._latent_at(n, at)
         params = self.sampler(wi, lat)
         # nan_to_num guards the proxy's own numerics only (input NaN was rejected above): a failed
         # (zero) sample then counts as below the horizon, with pdf 0.
@@ -100,11 +121,37 @@ class NeuralMaterial(nn.Module):
         pdf = proxy.pdf(wi, wo, params)
         return wi, wo, zero_below_horizon(pdf, wi, wo), lat
 
-    def sample(self, wi, u, uv=None, lod=None, u_level=None):
-        """(wo [N,3], weight [N,3] = eval / pdf, pdf [N]) from ``u`` [N,2]; weight and pdf are 0 where
-        wi or the sampled wo is at or below the horizon."""
-        wi, wo, pdf, lat = self._sample(wi, u, uv, lod, u_level)
+    def sample(self, wi, u, at=None):
+        """(wo [N,3] unit, local frame; weight [N,3] = eval / pdf, the cosine included; pdf [N] per
+        steradian) from ``u`` [N,2] (a third column is ignored), drawn from the learned proxy; weight and
+        pdf are 0 where wi or the sampled wo is at or below the horizon. ``at`` as for :meth:`eval`."""
+        wi, wo, pdf, lat = self._sample(wi, u, at)
         f = self.decoder(lat, wi, wo)
         ok = above_horizon(wi, wo) & (pdf[:, None] > 0)
         weight = torch.where(ok, f / pdf.clamp_min(1e-12)[:, None], torch.zeros_like(f))
         return wo, weight, pdf
+
+    def albedo(self, wi, at=None, samples: int = 256, seed: int = 0):
+        """Directional albedo [N,3] (eval integrated over wo, cosine included):
+        :func:`~mtlx2neural.contract.estimate_albedo` over the learned sampler; 0 when wi is at or below
+        the horizon. ``wi`` and ``at`` as for :meth:`eval`. (The optional albedo head is a training aid,
+        not used here.)"""
+        return estimate_albedo(self, self._wi(wi), at, samples, seed)
+
+    def describe(self) -> dict:
+        """Sizes and settings: latent resolution (h, w) and levels, latent channels, learned frames, the
+        decoder's hidden layers, whether it applies the cosine analytically or has an albedo head, and
+        parameter counts (the encoder only trains; the rest is what an export stores)."""
+        dec = self.decoder
+
+        def count(module) -> int:
+            return sum(p.numel() for p in module.parameters())
+
+        return {"kind": "neural", "resolution": list(self.latents.levels[0].shape[1:]),
+                "levels": self.latents.num_levels, "latent_dim": self.latents.channels, "frames": dec.frames,
+                "decoder_hidden": list(dec.hidden), "analytic_cosine": dec.analytic_cosine,
+                "albedo_head": dec.albedo is not None, "sampler_hidden": [m.out_features for m in
+                                                                          self.sampler.net[:-1:2]],
+                "parameters": {"latents": count(self.latents), "decoder": count(dec),
+                               "sampler": count(self.sampler), "encoder": count(self.encoder)},
+                "dtype": str(self.dtype).removeprefix("torch."), "device": str(self.device)}

@@ -167,7 +167,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
               f"{cfg.iterations} steps x {cfg.batch}", flush=True)
     model = trainer.run(progress=progress, listener=_LISTENER)
     train_seconds = time.time() - t0
-    errors = compare(ref, model, texels=tuple(stack.resolution))
+    errors = compare(ref, model, texels=tuple(stack.resolution), label="neural")  # renders under "neural"
     for i, e in enumerate(errors):
         save_png(folder / f"view{i}_reference.png", e["reference"])
         save_png(folder / f"view{i}_neural.png", e["neural"])

@@ -1,13 +1,20 @@
 """The batched torch reference BRDF of one compiled material (``m2n.load_reference``).
 
-Conventions (docs/ARCHITECTURE.md; the input contract is :mod:`mtlx2neural.contract`, shared
-with the neural material): local shading frame with z the geometric normal and x
+It implements :class:`mtlx2neural.contract.Material`, as the neural and analytic materials do.
+Conventions (docs/ARCHITECTURE.md; the input contract is :mod:`mtlx2neural.contract`): local
+shading frame with z the geometric normal and x
 the tangent; ``wi`` points to the viewer, ``wo`` to the light, both away from
 the surface. ``eval`` returns f(wi, wo) * max(0, wo.z) in linear RGB and is 0
 when either direction is at or below the horizon. Reflection only. Directions of
 any length are normalised (a zero vector counts as below the horizon); any real
 dtype is accepted and converted to the material's (float32), in which results come
 back; NaN or Inf input raises ``ValueError``.
+
+Where: ``at`` is a :class:`~mtlx2neural.contract.ShadingPoint` (or a ``[N, 2]`` uv tensor). The
+reference uses its ``uv`` (default (0.5, 0.5)) and ``params`` (overrides by name, e.g. prefiltered
+values from a ``ParameterStack``); it is not prefiltered, so ``lod`` and ``u_level`` are checked but
+ignored: it point-samples its graph at ``uv``. For callers written before ShadingPoint, ``eval``,
+``pdf`` and ``sample`` also take keyword-only ``uv=`` and ``params=``, which fill those fields of ``at``.
 
 Sampling picks one live lobe with probability proportional to the luminance of
 its estimated energy times the factors the combinators above it apply (layer
@@ -26,10 +33,14 @@ from __future__ import annotations
 import torch
 
 from mtlx2neural.contract import (
+    ShadingPoint,
     above_horizon,
+    as_point,
+    estimate_albedo,
     normalize_directions,
     prepare_direction,
     prepare_directions,
+    prepare_point,
     prepare_values,
     zero_below_horizon,
 )
@@ -69,7 +80,8 @@ def _default_frame(params: dict) -> dict:
 
 
 class ReferenceMaterial:
-    """eval / sample / pdf / albedo of a compiled MaterialX material on any torch device."""
+    """eval / sample / pdf / albedo / describe of a compiled MaterialX material on any torch device
+    (a :class:`~mtlx2neural.contract.Material`)."""
 
     def __init__(self, compiled: CompiledMaterial):
         self.compiled = compiled
@@ -126,21 +138,29 @@ class ReferenceMaterial:
     def _directions(self, wi, wo):
         return prepare_directions(wi, wo, self.dtype, self.device)
 
-    def _uv(self, uv):
-        return prepare_values("uv", uv, self.dtype, self.device, width=(2,))
+    def _point(self, at, uv=None, params=None) -> ShadingPoint:
+        """``at`` checked and converted, with the keyword-only ``uv``/``params`` of older callers filled in."""
+        p = as_point(at)
+        if uv is not None or params is not None:
+            if (uv is not None and p.uv is not None) or (params is not None and p.params is not None):
+                raise ValueError("uv or params given twice: in at and as a keyword argument")
+            p = ShadingPoint(p.uv if uv is None else uv, p.lod, p.u_level, p.params if params is None else params)
+        return prepare_point(p, self.dtype, self.device)
 
     # -- public API ----------------------------------------------------------------------
-    def eval(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None,
-             params: dict | None = None) -> torch.Tensor:
-        """f(wi, wo) * max(0, wo.z): [N,3] linear RGB; 0 when wi or wo is at or below the horizon.
+    def eval(self, wi: torch.Tensor, wo: torch.Tensor, at=None, *, uv=None, params: dict | None = None
+             ) -> torch.Tensor:
+        """f(wi, wo) * max(0, cos theta_o): [N,3] linear RGB, the cosine included (about the material's
+        shading normal: wo.z unless it has a normal map); 0 when wi or wo is at or below the horizon.
 
-        ``wi``, ``wo`` [N,3] of any length and real dtype (normalised; NaN/Inf raise ValueError);
-        ``uv`` [N,2]. ``params`` optionally overrides parameters by name (see
-        ``CompiledMaterial.parameters()``), e.g. prefiltered values from a parameter pyramid.
+        ``wi`` (to the viewer), ``wo`` (to the light) [N,3] in the local frame (z normal, x tangent), of any
+        length and real dtype (normalised; NaN/Inf raise ValueError). ``at``: a ShadingPoint (its ``uv``
+        [N,2] and ``params``, overrides by name as in ``CompiledMaterial.parameters()``; ``lod`` and
+        ``u_level`` are ignored) or a [N,2] uv tensor.
         """
         wi, wo = self._directions(wi, wo)
-        uv = self._uv(uv)
-        response, _ = self._tree(wi.shape[0], uv, params).eval(wi, wo)
+        p = self._point(at, uv, params)
+        response, _ = self._tree(wi.shape[0], p.uv, p.params).eval(wi, wo)
         above = above_horizon(wi, wo)
         response = torch.where(above, _finite(response), 0.0)
         return response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response
@@ -162,30 +182,30 @@ class ReferenceMaterial:
         pdfs = torch.stack([_finite(lobe.pdf(wi, wo)) for lobe in lobes], -1)
         return (pdfs * probs).sum(-1)
 
-    def pdf(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor | None = None,
-            params: dict | None = None) -> torch.Tensor:
-        """Solid-angle density [N] of :meth:`sample` at ``wo``; 0 when wi or wo is at or below the horizon
-        (where :meth:`sample` gives weight 0 and pdf 0). Inputs as for :meth:`eval`."""
+    def pdf(self, wi: torch.Tensor, wo: torch.Tensor, at=None, *, uv=None, params: dict | None = None
+            ) -> torch.Tensor:
+        """Solid-angle density [N] (1/sr, no cosine) of :meth:`sample` at ``wo``; 0 when wi or wo is at or
+        below the horizon (where :meth:`sample` gives weight 0 and pdf 0). Inputs as for :meth:`eval`."""
         wi, wo = self._directions(wi, wo)
-        uv = self._uv(uv)
-        tree = self._tree(wi.shape[0], uv, params)
+        p = self._point(at, uv, params)
+        tree = self._tree(wi.shape[0], p.uv, p.params)
         lobes, probs = self._selection(tree, wi)
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
         return zero_below_horizon(pdf, wi, wo)
 
-    def sample(self, wi: torch.Tensor, u: torch.Tensor, uv: torch.Tensor | None = None,
-               params: dict | None = None):
+    def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None, *, uv=None, params: dict | None = None):
         """Importance-sample ``wo`` from ``u`` [N,2] (or [N,3]: the third number picks the lobe).
 
-        Returns (wo [N,3] unit, weight [N,3] = eval/pdf, pdf [N] = ``pdf(wi, wo)``); weight and pdf
-        are 0 for failed samples, for a ``wo`` at or below the horizon, and when wi is at or below
-        the horizon. ``wi`` as for :meth:`eval`; ``u`` finite (NaN/Inf raise ValueError).
+        Returns (wo [N,3] unit, local frame, away from the surface; weight [N,3] = eval/pdf, the cosine
+        included; pdf [N] = ``pdf(wi, wo)`` per steradian); weight and pdf are 0 for failed samples, for a
+        ``wo`` at or below the horizon, and when wi is at or below the horizon. ``wi`` and ``at`` as for
+        :meth:`eval`; ``u`` finite (NaN/Inf raise ValueError).
         """
         wi = prepare_direction("wi", wi, self.dtype, self.device)
         n = wi.shape[0]
         u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
-        uv = self._uv(uv)
-        tree = self._tree(n, uv, params)
+        p = self._point(at, uv, params)
+        tree = self._tree(n, p.uv, p.params)
         lobes, probs = self._selection(tree, wi)
         if not lobes:
             wo = cosine_sample(u[:, :2])
@@ -213,19 +233,12 @@ class ReferenceMaterial:
         pdf = torch.where(above[:, 0], pdf, torch.zeros_like(pdf))
         return wo, _finite(weight), pdf
 
-    def albedo(self, wi: torch.Tensor, uv: torch.Tensor | None = None, samples: int = 256,
-               seed: int = 0) -> torch.Tensor:
-        """Directional albedo [N,3]: Monte Carlo mean of sample() weights over ``samples`` Sobol points;
-        0 when wi is at or below the horizon. ``wi`` as for :meth:`eval`."""
+    def albedo(self, wi: torch.Tensor, at=None, samples: int = 256, seed: int = 0) -> torch.Tensor:
+        """Directional albedo [N,3] (the integral of eval, cosine included, over wo):
+        :func:`~mtlx2neural.contract.estimate_albedo`, the mean of sample() weights over ``samples`` Sobol
+        points; 0 when wi is at or below the horizon. ``wi`` and ``at`` as for :meth:`eval`."""
         wi = prepare_direction("wi", wi, self.dtype, self.device)
-        n = wi.shape[0]
-        uv = self._uv(uv)
-        sobol = torch.quasirandom.SobolEngine(3, scramble=True, seed=seed).draw(samples).to(self.device, self.dtype)
-        wi_rep = wi.repeat_interleave(samples, 0)
-        u = sobol.repeat(n, 1)
-        uv_rep = None if uv is None else uv.repeat_interleave(samples, 0)
-        _, weight, _ = self.sample(wi_rep, u, uv_rep)
-        return weight.view(n, samples, 3).mean(1)
+        return estimate_albedo(self, wi, at, samples, seed)
 
     def describe(self) -> dict:
         """Lobes kept and pruned (with reasons), approximations, spatial inputs, textures."""

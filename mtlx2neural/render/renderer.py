@@ -1,16 +1,24 @@
 """A small batched torch renderer for evaluation: a UV-mapped sphere under a directional light.
 
+Every material here is a :class:`~mtlx2neural.contract.Material` (the reference, the neural and
+the analytic one alike): the renderers call only its ``eval`` (and, for multiple importance
+sampling, a material's ``sample`` and ``pdf``) with directions in the local shading frame (z the
+normal, x the tangent, ``wi`` to the camera, ``wo`` to the light) and a
+:class:`~mtlx2neural.contract.ShadingPoint` (``uv``, ``lod``, ``u_level``) per hit.
+
 Orthographic camera, unit sphere, y up. UVs are spherical (u around the y axis,
 v from the south pole), the tangent points along increasing u. Each pixel's
-colour is ``material(wi, wo, uv, lod, u_level) * intensity`` with directions in
-the local shading frame, so a reference and a neural model are compared on the
+colour is ``material.eval(wi, wo, ShadingPoint(uv, lod, u_level)) * intensity`` (f*cos,
+the cosine included), so a reference and a neural model are compared on the
 same geometry; ``spp`` jittered sub-pixel samples antialias both. The level of
 detail comes from the uv footprint of a pixel (finite differences between
 neighbouring pixels), in texels of the material's finest level, scaled to the
 footprint of one of the ``spp`` samples (:func:`sample_footprint_scale`).
 
 ``compare`` renders several fixed views and reports HDR FLIP (flip-evaluator),
-mean absolute error and relative MSE per view.
+mean absolute error and relative MSE per view; each render is stored under the name of the
+material it shows (``"reference"``, and the label given to the other, e.g. ``"neural"`` or
+``"analytic"``).
 
 :func:`render_scene` is the general entry point: a perspective camera on any
 geometry of :mod:`.geometry` (analytic sphere and plane, OBJ meshes) under the
@@ -28,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from mtlx2neural.contract import Material, ShadingPoint
 from mtlx2neural.render.geometry import Camera, Hits, Sphere, ray_cone_lod
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
 
@@ -94,9 +103,10 @@ def _lod(uv: torch.Tensor, res: int, texels: tuple[int, int], scale: float = 1.0
     return torch.log2(foot.clamp_min(1.0))
 
 
-def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int, int] = (1, 1),
+def render(material: Material, view: View, res: int = 96, spp: int = 4, texels: tuple[int, int] = (1, 1),
            seed: int = 0, footprint: float | None = None) -> np.ndarray:
-    """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on the sphere.
+    """[res, res, 3] float32 linear HDR image of ``material.eval(wi, wo, ShadingPoint(uv, lod, u_level))``
+    (f*cos, local frame) on the sphere under ``view``'s directional light.
 
     ``lod`` is log2 of ``footprint`` times the pixel's uv footprint in texels of ``texels``
     (h, w); ``footprint`` defaults to :func:`sample_footprint_scale` of ``spp``."""
@@ -118,15 +128,16 @@ def render(material, view: View, res: int = 96, spp: int = 4, texels: tuple[int,
         wo = local(light.expand(len(idx), 3))
         u_level = torch.rand(len(idx), generator=g)
         with torch.no_grad():
-            f = material(wi, wo, uv[idx], lod[idx], u_level)
+            f = material.eval(wi, wo, ShadingPoint(uv=uv[idx], lod=lod[idx], u_level=u_level))
         img[idx] += f * view.intensity
     return (img / spp).view(res, res, 3).numpy().astype(np.float32)
 
 
-def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 16,
-                 texels: tuple[int, int] = (1, 1), seed: int = 0, sampler=None,
+def render_scene(material: Material, geometry, camera, lights, res: int = 128, spp: int = 16,
+                 texels: tuple[int, int] = (1, 1), seed: int = 0, sampler: Material | None = None,
                  footprint: float | None = None) -> np.ndarray:
-    """[res, res, 3] float32 linear HDR image of ``material(wi, wo, uv, lod, u_level)`` on ``geometry``.
+    """[res, res, 3] float32 linear HDR image of ``material`` on ``geometry``: its
+    ``eval(wi, wo, ShadingPoint(uv, lod, u_level))`` (f*cos, local frame of each hit).
 
     ``camera`` is a :class:`.geometry.Camera`, ``lights`` a sequence of
     :class:`.lighting.DirectionalLight` / :class:`.lighting.EnvironmentMap`.
@@ -140,9 +151,10 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
     with the same ``seed`` see the same rays, levels and light directions
     (common random numbers): their difference is the BRDF's, not the noise's.
 
-    ``sampler`` (a :class:`BsdfSampler`, e.g. :func:`reference_sampler`) adds one
-    direction sampled from it per environment map and pass, combined with the light
-    sample by multiple importance sampling (balance heuristic over the two densities).
+    ``sampler`` (a material whose ``sample`` and ``pdf`` are used: ``material`` itself, or
+    the reference to give several materials the same directions) adds one direction
+    sampled from it per environment map and pass, combined with the light sample by
+    multiple importance sampling (balance heuristic over the two densities).
     The estimate stays unbiased for ``material`` whatever the sampler is, because the
     environment's density covers every lit direction; a sharp lobe that light
     sampling alone finds only by chance (a clear coat reflecting the sky) then
@@ -168,7 +180,7 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
             continue
         frame = Hits(*(getattr(hits, f.name)[idx] for f in dataclasses.fields(Hits)))
         wi = frame.to_local(-rays.dirs[idx])
-        args = (frame.uv, lod[idx], u_level[idx])
+        at = ShadingPoint(uv=frame.uv, lod=lod[idx], u_level=u_level[idx])
         acc = torch.zeros(len(idx), 3)
         for li, u, ub in zip(lights, light_u, bsdf_u):
             if isinstance(li, DirectionalLight):
@@ -180,42 +192,17 @@ def render_scene(material, geometry, camera, lights, res: int = 128, spp: int = 
                 if sampler is not None:
                     # light sample's MIS weight; then the sampler's own direction
                     with torch.no_grad():
-                        pdf_bsdf = sampler.pdf(wi, wo, *args)
+                        pdf_bsdf = sampler.pdf(wi, wo, at)
                     weight = weight * _balance(pdf_light, pdf_bsdf)[:, None]
-                    acc += _bsdf_sample(material, sampler, li, frame, wi, ub[idx], args)
+                    acc += _bsdf_sample(material, sampler, li, frame, wi, ub[idx], at)
             else:
                 raise TypeError(f"unsupported light {type(li).__name__}")
             with torch.no_grad():
-                f = material(wi, wo, *args)
+                f = material.eval(wi, wo, at)
             ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0)
             acc += torch.where(ok, f * weight, torch.zeros_like(f))
         img[idx] += acc
     return (img / spp).view(res, res, 3).numpy().astype(np.float32)
-
-
-class BsdfSampler:
-    """What :func:`render_scene` needs of a direction sampler (local shading frame, solid angle).
-
-    ``sample(wi, u, uv, lod, u_level) -> (wo [N,3], pdf [N])`` from ``u`` [N,2] uniform, and
-    ``pdf(wi, wo, uv, lod, u_level) -> [N]``, the density of ``sample`` (0 where it never goes).
-    """
-
-    def __init__(self, sample, pdf):
-        self.sample, self.pdf = sample, pdf
-
-
-def reference_sampler(reference) -> BsdfSampler:
-    """The reference material's own importance sampler (its lobe mixture) as a :class:`BsdfSampler`."""
-    def sample(wi, u, uv, lod, u_level):
-        wo, _, pdf = reference.sample(wi, u, uv)
-        return wo, pdf
-
-    return BsdfSampler(sample, lambda wi, wo, uv, lod, u_level: reference.pdf(wi, wo, uv))
-
-
-def neural_sampler(model) -> BsdfSampler:
-    """A neural material's learned sampler (its analytic proxy) as a :class:`BsdfSampler`."""
-    return BsdfSampler(model.sample_direction, model.pdf)
 
 
 def _balance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
@@ -223,24 +210,16 @@ def _balance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return torch.where(p > 0, p / (p + q).clamp_min(1e-30), torch.zeros_like(p))
 
 
-def _bsdf_sample(material, sampler, env, frame, wi, u, args) -> torch.Tensor:
-    """One sampler direction's MIS-weighted contribution f*cos * L * w / pdf [N,3] under ``env``."""
+def _bsdf_sample(material: Material, sampler: Material, env, frame, wi, u, at: ShadingPoint) -> torch.Tensor:
+    """One ``sampler`` direction's MIS-weighted contribution f*cos * L * w / pdf [N,3] under ``env``."""
     with torch.no_grad():
-        wo, pdf = sampler.sample(wi, u, *args)
+        wo, _, pdf = sampler.sample(wi, u, at)
         d = frame.to_world(wo)
         w = _balance(pdf, env.pdf(d))
-        f = material(wi, wo, *args)
+        f = material.eval(wi, wo, at)
     ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0) & (pdf[:, None] > 0)
     contrib = f * env.radiance(d) * (w / pdf.clamp_min(1e-30))[:, None]
     return torch.where(ok & torch.isfinite(contrib), contrib, torch.zeros_like(contrib))
-
-
-def reference_fn(reference):
-    return lambda wi, wo, uv, lod, u: reference.eval(wi, wo, uv)
-
-
-def neural_fn(model):
-    return lambda wi, wo, uv, lod, u: model.eval(wi, wo, uv, lod, u)
 
 
 def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
@@ -253,9 +232,16 @@ def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
     return {"flip": float(mean), "flip_map": fmap, "mae": float(np.abs(test - ref).mean()), "relmse": float(rel)}
 
 
-def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
-            geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> list[dict]:
-    """Per view: reference and neural renders and their errors.
+RESERVED = ("view", "reference", "flip", "flip_map", "mae", "relmse")
+"""Keys of compare's per-view dicts that a material's label cannot take."""
+
+
+def compare(reference: Material, model: Material, texels: tuple[int, int], views=VIEWS, res: int = 96,
+            spp: int = 32, geometry=None, lights=None, distance: float = 4.0, mis: bool = True,
+            label: str = "neural") -> list[dict]:
+    """Per view: the reference's and ``model``'s renders and their errors, ``{"view", "reference": image,
+    label: image, "flip", "flip_map", "mae", "relmse"}``; ``label`` names what ``model`` is
+    (``"neural"``, ``"analytic"``, ...), so the image is stored under that name.
 
     ``spp`` sub-pixel samples make both renders converge to the pixel-filtered
     appearance: the reference point-samples full-resolution textures, so with few
@@ -272,33 +258,36 @@ def compare(reference, model, texels: tuple[int, int], views=VIEWS, res: int = 9
     the sphere). Both renders of a view share its seed and, under environment maps,
     the reference's BSDF samples (``mis``, see :func:`compare_many`).
     """
-    return compare_many(reference, {"neural": model}, texels, views, res, spp, geometry, lights, distance,
-                        mis)["neural"]
+    return compare_many(reference, {label: model}, texels, views, res, spp, geometry, lights, distance,
+                        mis)[label]
 
 
-def compare_many(reference, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96, spp: int = 32,
-                 geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> dict:
-    """:func:`compare` for several models (``{label: model}``) against one reference render per
-    view: ``{label: [per-view dict with "reference", "neural" (that model's render) and errors]}``.
-    Under environment maps every render, the reference's included, also samples the reference's
-    BSDF (``mis``; :func:`render_scene`'s ``sampler``), so the models see the same directions."""
+def compare_many(reference: Material, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96,
+                 spp: int = 32, geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> dict:
+    """:func:`compare` for several materials (``{label: material}``) against one reference render per
+    view: ``{label: [per-view dict with "view", "reference" (the reference's render), label (that
+    material's render) and its errors]}``. Labels name the materials (``"neural"``, ``"analytic"``,
+    ``"neural 2x16"``...) and cannot be one of :data:`RESERVED`. Under environment maps every render,
+    the reference's included, also samples the reference's BSDF (``mis``; :func:`render_scene`'s
+    ``sampler``), so the materials see the same directions."""
+    clash = [label for label in models if label in RESERVED]
+    if clash:
+        raise ValueError(f"material labels {clash} clash with compare's keys {RESERVED}")
     out = {label: [] for label in models}
     for i, view in enumerate(views):
         if geometry is None and lights is None:
-            def draw(fn, view=view, i=i):
-                return render(fn, view, res, spp, texels, seed=i)
+            def draw(material, view=view, i=i):
+                return render(material, view, res, spp, texels, seed=i)
         else:
             scene = (geometry if geometry is not None else Sphere(), Camera(view.azimuth, view.elevation, distance),
                      lights if lights is not None else [DirectionalLight(view.light, view.intensity)])
 
-            sampler = reference_sampler(reference) if mis else None
-
-            def draw(fn, scene=scene, i=i, sampler=sampler):
-                return render_scene(fn, *scene, res, spp, texels, seed=i, sampler=sampler)
-        ref = draw(reference_fn(reference))
+            def draw(material, scene=scene, i=i, sampler=reference if mis else None):
+                return render_scene(material, *scene, res, spp, texels, seed=i, sampler=sampler)
+        ref = draw(reference)
         for label, model in models.items():
-            test = draw(neural_fn(model))
-            out[label].append({"view": view, "reference": ref, "neural": test, **image_errors(ref, test)})
+            test = draw(model)
+            out[label].append({"view": view, "reference": ref, label: test, **image_errors(ref, test)})
     return out
 
 

@@ -6,15 +6,15 @@ exported files) the report compares three models against the MaterialX reference
 (:func:`mtlx2neural.load_reference` on the summary's source asset):
 
 - renders of reference / analytic baseline / neural at :data:`.render.VIEWS`, with HDR FLIP
-  maps (:func:`.render.compare`); the analytic baseline is fitted here
+  maps (:func:`.render.compare_many`: one reference render per view, the analytic and neural renders
+  stored under their own names); the analytic baseline is fitted here
   (:func:`.analytic.fit_analytic`, ``analytic_iterations`` Adam steps);
 - error versus cost: mean HDR FLIP against evaluations per second for the reference, the
   analytic fit and the decoders 2x16, 2x32 and 3x64 (:func:`cost_table`), measured as generated
   shaders on slangpy's CPU device, or with torch when slangpy is missing (lower-right is better);
 - polar plots at chosen texels (default the centre, uv 0.5, 0.5) in the plane of incidence, wi 45 degrees
   off the normal: f*cos (luminance, log-compressed radius log1p(x/0.01), normalised) of
-  the three models, and the sampling pdf (per steradian) of the neural sampler and of the
-  reference's own sampler;
+  the three models, and the sampling pdf (per steradian) of each model's own sampler;
 - the training curves (every ``loss_*`` column of ``training_curves.csv`` against step);
 - latent texture previews (channels 0-2 of each latent EXR's finest level, each channel
   min-max normalised) and the memory footprint: latent bytes at FP16 (all MIP levels, 4
@@ -40,13 +40,14 @@ import numpy as np
 import torch
 
 from mtlx2neural.baseline.analytic_model import fit_analytic
+from mtlx2neural.contract import Material, ShadingPoint
 from mtlx2neural.errors import InputError
 from mtlx2neural.export.latents import read_mip_chain
 from mtlx2neural.export.load import _neural_prims, load_neural
 from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.pipeline.plan import DECODERS
 from mtlx2neural.reference.loading import load_reference
-from mtlx2neural.render.renderer import compare, save_png
+from mtlx2neural.render.renderer import compare, compare_many, save_png
 from mtlx2neural.report.shader_cost import shader_available, shader_rates
 from mtlx2neural.scene import find_material
 from mtlx2neural.staging import Staging
@@ -55,7 +56,8 @@ from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.trainer import Trainer
 
-COLOURS = {"reference": "#222222", "analytic": "#d95f02", "neural": "#1b9e77", "reference sampler": "#7570b3"}
+COLOURS = {"reference": "#222222", "analytic": "#d95f02", "neural": "#1b9e77", "reference sampler": "#7570b3",
+           "analytic sampler": "#e7298a", "neural sampler": "#1b9e77"}
 SECTIONS = ("Renders", "Error versus cost", "Polar plots", "Training curves", "Latent textures", "Memory")
 
 
@@ -143,18 +145,19 @@ def svg_polar(series: dict, title: str, w: int = 420, eps: float = 1e-2) -> str:
 # ----------------------------------------------------------------------------- measurements
 
 
-def evals_per_second(fn, n: int = 16384, repeats: int = 3, seed: int = 0) -> float:
-    """Evaluations per second of ``fn(wi, wo, uv)`` on ``n`` random pairs (best of ``repeats``)."""
+def evals_per_second(material: Material, n: int = 16384, repeats: int = 3, seed: int = 0) -> float:
+    """Evaluations per second of ``material.eval(wi, wo, ShadingPoint(uv=uv))`` on ``n`` random pairs
+    (local frame, half/difference angles) at random uv (best of ``repeats``)."""
 
     g = torch.Generator().manual_seed(seed)
     wi, wo = half_difference_pairs(n, g)
     uv = torch.rand(n, 2, generator=g)
     best = math.inf
     with torch.no_grad():
-        fn(wi[:64], wo[:64], uv[:64])  # warm-up
+        material.eval(wi[:64], wo[:64], ShadingPoint(uv=uv[:64]))  # warm-up
         for _ in range(repeats):
             t = time.perf_counter()
-            fn(wi, wo, uv)
+            material.eval(wi, wo, ShadingPoint(uv=uv))
             best = min(best, time.perf_counter() - t)
     return n / max(best, 1e-9)
 
@@ -210,8 +213,8 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
                "generated module, the last two including their texture-pyramid fetch. CPU figures rank the models; "
                "they do not predict GPU times.")
     else:
-        rates = {"reference": evals_per_second(lambda wi, wo, uv: reference.eval(wi, wo, uv)),
-                 "analytic": evals_per_second(analytic.eval), trained: evals_per_second(neural.eval)}
+        rates = {"reference": evals_per_second(reference), "analytic": evals_per_second(analytic),
+                 trained: evals_per_second(neural)}
         harness = "torch, CPU"
         how = f"Shader harness unavailable ({why}): evaluations per second of the torch models instead."
     rows = [{"model": "reference", "flip": 0.0, "rate": rates.get("reference"),
@@ -233,18 +236,20 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
 
 def polar_slices(reference, analytic, neural, theta_i_deg: float = 45.0, steps: int = 179, uv=(0.5, 0.5)):
     """(theta_o [rad], {model: luminance f*cos}, {sampler: pdf [1/sr]}) in the plane of incidence (x-z
-    of the local frame, wi at ``theta_i_deg`` on the -x side) at texture coordinate ``uv``; f*cos
-    includes the cosine, as ``eval`` does."""
+    of the local frame, wi at ``theta_i_deg`` on the -x side) at texture coordinate ``uv``, finest
+    level; f*cos includes the cosine, as ``eval`` does. Every model is a Material queried through
+    ``eval``/``pdf``: the pdfs are the neural sampler's, the reference's and the analytic model's."""
     lum = torch.tensor([0.2126, 0.7152, 0.0722])
     t = torch.linspace(-math.pi / 2 + 0.01, math.pi / 2 - 0.01, steps)
     ti = math.radians(theta_i_deg)
     wi = torch.tensor([[-math.sin(ti), 0.0, math.cos(ti)]]).expand(steps, 3).contiguous()
     wo = torch.stack([t.sin(), torch.zeros_like(t), t.cos()], -1)
-    uv = torch.tensor([[float(uv[0]), float(uv[1])]]).expand(steps, 2).contiguous()
+    at = ShadingPoint(uv=torch.tensor([[float(uv[0]), float(uv[1])]]).expand(steps, 2).contiguous())
+    models = {"reference": reference, "analytic": analytic, "neural": neural}
+    samplers = {"neural sampler": neural, "reference sampler": reference, "analytic sampler": analytic}
     with torch.no_grad():
-        f = {"reference": reference.eval(wi, wo, uv), "analytic": analytic.eval(wi, wo, uv),
-             "neural": neural.eval(wi, wo, uv)}
-        pdf = {"neural": neural.pdf(wi, wo, uv), "reference sampler": reference.pdf(wi, wo, uv)}
+        f = {k: m.eval(wi, wo, at) for k, m in models.items()}
+        pdf = {k: m.pdf(wi, wo, at) for k, m in samplers.items()}
     return t.numpy(), {k: (v * lum).sum(-1).numpy() for k, v in f.items()}, {k: v.numpy() for k, v in pdf.items()}
 
 
@@ -304,12 +309,12 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     analytic = fit_analytic(reference, stack, iterations=analytic_iterations, batch=2048, seed=seed)
     fit_seconds = time.time() - t0
     p = f"m{index}_"
-    res_n = compare(reference, neural, texels, res=res, spp=spp)
-    res_a = compare(reference, analytic, texels, res=res, spp=spp)
+    renders = compare_many(reference, {"neural": neural, "analytic": analytic}, texels, res=res, spp=spp)
+    res_n, res_a = renders["neural"], renders["analytic"]
     rows = []
     for i, (en, ea) in enumerate(zip(res_n, res_a)):
         save_png(out / f"{p}view{i}_reference.png", en["reference"])
-        save_png(out / f"{p}view{i}_analytic.png", ea["neural"])
+        save_png(out / f"{p}view{i}_analytic.png", ea["analytic"])
         save_png(out / f"{p}view{i}_neural.png", en["neural"])
         save_png(out / f"{p}view{i}_analytic_flip.png", ea["flip_map"], linear=False)
         save_png(out / f"{p}view{i}_neural_flip.png", en["flip_map"], linear=False)

@@ -28,14 +28,7 @@ from mtlx2neural.pipeline.layout import default_output, material_folder
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
 from mtlx2neural.render.lighting import EnvironmentMap
-from mtlx2neural.render.renderer import (
-    neural_fn,
-    neural_sampler,
-    reference_fn,
-    reference_sampler,
-    render_scene,
-    save_png,
-)
+from mtlx2neural.render.renderer import render_scene, save_png
 from mtlx2neural.report.options import RenderOptions
 from mtlx2neural.scene import find_material
 
@@ -146,17 +139,17 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     if model == "neural":
 
         ck = Path(checkpoint) if checkpoint else default_checkpoint(asset, src.name)
-        net = load_checkpoint(ck)
-        fn, texels = neural_fn(net), tuple(int(s) for s in net.latents.levels[0].shape[1:])
-        sampler = neural_sampler(net)
+        material = load_checkpoint(ck)
+        texels = tuple(int(s) for s in material.latents.levels[0].shape[1:])
     else:
 
         compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
-        ref = ReferenceMaterial(compiled)
-        fn, texels, ck, sampler = reference_fn(ref), (1, 1), None, reference_sampler(ref)
+        material, texels, ck = ReferenceMaterial(compiled), (1, 1), None
     t0 = time.time()
-    img = render_scene(fn, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed,
-                       sampler=sampler if mis == "own" else None)
+    # mis="own": the material samples its own directions (the reference's lobe mixture, the neural
+    # model's learned proxy), through the Material protocol's sample/pdf.
+    img = render_scene(material, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed,
+                       sampler=material if mis == "own" else None)
     seconds = time.time() - t0
     png = output.with_suffix(".png")
     write_exr(output, img)

@@ -16,6 +16,7 @@ from mtlx2neural.baseline.analytic_model import (
     export_usd_preview,
     fit_analytic,
 )
+from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.render.renderer import compare
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 
@@ -67,7 +68,7 @@ def test_eval_is_finite_at_grazing_and_below_horizon():
     wo[128:192] = torch.tensor([-1.0, 0.0, 0.0])  # grazing and opposite: wi + wo = 0
     wi[192:256] = wo[192:256] = torch.tensor([0.0, 0.0, 1.0])  # mirror configuration
     uv, lod, u = torch.rand(n, 2, generator=g), torch.rand(n, generator=g) * 4, torch.rand(n, generator=g)
-    f = model.eval(wi, wo, uv, lod, u)
+    f = model.eval(wi, wo, ShadingPoint(uv=uv, lod=lod, u_level=u))
     assert f.shape == (n, 3) and torch.isfinite(f).all() and (f >= 0).all()
     below = (wi[:, 2] <= 0) | (wo[:, 2] <= 0)
     assert (f[below] == 0).all()

@@ -16,6 +16,7 @@ import torch
 
 from mtlx2neural.baseline.analytic_model import AnalyticMaterial, brdf, decode
 from mtlx2neural.codegen.cpu import slangpy_available
+from mtlx2neural.contract import ShadingPoint
 
 OK, REASON = slangpy_available()
 pytestmark = pytest.mark.skipif(not OK, reason=f"slangpy CPU device unavailable: {REASON}")
@@ -108,7 +109,7 @@ def test_fetch_eval_matches_the_model_at_texel_centres(shader):
     lod, u = torch.zeros(n), torch.rand(n, generator=g)
     wi, wo = directions(n, g, up=1.0), directions(n, g, up=1.0)
     with torch.no_grad():
-        ref = model.eval(wi, wo, uv, lod, u).numpy()
+        ref = model.eval(wi, wo, ShadingPoint(uv=uv, lod=lod, u_level=u)).numpy()
     got = shader.fetch_eval(shader.pyramid(decoded_levels(model)), uv.numpy(), lod.numpy(), u.numpy(),
                             wi.numpy(), wo.numpy())
     err = rel(got, ref)

@@ -34,6 +34,7 @@ from conftest import SHARED
 
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
+from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.export import bundle, export_asset
 from mtlx2neural.export.latents import (
     read_latent_textures,
@@ -86,7 +87,7 @@ def assert_round_trip(loaded, original, textured=False, lod=None, u_level=None, 
     """``loaded`` equals ``original`` rounded to FP16, and approximates the float32 ``original``
     (at random uv when ``textured``, at levels of detail ``lod`` chosen with ``u_level``)."""
     wi, wo, u, uv, _ = directions(n, seed)
-    kw = {"uv": uv if textured else None, "lod": lod, "u_level": u_level}
+    kw = {"at": ShadingPoint(uv=uv if textured else None, lod=lod, u_level=u_level)}
     rounded = fp16_rounded(load_checkpoint_like(original))
     with torch.no_grad():
         # near-exact against the FP16-rounded model

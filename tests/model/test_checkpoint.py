@@ -8,6 +8,7 @@ import re
 import pytest
 import torch
 
+from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.errors import InputError
 from mtlx2neural.model.checkpoint import load_checkpoint, model_arguments
 from mtlx2neural.model.neural_material import NeuralMaterial
@@ -48,9 +49,10 @@ def test_roundtrip_gives_identical_outputs(tmp_path, resolution, in_dim, decoder
         wi = torch.nn.functional.normalize(torch.randn(64, 3, generator=g).abs(), dim=-1)
         wo = torch.nn.functional.normalize(torch.randn(64, 3, generator=g).abs(), dim=-1)
         uv, lod, u = torch.rand(64, 2, generator=g), torch.rand(64, generator=g) * 3, torch.rand(64, generator=g)
+        at = ShadingPoint(uv=uv, lod=lod, u_level=u)
         with torch.no_grad():
-            assert torch.equal(loaded.eval(wi, wo, uv, lod, u), model.eval(wi, wo, uv, lod, u))
-            assert torch.equal(loaded.pdf(wi, wo, uv, lod, u), model.pdf(wi, wo, uv, lod, u))
+            assert torch.equal(loaded.eval(wi, wo, at), model.eval(wi, wo, at))
+            assert torch.equal(loaded.pdf(wi, wo, at), model.pdf(wi, wo, at))
 
 
 def test_unknown_config_keys_are_ignored(tmp_path):

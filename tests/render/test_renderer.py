@@ -14,7 +14,9 @@ import torch
 from conftest import SIMPLE_MTLX, shared_path
 
 import mtlx2neural as m2n
+from mtlx2neural.baseline.analytic_model import AnalyticMaterial
 from mtlx2neural.cli import main
+from mtlx2neural.contract import as_point
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj, ray_cone_lod
 from mtlx2neural.render.lighting import (
@@ -24,12 +26,10 @@ from mtlx2neural.render.lighting import (
 )
 from mtlx2neural.render.renderer import (
     VIEWS,
-    BsdfSampler,
     _lod,
     compare,
+    compare_many,
     image_errors,
-    reference_fn,
-    reference_sampler,
     render,
     render_scene,
     sample_footprint_scale,
@@ -40,7 +40,7 @@ SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda
 
 def test_sphere_render_and_flip():
     ref = m2n.load_reference(SAMPLE, "/World/Looks/Plastic")
-    img = render(reference_fn(ref), VIEWS[0], res=48, spp=2)
+    img = render(ref, VIEWS[0], res=48, spp=2)
     assert img.shape == (48, 48, 3) and np.isfinite(img).all()
     assert img[0, 0].sum() == 0 and img[24, 24].sum() > 0  # background corner vs lit centre
     same = image_errors(img, img)
@@ -58,13 +58,20 @@ def test_lod_grows_with_texture_resolution():
     assert float(_lod(uv, 32, (16, 16)).max()) == 0.0
 
 
-def _ones(wi, wo, uv, lod, u):
-    return torch.ones(len(wi), 3)
+class _Eval:
+    """A test material made of an ``eval`` function of (wi, wo, ShadingPoint): all the renderers ask of
+    the material they draw (sampling comes from their ``sampler``)."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def eval(self, wi, wo, at=None):
+        return self.fn(wi, wo, as_point(at))
 
 
-def _lod_echo(wi, wo, uv, lod, u):
-    """A material whose value is the level of detail it was asked for (grey)."""
-    return lod[:, None].expand(-1, 3).clone()
+_ones = _Eval(lambda wi, wo, at: torch.ones(len(wi), 3))
+# A material whose value is the level of detail it was asked for (grey).
+_lod_echo = _Eval(lambda wi, wo, at: at.lod[:, None].expand(-1, 3).clone())
 
 
 @pytest.mark.parametrize("spp,shift", [(1, 0.0), (4, 1.0), (16, 2.0), (64, 3.0), (256, 3.0)])
@@ -96,9 +103,12 @@ def test_each_sample_filters_its_share_of_the_pixel(spp, shift):
 ALBEDO = torch.tensor([0.8, 0.5, 0.2])
 
 
-def lambert(wi, wo, uv, lod, u):
-    """A constant-albedo diffuse material: albedo / pi * cos(wo)."""
+def _lambert(wi, wo, at=None):
+    """A constant-albedo diffuse material's f*cos: albedo / pi * cos(wo)."""
     return ALBEDO / math.pi * wo[:, 2:3].clamp_min(0)
+
+
+lambert = _Eval(_lambert)
 
 
 def test_lambertian_plane_under_a_directional_light_is_exact():
@@ -148,21 +158,28 @@ def test_environment_pdf_integrates_to_one_and_matches_sampling():
     assert near_sun.float().mean() > 0.2
 
 
-def _hemisphere_sampler(cosine: bool) -> BsdfSampler:
-    """Cosine-weighted or uniform hemisphere directions (local frame) with their densities."""
-    def pdf(wi, wo, *_):
+class _HemisphereLambert:
+    """The Lambertian material above with cosine-weighted or uniform hemisphere sampling (local frame):
+    a sampler for render_scene, with the Material methods it uses (sample, pdf) and eval."""
+
+    def __init__(self, cosine: bool):
+        self.cosine = cosine
+
+    def eval(self, wi, wo, at=None):
+        return _lambert(wi, wo)
+
+    def pdf(self, wi, wo, at=None):
         z = wo[:, 2].clamp_min(0)
-        return torch.where(wo[:, 2] > 0, z / math.pi if cosine else torch.full_like(z, 0.5 / math.pi),
+        return torch.where(wo[:, 2] > 0, z / math.pi if self.cosine else torch.full_like(z, 0.5 / math.pi),
                            torch.zeros_like(z))
 
-    def sample(wi, u, *_):
+    def sample(self, wi, u, at=None):
         phi = 2 * math.pi * u[:, 0]
-        z = (1 - u[:, 1]).sqrt() if cosine else 1 - u[:, 1]
+        z = (1 - u[:, 1]).sqrt() if self.cosine else 1 - u[:, 1]
         r = (1 - z * z).clamp_min(0).sqrt()
         wo = torch.stack([r * phi.cos(), r * phi.sin(), z], -1)
-        return wo, pdf(wi, wo)
-
-    return BsdfSampler(sample, pdf)
+        pdf = self.pdf(wi, wo)
+        return wo, self.eval(wi, wo) / pdf.clamp_min(1e-30)[:, None], pdf
 
 
 def test_mis_with_any_sampler_keeps_the_lambertian_plane_exact():
@@ -173,7 +190,7 @@ def test_mis_with_any_sampler_keeps_the_lambertian_plane_exact():
     expected = (ALBEDO / math.pi * sky.irradiance((0.0, 1.0, 0.0))).numpy()
     for cosine in (True, False):
         img = render_scene(lambert, Plane(), Camera(0, 90, distance=1.5), [sky], res=32, spp=16, seed=3,
-                           sampler=_hemisphere_sampler(cosine))
+                           sampler=_HemisphereLambert(cosine))
         assert np.isfinite(img).all()
         assert np.allclose(img.reshape(-1, 3).mean(0), expected, rtol=0.02), cosine
 
@@ -187,11 +204,11 @@ def test_mis_with_the_reference_sampler_tames_a_clear_coat_under_the_sky():
     ref = m2n.load_reference(SAMPLE, "/World/Looks/CarPaint")
     sky = EnvironmentMap.sky()
     cam = Camera(0, 60, distance=1.5)
-    smp = reference_sampler(ref)
+    smp = ref  # the reference samples its own lobe mixture (Material.sample / pdf)
 
-    def draw(seed, sampler=None, fn=None):
-        fn = reference_fn(ref) if fn is None else fn
-        return render_scene(fn, Plane(), cam, [sky], res=24, spp=4, seed=seed, sampler=sampler)
+    def draw(seed, sampler=None, material=None):
+        material = ref if material is None else material
+        return render_scene(material, Plane(), cam, [sky], res=24, spp=4, seed=seed, sampler=sampler)
 
     def noise(a, b):
         return float(np.abs(a - b).mean() / a.mean())
@@ -199,7 +216,7 @@ def test_mis_with_the_reference_sampler_tames_a_clear_coat_under_the_sky():
     mis = draw(1, smp)
     assert np.isfinite(mis).all() and (mis.sum(-1) > 0).all()
     assert noise(mis, draw(2, smp)) < noise(draw(1), draw(2)) / 2.5
-    half = draw(1, smp, lambda *a: 0.5 * ref.eval(*a[:3]))
+    half = draw(1, smp, _Eval(lambda wi, wo, at: 0.5 * ref.eval(wi, wo, at)))
     assert np.allclose(half, 0.5 * mis, rtol=1e-5, atol=1e-7)
 
 
@@ -241,8 +258,7 @@ def test_ray_cone_lod_grows_with_distance_and_grazing_angle():
 
 def test_same_seed_same_image_and_common_random_numbers():
     sky = EnvironmentMap.sky()
-    def half(*a):
-        return 0.5 * lambert(*a)
+    half = _Eval(lambda wi, wo, at: 0.5 * _lambert(wi, wo))
 
     a = render_scene(lambert, Sphere(), Camera(40, 20), [sky], res=24, spp=3, seed=5)
     assert np.array_equal(a, render_scene(lambert, Sphere(), Camera(40, 20), [sky], res=24, spp=3, seed=5))
@@ -258,6 +274,28 @@ def test_compare_on_scene_geometry():
     out = compare(ref, model, (1, 1), views=VIEWS[:1], res=16, spp=2, geometry=Plane(),
                   lights=[EnvironmentMap.sky()])
     assert out[0]["reference"].shape == (16, 16, 3) and np.isfinite(out[0]["flip"])
+    assert out[0]["neural"].shape == (16, 16, 3)  # the default label names the model's render
+
+
+def test_compare_many_names_each_render_after_its_material():
+    """One reference render per view, shared; each material's render under its own label (the analytic
+    baseline under "analytic", not "neural"); a label that clashes with compare's keys is refused."""
+    ref = m2n.load_reference(SAMPLE, "/World/Looks/Plastic")
+    torch.manual_seed(0)
+    models = {"neural": NeuralMaterial((1, 1), 0).train(False), "analytic": AnalyticMaterial().train(False)}
+    out = compare_many(ref, models, (1, 1), views=VIEWS[:2], res=12, spp=1)
+    assert set(out) == {"neural", "analytic"}
+    for label, per_view in out.items():
+        assert len(per_view) == 2
+        for e in per_view:
+            assert set(e) == {"view", "reference", label, "flip", "flip_map", "mae", "relmse"}
+    assert np.array_equal(out["neural"][0]["reference"], out["analytic"][0]["reference"])
+    assert not np.array_equal(out["neural"][0]["neural"], out["analytic"][0]["analytic"])
+    # the same render as compare() gives for that material alone (same seed per view)
+    alone = compare(ref, models["analytic"], (1, 1), views=VIEWS[:1], res=12, spp=1, label="analytic")
+    assert np.array_equal(alone[0]["analytic"], out["analytic"][0]["analytic"])
+    with pytest.raises(ValueError, match="clash"):
+        compare_many(ref, {"flip": models["neural"]}, (1, 1), views=VIEWS[:1], res=4, spp=1)
 
 
 def test_teapot_rasterises_exactly_with_plausible_coverage():
