@@ -41,9 +41,9 @@ def flip_budget(text: str) -> float:
 
 
 def workers(text: str):
-    """``--workers N|ray|ray://HOST:PORT`` (:func:`mtlx2neural.pipeline.jobs.parse_workers`)."""
+    """``--workers N|ray|ray://HOST:PORT`` (:func:`mtlx2neural.pipeline.workers.parse_workers`)."""
     # Local: --help and option errors answer without importing torch (jobs imports it).
-    from mtlx2neural.pipeline.jobs import parse_workers
+    from mtlx2neural.pipeline.workers import parse_workers
 
     try:
         return parse_workers(text)

@@ -59,10 +59,8 @@ from mtlx2neural.model.checkpoint import (
 from mtlx2neural.pipeline.jobs import (  # noqa: F401
     BUDGET_FOLDER,
     check_device,
-    check_workers,
     held_out_error,
     make_job,
-    run_jobs,
     write_summary,
 )
 from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
@@ -76,9 +74,10 @@ from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
     resolve_output,
 )
 from mtlx2neural.pipeline.lock import output_lock
-from mtlx2neural.pipeline.options import ConvertOptions, check_options
+from mtlx2neural.pipeline.options import ConvertOptions, check_options, options_record
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
 from mtlx2neural.pipeline.source_hash import cached_summary
+from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
 from mtlx2neural.scene.dependencies import input_files
 from mtlx2neural.scene.snapshot import flatten, unsaved_layers, write_snapshot
@@ -306,7 +305,7 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     with output_lock(layout.folder):
         summaries, trained = _train_and_share(plans, folders, cfg, device, options.resume, options.progress,
                                               options.allow_missing_textures, options.force, workers,
-                                              options.max_error)
+                                              options.max_error, options_record(options))
         summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
         if cfg.iterations == 0:
             for s in summaries:
@@ -339,7 +338,7 @@ def _stage_source(stage, layout: OutputLayout):
 
 
 def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
-                     max_error) -> tuple[Summaries, list[tuple]]:
+                     max_error, record: dict | None = None) -> tuple[Summaries, list[tuple]]:
     """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder) per plan)."""
     results: dict[int, tuple] = {}  # plan index -> (model or None, summary, cached)
     jobs, job_plans = [], []
@@ -358,7 +357,8 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
                       f"reusing {folder}", flush=True)
             continue
         jobs.append(make_job(plan, folder, plan.cfg, device=device, resume=resume, progress=progress,
-                             allow_missing_textures=allow_missing_textures, max_error=max_error))
+                             allow_missing_textures=allow_missing_textures, max_error=max_error,
+                             options=record))
         job_plans.append(i)
 
     finished = []

@@ -1,34 +1,18 @@
-"""Per-material training jobs, and where they run: in this process, a local process pool, or Ray.
+"""Per-material training jobs: one :class:`MaterialJob` per material, run by :func:`run_job`.
 
-Training one material is independent of training another, so every material is
-one :class:`MaterialJob`, run by one function, :func:`run_job`, wherever it runs:
-
-- ``workers=1``: in this process, one after another, with a progress bar each;
-- ``workers=N`` (N > 1): a local ``ProcessPoolExecutor`` with the ``spawn`` context.
-  Each worker gets ``cpus // N`` torch threads (at least 1), set both through
-  ``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` at spawn time and ``torch.set_num_threads``:
-  torch's OpenMP kernels collapse (100x) when more threads than free cores compete
-  (BENCHMARKS.md, "Reference BRDF throughput"). Workers send their progress through a queue, and the parent
-  draws one bar per material (phase, loss, ETA) and prints a line per finished one;
-- ``workers="ray"`` (a local Ray cluster, or the one ``RAY_ADDRESS`` names) or
-  ``"ray://host:port"`` (Ray client): the same :func:`run_job` as Ray tasks, with
-  ``num_cpus=1`` and ``num_gpus=1`` when the cluster has GPUs (the task then trains
-  on ``cuda``). Needs the optional extra: ``pip install mtlx2neural[ray]``. Through
-  ``ray://`` the worker trains in a temporary folder and the files come back with
-  the result; texture paths must resolve on the workers too (a shared file system,
-  or the same paths), and the workers need mtlx2neural installed.
-
-A job carries its MaterialX document as XML (documents do not pickle) and writes its
-results into its material folder (``checkpoint.pt``, ``training_curves.csv``,
-``summary.json``, PNGs: :func:`train_material`). With an error budget
-(``max_error``) it trains decoders from small to large until the HDR FLIP meets the
-budget (:func:`choose_decoder`).
+Training one material is independent of training another, so every material is one
+picklable :class:`MaterialJob` (its MaterialX document travels as XML; documents do not
+pickle), run by one function, :func:`run_job`, wherever it runs: in this process, a
+spawned pool worker or a Ray task (:mod:`mtlx2neural.pipeline.workers` decides where). A
+job writes its results into its material folder (``checkpoint.pt``,
+``training_curves.csv``, ``summary.json``, PNGs: :func:`train_material`). With an error
+budget (``max_error``) it trains decoders from small to large until the HDR FLIP meets
+the budget (:func:`choose_decoder`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import math
 import os
@@ -47,7 +31,6 @@ from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
-from mtlx2neural.progress import progress_bar
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.renderer import compare, save_png
 from mtlx2neural.scene import MaterialSource
@@ -56,7 +39,7 @@ from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
-from mtlx2neural.train.trainer import Trainer, TrainingInterrupted
+from mtlx2neural.train.trainer import Trainer
 
 # ----------------------------------------------------------------------------- the error budget
 
@@ -280,6 +263,8 @@ class MaterialJob:
     progress_queue: object = None
     """A pool worker sends (index, step, total, loss, phase) here for the parent's progress bars."""
     index: int = 0
+    options: dict | None = None
+    """The conversion's options (:func:`mtlx2neural.pipeline.options.options_record`): the summary's ``options``."""
 
     def source(self):
         """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML."""
@@ -321,6 +306,8 @@ def run_job(job: MaterialJob) -> dict:
     extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings)}
     if job.latent is not None:
         extra["latent"] = job.latent
+    if job.options is not None:
+        extra["options"] = job.options
     try:
         with _running():
             if job.max_error is None:
@@ -359,227 +346,9 @@ def _pool_sigint(signum, frame):
         raise KeyboardInterrupt
 
 
-def _init_pool_worker(threads: int) -> None:
+def init_pool_worker(threads: int) -> None:
+    """A spawned pool worker's initializer: Ctrl-C interrupts a running job only; ``threads`` torch threads."""
     import signal
 
     signal.signal(signal.SIGINT, _pool_sigint)
     torch.set_num_threads(threads)
-
-
-@contextmanager
-def _thread_env(threads: int):
-    """``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` = ``threads`` while spawned workers start."""
-    keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-    old = {k: os.environ.get(k) for k in keys}
-    os.environ.update({k: str(threads) for k in keys})
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def available_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0)) or 1
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
-def default_workers(n_jobs: int, device: str) -> int:
-    """min(jobs, CPUs) on the CPU; min(jobs, GPUs) on CUDA (one GPU per worker)."""
-    device = resolve_device(device)
-    if device.startswith("cuda"):
-        return max(1, min(n_jobs, torch.cuda.device_count() if device == "cuda" else 1))
-    return max(1, min(n_jobs, available_cpus()))
-
-
-def parse_workers(value) -> int | str | None:
-    """``None``/``"auto"`` (None), a positive integer, ``"ray"`` or ``"ray://host:port"``; else ValueError."""
-    if value is None or value == "auto":
-        return None
-    if isinstance(value, int) or (isinstance(value, str) and value.strip().isdigit()):
-        n = int(value)
-        if n < 1:
-            raise ValueError(f"--workers must be at least 1 (got {n})")
-        return n
-    if value == "ray" or (isinstance(value, str) and value.startswith("ray://") and len(value) > 6):
-        return value
-    raise ValueError(f"--workers {value!r}: give a number of processes, 'ray' (a local Ray cluster, or "
-                     f"$RAY_ADDRESS) or 'ray://HOST:PORT'")
-
-
-Report = Callable[[int, dict], None]
-"""Called in the parent as each job finishes: (job index, summary)."""
-
-
-def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None) -> list[dict]:
-    """Run every job of ``jobs`` with ``workers`` (see the module docstring); summaries in job order.
-
-    When jobs fail, the others still run to the end (their results are saved and
-    cached) and the first failure is raised afterwards. Ctrl-C stops every job at a
-    checkpoint and raises :class:`~mtlx2neural.train.trainer.TrainingInterrupted`.
-    """
-    workers = parse_workers(workers)
-    if not jobs:
-        return []
-    if isinstance(workers, str):
-        return _run_ray(jobs, workers, report)
-    n = workers or default_workers(len(jobs), jobs[0].device)
-    if n == 1 or len(jobs) == 1:
-        out = []
-        for i, job in enumerate(jobs):
-            out.append(run_job(job))
-            if report:
-                report(i, out[-1])
-        return out
-    return _run_pool(jobs, n, report)
-
-
-def _run_pool(jobs, n: int, report) -> list[dict]:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-
-    n = min(n, len(jobs))
-    threads = max(1, available_cpus() // n)
-    devices = _pool_devices(jobs[0].device, n)
-    ctx = multiprocessing.get_context("spawn")
-    bars = _PoolBars(jobs, ctx) if jobs[0].progress else None
-    if bars:
-        print(f"training {len(jobs)} materials in {n} processes ({threads} torch thread(s) each, "
-              f"{', '.join(devices)})", flush=True)
-    jobs = [dataclasses.replace(j, progress=False, threads=threads, device=devices[i % len(devices)],
-                                progress_queue=bars.queue if bars else None, index=i)
-            for i, j in enumerate(jobs)]
-    results: list[dict | None] = [None] * len(jobs)
-    errors: list[BaseException] = []
-    with _thread_env(threads):
-        ex = ProcessPoolExecutor(n, mp_context=ctx,
-                                 initializer=_init_pool_worker, initargs=(threads,))
-        try:
-            futures = {ex.submit(run_job, j): i for i, j in enumerate(jobs)}
-            for f in as_completed(futures):
-                i = futures[f]
-                if f.exception() is not None:
-                    errors.append(f.exception())
-                    continue
-                results[i] = f.result()
-                if report:
-                    report(i, results[i])
-        except KeyboardInterrupt:
-            ex.shutdown(wait=True, cancel_futures=True)  # running jobs save their checkpoints
-            raise TrainingInterrupted("interrupted; finished materials and checkpoints are saved in their "
-                                      "folders (rerun with --resume)") from None
-        finally:
-            ex.shutdown(wait=True)
-            if bars:
-                bars.close()
-    if errors:
-        raise errors[0]
-    return results
-
-
-class _PoolBars:
-    """One progress bar per pool job (phase, loss, ETA; log lines off a terminal: :mod:`.progress`),
-    fed by the workers through a queue."""
-
-    def __init__(self, jobs, ctx):
-        import threading
-
-        self.manager = ctx.Manager()
-        self.queue = self.manager.Queue()
-        self.bars = [progress_bar(j.cfg.iterations, desc=j.name.rsplit("/", 1)[-1], position=i)
-                     for i, j in enumerate(jobs)]
-        self.thread = threading.Thread(target=self._drain, daemon=True)
-        self.thread.start()
-
-    def _drain(self):
-        while True:
-            msg = self.queue.get()
-            if msg is None:
-                return
-            i, step, total, loss, phase = msg
-            bar = self.bars[i]
-            bar.total = total
-            bar.update(step - bar.n)
-            bar.set_postfix(phase=phase, loss=f"{loss:.4f}")
-
-    def close(self):
-        self.queue.put(None)
-        self.thread.join(timeout=5)
-        for bar in self.bars:
-            bar.close()
-        self.manager.shutdown()
-
-
-def _pool_devices(device: str, n: int) -> list[str]:
-    device = resolve_device(device)
-    if device == "cuda" and torch.cuda.device_count() > 1:
-        return [f"cuda:{i}" for i in range(min(n, torch.cuda.device_count()))]
-    return [device]
-
-
-def check_workers(workers):
-    """:func:`parse_workers`, with a bad value or a Ray runner without Ray installed an
-    :class:`InputError`: checked before any work (Ray is an optional extra)."""
-    try:
-        workers = parse_workers(workers)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
-    if isinstance(workers, str) and importlib.util.find_spec("ray") is None:
-        raise InputError(f"--workers {workers} needs Ray: pip install 'mtlx2neural[ray]' "
-                         f"(or give a number of local processes)")
-    return workers
-
-
-def _run_ray(jobs, address: str, report) -> list[dict]:
-    check_workers(address)
-    import ray  # local: Ray is an optional extra, imported only for a Ray runner
-
-    started = not ray.is_initialized()
-    if started:
-        ray.init(address=None if address == "ray" else address, include_dashboard=False,
-                 log_to_driver=False)
-    try:
-        gpus = jobs[0].device != "cpu" and ray.cluster_resources().get("GPU", 0) >= 1
-        task = ray.remote(num_cpus=1, num_gpus=1 if gpus else 0, max_retries=0)(run_job)
-        ship = address.startswith("ray://")
-        if jobs[0].progress:
-            print(f"training {len(jobs)} materials as Ray tasks ({'1 GPU' if gpus else '1 CPU'} each, cluster: "
-                  f"{ray.cluster_resources().get('CPU', 0):g} CPUs, {ray.cluster_resources().get('GPU', 0):g} "
-                  f"GPUs); one line per finished material", flush=True)
-        refs = {}
-        for i, j in enumerate(jobs):
-            ckpt = Path(j.folder) / "checkpoint.pt"
-            j = dataclasses.replace(j, progress=False, threads=1, device="cuda" if gpus else "cpu", ship=ship,
-                                    checkpoint=ckpt.read_bytes() if ship and j.resume and ckpt.is_file() else None)
-            refs[task.remote(j)] = i
-        results: list[dict | None] = [None] * len(jobs)
-        errors, pending = [], list(refs)
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            i = refs[done[0]]
-            try:
-                summary = ray.get(done[0])
-            except Exception as exc:  # noqa: BLE001 - re-raised once the others finish
-                errors.append(getattr(exc, "cause", None) or exc)
-                continue
-            files = summary.pop("_files", None)
-            if files is not None:
-                folder = Path(jobs[i].folder)
-                folder.mkdir(parents=True, exist_ok=True)
-                for name, data in files.items():
-                    (folder / name).write_bytes(data)
-            results[i] = summary
-            if report:
-                report(i, summary)
-        if errors:
-            raise errors[0]
-        return results
-    finally:
-        if started:
-            ray.shutdown()

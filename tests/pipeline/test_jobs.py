@@ -21,8 +21,9 @@ import torch
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
 from mtlx2neural.pipeline.convert import convert_asset
-from mtlx2neural.pipeline.jobs import choose_decoder, parse_workers
+from mtlx2neural.pipeline.jobs import choose_decoder
 from mtlx2neural.pipeline.options import ConvertOptions
+from mtlx2neural.pipeline.workers import parse_workers
 from mtlx2neural.train.config import preset
 
 TINY = preset("fast", iterations=20, batch=256)
@@ -287,6 +288,10 @@ def test_max_texels_caps_the_grid_and_warns(tmp_path, capsys):
     summary = json.loads((tmp_path / "tex_neural" / "Tex" / "summary.json").read_text())
     assert summary["resolution"] == [4, 4] and summary["varying_channels"] == 3
     assert any("capped to 4x4" in n for n in summary["notes"]) and summary["warnings"]
+    # the conversion's options are recorded from the same dataclass the flags come from
+    assert summary["options"]["preset"] == "fast" and summary["options"]["device"] == "cpu"
+    assert summary["options"]["progress"] is False and "train" not in summary["options"]
+    assert summary["config"]["max_resolution"] == 4  # --max-texels lands in the training settings
 
 
 # ----------------------------------------------------------------------------- parallel runners
