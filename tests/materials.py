@@ -65,3 +65,21 @@ TEXTURED_MTLX = document(image("albedo", "albedo.png", colorspace="srgb_texture"
 
 # A material whose only closure has no torch implementation (hair).
 HAIR_MTLX = document(closure("M", "chiang_hair_bsdf", node="hair"))
+
+
+def usd_painted_ball(shader_inputs: str, extra_shaders: str = "", metadata: str = "") -> str:
+    """A USD layer: a Sphere ``/World/Ball`` bound to ``/World/Looks/Paint``, a MaterialX
+    standard_surface network whose ``SR`` shader has ``shader_inputs`` (USD attribute lines)
+    and whose other shaders are ``extra_shaders``; ``metadata`` is the layer's metadata block."""
+    indent = " " * 16
+    inputs = "".join(f"{indent}{line.strip()}\n" for line in shader_inputs.strip().splitlines())
+    return (f"#usda 1.0\n{metadata}"
+            'def Xform "World"\n{\n'
+            '    def Sphere "Ball" (prepend apiSchemas = ["MaterialBindingAPI"])\n    {\n'
+            "        rel material:binding = </World/Looks/Paint>\n    }\n"
+            '    def Scope "Looks"\n    {\n        def Material "Paint"\n        {\n'
+            "            token outputs:mtlx:surface.connect = </World/Looks/Paint/SR.outputs:surface>\n"
+            '            def Shader "SR"\n            {\n'
+            '                uniform token info:id = "ND_standard_surface_surfaceshader"\n'
+            f"{inputs}                token outputs:surface\n            }}\n"
+            f"{extra_shaders}        }}\n    }}\n}}\n")

@@ -10,6 +10,7 @@ import json
 import warnings
 
 import pytest
+from materials import usd_painted_ball
 from pxr import Sdf, Usd
 
 from mtlx2neural.errors import InputError
@@ -20,34 +21,10 @@ from mtlx2neural.train.config import PRESETS, preset
 
 TINY = preset("fast", iterations=20, batch=256)
 PAINT = "/World/Looks/Paint"
-SCENE = """#usda 1.0
-(
-    defaultPrim = "World"
-    metersPerUnit = 1
-    upAxis = "Y"
-)
-def Xform "World"
-{
-    def Sphere "Ball" (prepend apiSchemas = ["MaterialBindingAPI"])
-    {
-        rel material:binding = </World/Looks/Paint>
-    }
-    def Scope "Looks"
-    {
-        def Material "Paint"
-        {
-            token outputs:mtlx:surface.connect = </World/Looks/Paint/SR.outputs:surface>
-            def Shader "SR"
-            {
-                uniform token info:id = "ND_standard_surface_surfaceshader"
-                float inputs:base = 0.8
-                color3f inputs:base_color = (0.2, 0.5, 0.8)
-                token outputs:surface
-            }
-        }
-    }
-}
-"""
+SCENE = usd_painted_ball("""
+    float inputs:base = 0.8
+    color3f inputs:base_color = (0.2, 0.5, 0.8)
+""", metadata='(\n    defaultPrim = "World"\n    metersPerUnit = 1\n    upAxis = "Y"\n)\n')
 
 
 def _options(**kw) -> ConvertOptions:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 from conftest import write_float_image
-from materials import SIMPLE_MTLX
+from materials import SIMPLE_MTLX, usd_painted_ball
 from pxr import Sdf, Usd, UsdGeom
 
 from mtlx2neural.scene import find_material, load_asset
@@ -15,42 +15,11 @@ from mtlx2neural.scene.dependencies import canonical, input_files
 from mtlx2neural.scene.snapshot import flatten, unsaved_layers, write_snapshot
 from mtlx2neural.scene.texel_density import open_stage_for, surface_density
 
-LOOKS = """#usda 1.0
-def Xform "World"
-{
-    def Sphere "Ball" (prepend apiSchemas = ["MaterialBindingAPI"])
-    {
-        rel material:binding = </World/Looks/Paint>
-    }
-    def Scope "Looks"
-    {
-        def Material "Paint"
-        {
-            token outputs:mtlx:surface.connect = </World/Looks/Paint/SR.outputs:surface>
-            def Shader "SR"
-            {
-                uniform token info:id = "ND_standard_surface_surfaceshader"
-                float inputs:base = 0.8
-                color3f inputs:base_color.connect = </World/Looks/Paint/Found.outputs:out>
-                float inputs:specular_roughness.connect = </World/Looks/Paint/Missing.outputs:out>
-                token outputs:surface
-            }
-            def Shader "Found"
-            {
-                uniform token info:id = "ND_image_color3"
-                asset inputs:file = @./tex/found.exr@
-                color3f outputs:out
-            }
-            def Shader "Missing"
-            {
-                uniform token info:id = "ND_image_float"
-                asset inputs:file = @./tex/missing.exr@
-                float outputs:out
-            }
-        }
-    }
-}
-"""
+LOOKS = usd_painted_ball("""
+    float inputs:base = 0.8
+    color3f inputs:base_color.connect = </World/Looks/Paint/Found.outputs:out>
+    float inputs:specular_roughness.connect = </World/Looks/Paint/Missing.outputs:out>
+""", extra_shaders='            def Shader "Found"\n            {\n                uniform token info:id = "ND_image_color3"\n                asset inputs:file = @./tex/found.exr@\n                color3f outputs:out\n            }\n            def Shader "Missing"\n            {\n                uniform token info:id = "ND_image_float"\n                asset inputs:file = @./tex/missing.exr@\n                float outputs:out\n            }\n')
 PAINT = "/World/Looks/Paint"
 
 
