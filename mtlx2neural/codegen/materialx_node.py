@@ -1,0 +1,309 @@
+"""A neural material as a MaterialX node: a BSDF nodedef with ``genglsl`` and ``genslang``
+implementations, and a ``surface`` + ``surfacematerial`` over an instance of it.
+
+:func:`write_materialx_node` writes, for one material, into one folder::
+
+    NeuralMaterial_<ident>.mtlx    the document (below), written last
+    NeuralMaterial_<ident>.glsl    its genglsl implementation   (:func:`.materialx_shader.node_source`)
+    NeuralMaterial_<ident>.slang   its genslang implementation
+
+each atomically (a temporary sibling renamed into place). The document holds
+
+- the nodedef ``ND_neural_<ident>_bsdf`` (node ``neural_<ident>_bsdf``, type ``BSDF``,
+  ``bsdf="R"``: reflection only, so the surface node never calls it for transmission) with the
+  inputs ``weight`` (float, 1), ``latent0`` .. ``latent<G-1>`` (filename: the latent textures,
+  four channels each), ``texcoord`` (vector2, default geometry property UV0), ``normal``
+  (vector3, Nworld), ``tangent`` (vector3, Tworld) and ``env_samples`` (uniform integer: learned
+  sampler directions per pixel for environment light; 0 or less uses the viewer's FIS sample count);
+- the implementations ``IM_neural_<ident>_bsdf_genglsl`` / ``_genslang`` (``file`` relative to
+  the document, function ``mx_neural_<ident>_bsdf``);
+- ``N_neural_<ident>`` (the node, its latent inputs set to the texture files, relative to the
+  document), ``SR_neural_<ident>`` (a ``surface``) and ``M_neural_<ident>`` (a ``surfacematerial``).
+
+The latent textures are the export's OpenEXR MIP chains (``latents_<k>.exr``, RGBA, level 0 the
+finest, row 0 the top). They are checked when the node is written: a missing, unreadable or
+malformed file, or one that does not fit the networks, raises :class:`~mtlx2neural.errors.InputError`
+naming it. Viewers that build their own MIP maps from level 0 (MaterialX's GLTextureHandler does)
+read box-filtered coarse levels instead of the learned ones; level 0, and uniform materials (one
+1x1 level), are exact.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import MaterialX as mx
+import MaterialX.PyMaterialXGenGlsl as mx_glsl
+import MaterialX.PyMaterialXGenShader as mx_gen
+import MaterialX.PyMaterialXGenSlang as mx_slang
+import numpy as np
+
+from mtlx2neural.atomic import atomic_path
+from mtlx2neural.codegen.generate import _describe_source, _version
+from mtlx2neural.codegen.materialx_shader import (
+    LatentLayout,
+    function_name,
+    node_source,
+    prefix,
+)
+from mtlx2neural.codegen.spec import as_spec
+from mtlx2neural.errors import InputError, Mtlx2NeuralError
+from mtlx2neural.graph.library import standard_library, with_libraries
+from mtlx2neural.imaging.image_io import openimageio
+
+DEFAULT_ENV_SAMPLES = 16
+"""Learned-sampler directions per pixel for environment light (MaterialXView's FIS default count)."""
+
+
+@dataclass(frozen=True)
+class NodeNames:
+    """The names of one material's MaterialX elements and files (see the module docstring)."""
+
+    ident: str
+    nodedef: str
+    category: str
+    node: str
+    surface: str
+    material: str
+    function: str
+    mtlx: str
+    glsl: str
+    slang: str
+
+
+def node_names(name: str) -> NodeNames:
+    """The element and file names of material ``name`` (any string; '/World/Looks/Car Paint' -> Car_Paint)."""
+    ident = prefix(name)
+    stem = f"NeuralMaterial_{ident}"
+    return NodeNames(ident, f"ND_neural_{ident}_bsdf", f"neural_{ident}_bsdf", f"N_neural_{ident}",
+                     f"SR_neural_{ident}", f"M_neural_{ident}", function_name(name), f"{stem}.mtlx", f"{stem}.glsl",
+                     f"{stem}.slang")
+
+
+def latent_file_names(channels: int) -> list[str]:
+    """The export's latent texture names for ``channels`` channels (``latents_0.exr``, ... : four
+    channels each; the naming of :func:`mtlx2neural.export.latents.texture_names`)."""
+    return [f"latents_{k}.exr" for k in range(math.ceil(channels / 4))]
+
+
+# ------------------------------------------------------------------------------ latent textures
+
+
+def _latent_levels(path: Path) -> list[tuple[int, int]]:
+    """(height, width) of every MIP level of the latent texture at ``path``, after decoding each
+    level (a truncated or corrupt file fails here); raises InputError naming the file."""
+    oiio = openimageio()
+    if not path.is_file():
+        what = "is a directory, not a file" if path.is_dir() else "does not exist"
+        raise InputError(f"latent texture {path} {what}; export the material again (its latents_<k>.exr "
+                         f"files hold the latent pyramid)")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"latent texture {path} cannot be read: {oiio.geterror() or 'unknown format'}")
+    try:
+        shapes = []
+        while inp.seek_subimage(0, len(shapes)):
+            spec = inp.spec()
+            if spec.nchannels != 4:
+                raise InputError(f"latent texture {path} has {spec.nchannels} channel(s); latent textures are RGBA")
+            px = inp.read_image(0, len(shapes), 0, 4, "float")
+            if px is None:
+                raise InputError(f"latent texture {path}: MIP level {len(shapes)} cannot be decoded "
+                                 f"({inp.geterror() or 'corrupt data'})")
+            if not np.isfinite(px).all():
+                raise InputError(f"latent texture {path}: MIP level {len(shapes)} holds non-finite values")
+            shapes.append((spec.height, spec.width))
+        if not shapes:
+            raise InputError(f"latent texture {path} holds no image")
+        return shapes
+    finally:
+        inp.close()
+        oiio.geterror()  # clear anything left pending
+
+
+def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None = None,
+                       levels: int | None = None) -> LatentLayout:
+    """Check the latent textures ``paths`` (in channel order) for ``channels`` latent channels and
+    return their layout. ``resolution`` (height, width of level 0) and ``levels``, when given, are
+    what the networks were trained with. Raises InputError naming the offending file."""
+    paths = [Path(p) for p in paths]
+    groups = math.ceil(channels / 4)
+    if len(paths) != groups:
+        raise InputError(f"{channels} latent channels are stored in {groups} latent texture(s), got {len(paths)}: "
+                         f"{', '.join(map(str, paths)) or 'none'}")
+    chains = [_latent_levels(p) for p in paths]
+    for p, chain in zip(paths, chains):
+        if resolution is not None and chain[0] != tuple(resolution):
+            raise InputError(f"latent texture {p} is {chain[0][1]} x {chain[0][0]} texels; the networks were "
+                             f"trained on a {resolution[1]} x {resolution[0]} latent grid")
+        if levels is not None and len(chain) != levels:
+            raise InputError(f"latent texture {p} has {len(chain)} MIP level(s); the latent pyramid has {levels}")
+        if chain != chains[0]:
+            raise InputError(f"latent texture {p}: MIP levels {chain} differ from {paths[0]}'s {chains[0]}")
+    (h, w) = chains[0][0]
+    return LatentLayout(channels, groups, w, h, len(chains[0]))
+
+
+def _expected_latents(model_or_export) -> tuple[tuple[int, int] | None, int | None]:
+    """(level-0 (height, width), level count) the networks were trained with, where known."""
+    if isinstance(model_or_export, (str, Path)):
+        p = Path(model_or_export)
+        manifest = p / "weights.json" if p.is_dir() else p
+        try:
+            arch = json.loads(manifest.read_text()).get("architecture", {})
+        except (OSError, ValueError):
+            return None, None  # as_spec reports an unreadable manifest
+        res = arch.get("latent_resolution")  # [width, height]
+        return (tuple(reversed(res)) if res else None), arch.get("levels")
+    latents = getattr(model_or_export, "latents", None)
+    if latents is not None and hasattr(latents, "levels"):
+        return tuple(latents.levels[0].shape[1:]), int(latents.num_levels)
+    return None, None
+
+
+# ------------------------------------------------------------------------------ the document
+
+
+def build_document(name: str, layout: LatentLayout, latent_values: list[str],
+                   env_samples: int = DEFAULT_ENV_SAMPLES, doc_string: str = ""):
+    """The MaterialX document of material ``name`` (module docstring); ``latent_values`` are the
+    latent inputs' file names as the document will state them."""
+    n = node_names(name)
+    doc = mx.createDocument()
+    nd = doc.addNodeDef(n.nodedef, "BSDF", n.category)
+    nd.setNodeGroup("pbr")
+    nd.setAttribute("bsdf", "R")
+    nd.setDocString(doc_string or f"Neural BSDF of material {name} (mtlx2neural)")
+    nd.addInput("weight", "float").setValue(1.0)
+    for g in range(layout.groups):
+        nd.addInput(f"latent{g}", "filename").setValueString("")
+    nd.addInput("texcoord", "vector2").setDefaultGeomPropString("UV0")
+    nd.addInput("normal", "vector3").setDefaultGeomPropString("Nworld")
+    nd.addInput("tangent", "vector3").setDefaultGeomPropString("Tworld")
+    samples = nd.addInput("env_samples", "integer")
+    samples.setValue(int(env_samples))
+    samples.setIsUniform(True)
+    for target, file in (("genglsl", n.glsl), ("genslang", n.slang)):
+        impl = doc.addImplementation(f"IM_neural_{n.ident}_bsdf_{target}")
+        impl.setNodeDef(nd)
+        impl.setTarget(target)
+        impl.setFile(file)
+        impl.setFunction(n.function)
+    node = doc.addNode(n.category, n.node, "BSDF")
+    for g, value in enumerate(latent_values):
+        node.setInputValue(f"latent{g}", value, "filename")
+    surface = doc.addNode("surface", n.surface, "surfaceshader")
+    surface.setConnectedNode("bsdf", node)
+    doc.addMaterialNode(n.material, surface)
+    return doc
+
+
+def validate_document(doc, where: str = "the neural material document") -> None:
+    """``doc.validate()`` with the standard libraries imported (on a copy); raises on failure."""
+    ok, message = with_libraries(doc).validate()
+    if not ok:
+        raise Mtlx2NeuralError(f"{where} does not validate: {message.strip()}")
+
+
+def _relative(path: Path, folder: Path) -> str:
+    try:
+        return Path(os.path.relpath(path.resolve(), folder.resolve())).as_posix()
+    except ValueError:  # another drive
+        return path.resolve().as_posix()
+
+
+def write_materialx_node(model_or_export, name: str, folder, *, latent_files=None,
+                         env_samples: int = DEFAULT_ENV_SAMPLES) -> Path:
+    """Write ``NeuralMaterial_<ident>.mtlx`` and its ``.glsl`` / ``.slang`` implementations for
+    material ``name`` into ``folder``; returns the ``.mtlx`` path.
+
+    ``model_or_export``: a NeuralMaterial (float32 weights), an export folder or its
+    ``weights.json`` (the FP16 weights as stored), or a NetworkSpec. ``latent_files``: the latent
+    textures in channel order; by default ``latents_<k>.exr`` in the export folder, or in ``folder``
+    for a model. They are checked (InputError naming the file when missing or malformed) and
+    referenced relative to ``folder``. ``env_samples``: learned-sampler directions per pixel
+    under environment light. Directions and units as :mod:`.materialx_shader`: local frame z =
+    normal, x = tangent; the BSDF's response to a light is f * cos(wo) (cosine included)."""
+    folder = Path(folder)
+    spec = as_spec(model_or_export)
+    if latent_files is None:
+        if isinstance(model_or_export, (str, Path)):
+            base = Path(model_or_export)
+            base = base if base.is_dir() else base.parent
+        else:
+            base = folder
+        latent_files = [base / f for f in latent_file_names(spec.latent_channels)]
+    resolution, levels = _expected_latents(model_or_export)
+    layout = check_latent_files(latent_files, spec.latent_channels, resolution, levels)
+    names = node_names(name)
+    folder.mkdir(parents=True, exist_ok=True)
+    doc = build_document(name, layout, [_relative(Path(p), folder) for p in latent_files], env_samples)
+    validate_document(doc, f"the MaterialX document of material {name}")
+    version, source = _version(), _describe_source(model_or_export)
+    texts = {names.glsl: node_source(spec, name, layout, "genglsl", file=names.glsl, nodedef=names.nodedef,
+                                     version=version, source=source),
+             names.slang: node_source(spec, name, layout, "genslang", file=names.slang, nodedef=names.nodedef,
+                                      version=version, source=source),
+             names.mtlx: mx.writeToXmlString(doc)}
+    for file, text in texts.items():  # the document last: it names the other two
+        with atomic_path(folder / file) as tmp:
+            tmp.write_text(text)
+    return folder / names.mtlx
+
+
+# ------------------------------------------------------------------------------ shader generation
+
+
+def load_node_document(mtlx_path):
+    """The document at ``mtlx_path`` with the standard libraries as its data library."""
+    doc = mx.createDocument()
+    try:
+        mx.readFromXmlFile(doc, str(mtlx_path))
+    except Exception as exc:  # noqa: BLE001 (MaterialX raises its own exception types)
+        raise InputError(f"{mtlx_path}: cannot read the MaterialX document ({exc})") from None
+    doc.setDataLibrary(standard_library())
+    return doc
+
+
+def generation_context(generator, mtlx_path, *, environment: str = "fis", vertical_flip: bool = True,
+                       max_lights: int = 1):
+    """A GenContext for ``generator`` that finds the standard library sources and the node's
+    implementation files beside ``mtlx_path``; ``environment`` is ``fis``, ``prefilter`` or ``none``
+    (MaterialX's specular environment method), ``vertical_flip`` its fileTextureVerticalFlip option
+    (True for OpenGL texture uploads with row 0 at the top, as MaterialXView)."""
+    ctx = mx_gen.GenContext(generator)
+    search = mx.getDefaultDataSearchPath()
+    search.append(mx.FilePath(str(Path(mtlx_path).resolve().parent)))
+    ctx.registerSourceCodeSearchPath(search)
+    options = ctx.getOptions()
+    options.hwSpecularEnvironmentMethod = {"fis": mx_gen.SPECULAR_ENVIRONMENT_FIS,
+                                           "prefilter": mx_gen.SPECULAR_ENVIRONMENT_PREFILTER,
+                                           "none": mx_gen.SPECULAR_ENVIRONMENT_NONE}[environment]
+    options.fileTextureVerticalFlip = vertical_flip
+    options.hwMaxActiveLightSources = max_lights
+    options.hwShadowMap = False
+    options.targetColorSpaceOverride = "lin_rec709"
+    return ctx
+
+
+def generate_node_shader(mtlx_path, target: str = "genglsl", material: str | None = None, **context):
+    """Generate the ``target`` shader (``genglsl`` or ``genslang``) of the surfacematerial
+    ``material`` (default: the document's first) in the document at ``mtlx_path``; returns
+    MaterialX's Shader. ``context``: :func:`generation_context`'s options."""
+    if target == "genglsl":
+        generator = mx_glsl.GlslShaderGenerator.create()
+    elif target == "genslang":
+        generator = mx_slang.SlangShaderGenerator.create()
+    else:
+        raise ValueError(f"unknown target {target!r}: genglsl or genslang")
+    doc = load_node_document(mtlx_path)
+    nodes = doc.getMaterialNodes()
+    node = doc.getNode(material) if material else (nodes[0] if nodes else None)
+    if node is None:
+        raise InputError(f"{mtlx_path}: no surfacematerial {material or ''} in the document")
+    ctx = generation_context(generator, mtlx_path, **context)
+    return generator.generate(node.getName(), node, ctx)
