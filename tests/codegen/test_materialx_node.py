@@ -73,6 +73,16 @@ def export(model: NeuralMaterial, folder: Path) -> Path:
     return folder
 
 
+@pytest.fixture(scope="module", autouse=True)
+def one_torch_thread():
+    """Small tensors on 2 shared cores: torch's thread pool mostly waits on the other processes
+    (a 64² environment render took 8.3 s with 2 threads and 0.4 s with 1 on the project machine)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def random_node(tmp_path_factory):
     """A seeded random model (8x8 latents, 8 channels, 2 frames) exported with its node."""
@@ -148,13 +158,15 @@ def test_generators_emit_a_complete_shader_without_edits(random_node, target, tm
 
 
 def test_shader_text_is_generated_from_the_networks(random_node, tmp_path):
-    """The baked weights are the exported FP16 values, and a model in memory gives its float32 weights."""
+    """The weights are literals of the exported FP16 values (the model was FP16-rounded before its
+    export, so its float32 weights are those values), in both languages; a model in memory works too."""
     folder, model, _ = random_node
-    glsl = (folder / "NeuralMaterial_Car_Paint.glsl").read_text()
-    w = float(model.decoder.net[0].weight[0, 0].detach())  # FP16-rounded (fp16_rounded), so exact either way
-    assert f"{w:.9g}" in glsl
-    assert "const float NM_Car_Paint_DEC[" in glsl and "static const float NM_Car_Paint_DEC[" in \
-        (folder / "NeuralMaterial_Car_Paint.slang").read_text()
+    for ext in ("glsl", "slang"):
+        text = (folder / f"NeuralMaterial_Car_Paint.{ext}").read_text()
+        for layer in (model.decoder.net[0], model.decoder.net[-1], model.sampler.net[2]):
+            for w in (layer.weight[0, 0], layer.weight[-1, -1], layer.bias[0]):
+                assert str(np.float32(abs(float(w.detach())))) in text
+        assert "NM_Car_Paint_DEC" not in text  # unrolled: no weight arrays
     for p in folder.glob("latents_*.exr"):
         shutil.copy(p, tmp_path / p.name)
     out = write_materialx_node(model, "Car Paint", tmp_path, env_samples=32)  # latents found beside the node
@@ -296,7 +308,7 @@ def test_glsl_renderer_matches_torch_under_a_directional_light(trained_node, gl_
     assert np.isfinite(gl).all() and gl.mean() > 1e-3
     # footprint 0.5: the level of detail of one 512² sample; the 8x8 latent grid is at level 0
     # almost everywhere on this sphere anyway.
-    ours = torch_render(model, [DirectionalLight(LIGHT, INTENSITY)], 256, 4, seed=1, footprint=0.5)
+    ours = torch_render(model, [DirectionalLight(LIGHT, INTENSITY)], 256, 16, seed=1, footprint=0.5)
     errors = image_errors(ours, gl)
     for name, img in (("a_glsl_neural", gl), ("b_torch_neural", ours),
                       ("c_glsl_original", gl_renders[("directional", "original")]["image"][..., :3])):
@@ -307,7 +319,7 @@ def test_glsl_renderer_matches_torch_under_a_directional_light(trained_node, gl_
     # on the same latents, filtered the same way (the node filters them itself from texelFetch),
     # so inside the sphere they agree to ~0.1%; what is left is sampling: GlslRenderer rasterises
     # a 128x64-segment sphere with interpolated normals at 4 ordered samples per pixel (512²
-    # averaged down), torch traces the analytic sphere with 4 jittered samples, so the silhouette
+    # averaged down), torch traces the analytic sphere with 16 jittered samples, so the silhouette
     # and the terminator differ by a fraction of a pixel. Measured 0.009.
     assert errors["flip"] <= 0.02, errors["flip"]
 
@@ -347,8 +359,8 @@ def test_environment_light_uses_the_learned_sampler(trained_node, gl_renders):
     assert (gl[covered].mean(-1) > 1e-3).mean() > 0.95  # lit everywhere on the sphere, not black
     original = gl_renders[("environment", "original")]["image"][..., :3]
     # Compared at 64²: each pixel then averages 4 GlslRenderer pixels (64 learned-sampler
-    # directions each) and 32 torch samples (each an environment and a BSDF sample, MIS).
-    ours = torch_render(t["model"], [EnvironmentMap(environment_for_torch(t["env"]))], 64, 32, seed=2,
+    # directions each) and 64 torch samples (each an environment and a BSDF sample, MIS).
+    ours = torch_render(t["model"], [EnvironmentMap(environment_for_torch(t["env"]))], 64, 64, seed=2,
                         sampler=t["model"], footprint=0.5)
     theirs = downsample(gl)
     errors = image_errors(ours, theirs)
