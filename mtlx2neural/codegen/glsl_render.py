@@ -239,6 +239,17 @@ def _to_numpy(img) -> np.ndarray:
     return np.frombuffer(buf, np.float32).reshape(h, w, c)[::-1].copy()  # GL rows start at the bottom
 
 
+def _check_files(doc, mtlx: Path) -> None:
+    """Raise naming the first file a node of ``doc`` reads that does not exist: MaterialX's image
+    handler would print a warning and render with a fallback colour."""
+    for node in doc.getNodes():
+        for inp in node.getInputs():
+            value = inp.getValueString() if inp.getType() == "filename" else ""
+            if value and not (mtlx.resolve().parent / value).is_file():
+                raise Mtlx2NeuralError(f"{mtlx}: node {node.getName()} reads {value}, which does not exist "
+                                       f"(relative paths are taken from the document's folder)")
+
+
 def _run(plan: dict) -> dict:
     # Local: MaterialX's render modules and the generator helpers run only in the child process.
     import MaterialX as mx
@@ -297,6 +308,7 @@ def _run(plan: dict) -> dict:
     results = []
     for job in renders:
         doc = load_node_document(job["mtlx"])
+        _check_files(doc, Path(job["mtlx"]))
         # The handler caches images by the name a document gives them: two documents naming
         # different latents_0.exr files relative to their folders would share one without this.
         images.clearImageCache()

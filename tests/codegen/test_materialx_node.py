@@ -38,7 +38,7 @@ from mtlx2neural.codegen.materialx_node import (
     node_names,
     write_materialx_node,
 )
-from mtlx2neural.errors import InputError
+from mtlx2neural.errors import InputError, Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
 from mtlx2neural.formats.weights import write_weights
 from mtlx2neural.graph import compile_material
@@ -385,3 +385,15 @@ def test_environment_light_uses_the_learned_sampler(trained_node, gl_renders):
     # 0.08, against 0.04 with unfiltered lookups (then only the two estimates' noise); at 64² with
     # 64 directions, as here, 0.12.
     assert errors["flip"] <= 0.15, errors["flip"]
+
+
+@needs_gl
+def test_glsl_render_names_a_missing_latent_file(random_node, tmp_path):
+    """Without the check, MaterialX's image handler warns and renders a fallback colour."""
+    folder, _, mtlx = random_node
+    work = tmp_path / "neural"
+    shutil.copytree(folder, work)
+    (work / "latents_1.exr").unlink()
+    with pytest.raises(Mtlx2NeuralError, match=r"reads latents_1\.exr, which does not exist"):
+        render_plan({"renders": [{"mtlx": str(work / mtlx.name), "out": str(tmp_path / "x.exr"), "size": 32,
+                                  "frames": 0}]})
