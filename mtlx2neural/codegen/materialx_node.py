@@ -53,7 +53,7 @@ from mtlx2neural.codegen.materialx_shader import (
 from mtlx2neural.codegen.spec import as_spec
 from mtlx2neural.errors import InputError, Mtlx2NeuralError
 from mtlx2neural.graph.library import standard_library, with_libraries
-from mtlx2neural.imaging.image_io import openimageio
+from mtlx2neural.imaging.mip_chain import read_mip_chain
 
 DEFAULT_ENV_SAMPLES = 16
 """Learned-sampler directions per pixel for environment light (MaterialXView's FIS default count)."""
@@ -95,34 +95,12 @@ def latent_file_names(channels: int) -> list[str]:
 
 def _latent_levels(path: Path) -> list[tuple[int, int]]:
     """(height, width) of every MIP level of the latent texture at ``path``, after decoding each
-    level (a truncated or corrupt file fails here); raises InputError naming the file."""
-    oiio = openimageio()
-    if not path.is_file():
-        what = "is a directory, not a file" if path.is_dir() else "does not exist"
-        raise InputError(f"latent texture {path} {what}; export the material again (its latents_<k>.exr "
-                         f"files hold the latent pyramid)")
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InputError(f"latent texture {path} cannot be read: {oiio.geterror() or 'unknown format'}")
-    try:
-        shapes = []
-        while inp.seek_subimage(0, len(shapes)):
-            spec = inp.spec()
-            if spec.nchannels != 4:
-                raise InputError(f"latent texture {path} has {spec.nchannels} channel(s); latent textures are RGBA")
-            px = inp.read_image(0, len(shapes), 0, 4, "float")
-            if px is None:
-                raise InputError(f"latent texture {path}: MIP level {len(shapes)} cannot be decoded "
-                                 f"({inp.geterror() or 'corrupt data'})")
-            if not np.isfinite(px).all():
-                raise InputError(f"latent texture {path}: MIP level {len(shapes)} holds non-finite values")
-            shapes.append((spec.height, spec.width))
-        if not shapes:
-            raise InputError(f"latent texture {path} holds no image")
-        return shapes
-    finally:
-        inp.close()
-        oiio.geterror()  # clear anything left pending
+    level (:func:`mtlx2neural.imaging.mip_chain.read_mip_chain`); raises InputError naming the file."""
+    chain = read_mip_chain(path)
+    for j, level in enumerate(chain):
+        if not np.isfinite(level).all():
+            raise InputError(f"latent texture {path}: MIP level {j} holds non-finite values")
+    return [tuple(level.shape[:2]) for level in chain]
 
 
 def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None = None,

@@ -25,6 +25,7 @@ import torch
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.fp16 import to_fp16
+from mtlx2neural.imaging.mip_chain import read_mip_chain
 
 TILE = 64
 COLORSPACE = "raw"
@@ -92,29 +93,6 @@ def write_latent_textures(levels: list[torch.Tensor], folder, stem: str = "laten
         _write_mip_chain(folder / name, images, k, channels)
         paths.append(folder / name)
     return paths, notes
-
-
-def read_mip_chain(path) -> list[np.ndarray]:
-    """Every MIP level of the EXR at ``path`` as [H_j, W_j, 4] float16 arrays (finest first)."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InputError(f"{path}: cannot read the latent texture ({oiio.geterror()})")
-    try:
-        images = []
-        while inp.seek_subimage(0, len(images)):
-            j = len(images)
-            spec = inp.spec(0, j)
-            if spec.nchannels != 4:
-                raise InputError(f"{path}: a latent texture has 4 channels, this one {spec.nchannels}")
-            px = inp.read_image(0, j, 0, 4, "half")  # subimage, miplevel, channel range, format
-            if px is None:
-                raise InputError(f"{path}: cannot read MIP level {len(images)} ({inp.geterror()})")
-            images.append(np.asarray(px).reshape(spec.height, spec.width, 4))
-        return images
-    finally:
-        inp.close()
 
 
 def read_latent_textures(paths, channels: int) -> list[torch.Tensor]:

@@ -42,9 +42,9 @@ import torch
 from mtlx2neural.baseline.analytic_model import fit_analytic
 from mtlx2neural.contract import Material, ShadingPoint
 from mtlx2neural.errors import InputError
-from mtlx2neural.export.latents import read_mip_chain
 from mtlx2neural.export.load import _neural_prims, load_neural
 from mtlx2neural.export.usd_writer import register_schema
+from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.pipeline.plan import DECODERS
 from mtlx2neural.reference.loading import load_reference
 from mtlx2neural.render.renderer import compare, compare_many, save_png

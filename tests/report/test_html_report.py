@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from mtlx2neural.cli import main
-from mtlx2neural.export.latents import read_mip_chain
+from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.report.html_report import SECTIONS
