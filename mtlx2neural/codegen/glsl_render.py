@@ -250,16 +250,31 @@ def _check_files(doc, mtlx: Path) -> None:
                                        f"(relative paths are taken from the document's folder)")
 
 
+def _gl_renderer() -> str | None:
+    """The current GL context's ``GL_RENDERER`` and ``GL_VERSION`` strings (e.g. "llvmpipe (LLVM
+    15.0.6, 256 bits); 4.5 (Compatibility Profile) Mesa 22.3.6"), None where libGL cannot be asked."""
+    try:
+        gl = ctypes.CDLL("libGL.so.1")
+        gl.glGetString.restype = ctypes.c_char_p
+        gl.glGetString.argtypes = [ctypes.c_uint]
+        names = [gl.glGetString(code) for code in (0x1F01, 0x1F02)]  # GL_RENDERER, GL_VERSION
+    except (OSError, AttributeError):
+        return None
+    return "; ".join(n.decode() for n in names if n) or None
+
+
 def _run(plan: dict) -> dict:
     # Local: MaterialX's render modules and the generator helpers run only in the child process.
     import MaterialX as mx
     import MaterialX.PyMaterialXGenGlsl as mx_glsl
+    import MaterialX.PyMaterialXGenShader as mx_gen
     import MaterialX.PyMaterialXRender as mx_render
     import MaterialX.PyMaterialXRenderGlsl as mx_rglsl
 
     renders = plan["renders"]
     renderer = mx_rglsl.GlslRenderer.create(renders[0]["size"], renders[0]["size"], mx_render.BaseType.FLOAT)
     renderer.initialize()  # exits the process without a display: hence the child process
+    gl_name = _gl_renderer()
     images = mx_rglsl.GLTextureHandler.create(mx_render.StbImageLoader.create())
     loader = _oiio_loader_class()()  # kept referenced: MaterialX holds only the C++ half of it
     images.addLoader(loader)
@@ -305,6 +320,11 @@ def _run(plan: dict) -> dict:
     camera.setProjectionMatrix(mx_render.Camera.createPerspectiveMatrix(-half, half, -half, half, near, 100.0))
 
     generator = mx_glsl.GlslShaderGenerator.create()
+    # Colour management as MaterialX's viewers set it up: without it an image input's colour space
+    # (e.g. srgb_texture on a PNG albedo) is ignored and the texture is read as linear.
+    cms = mx_gen.DefaultColorManagementSystem.create(generator.getTarget())
+    cms.loadLibrary(standard_library())
+    generator.setColorManagementSystem(cms)
     results = []
     for job in renders:
         doc = load_node_document(job["mtlx"])
@@ -343,7 +363,7 @@ def _run(plan: dict) -> dict:
         results.append({"out": job["out"], "material": material.getName(), "size": size,
                         "seconds_per_frame": float(np.median(times)) if times else None, "first_frame": first,
                         "background": background.tolist(), "covered": int(covered.sum())})
-    return {"renders": results, "images_loaded": sorted(set(loader.loaded))}
+    return {"renders": results, "images_loaded": sorted(set(loader.loaded)), "renderer": gl_name}
 
 
 def main(argv=None) -> int:
