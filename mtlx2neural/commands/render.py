@@ -15,7 +15,8 @@ HELP = "render one material (reference or neural) to an EXR and a PNG"
 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}.")
-    p.add_argument("asset", metavar="ASSET", help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz)")
+    p.add_argument("asset", metavar="ASSET", help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz), or the neural "
+                   "layer that mtlx2neural ASSET wrote (<asset stem>_neural.usda)")
     add_options(p, RenderOptions)
     return p
 
@@ -26,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from mtlx2neural.report.views import render_asset
 
     s = render_asset(args.asset, options)
-    print(f"{s['material']} ({s['model']}): {s['geometry']} under {s['env']} (MIS: {s['mis']}), {s['res']}x{s['res']}, "
+    model = s["model"] if s["neural_source"] is None else f"{s['model']}, from the {s['neural_source']} {s['neural_path']}"
+    print(f"{s['material']} ({model}): {s['geometry']} under {s['env']} (MIS: {s['mis']}), {s['res']}x{s['res']}, "
           f"{s['spp']} spp in {s['seconds']} s; wrote {s['exr']} and {s['png']}")
     return 0

@@ -77,11 +77,30 @@ def _get(prim, name: str, path):
 
 
 def _resolved(asset_path, prim, name: str, path) -> Path:
+    """The file ``asset_path`` names: USD's resolved path, else (a file that does not exist) the
+    authored path anchored at the layer's folder, so that the reader's error names the file."""
     p = asset_path.resolvedPath
-    if not p:
-        raise InputError(f"{path}: {prim.GetPath()}.{name} names {asset_path.path!r}, which does not exist "
-                         f"relative to the layer; keep the exported folder next to the .usda")
-    return Path(p)
+    if p:
+        return Path(p)
+    if not asset_path.path:
+        raise InputError(f"{path}: {prim.GetPath()}.{name} is empty; re-export it with mtlx2neural")
+    return (Path(path).resolve().parent / asset_path.path).resolve()
+
+
+def _read_weights(manifest_file: Path, weights_file: Path, prim, path):
+    """(manifest, tensors, architecture, the architecture's shape fields) of the exported weights; a
+    missing file is an :class:`InputError` naming it (a malformed one raises KeyError, TypeError or
+    ValueError, which the caller names it for)."""
+    for f, what, attr in ((manifest_file, "weights manifest", "neural:weightsManifest"),
+                          (weights_file, "weights", "neural:weights")):
+        if not f.is_file():
+            raise InputError(f"{f}: the {what} file that {path} names ({prim.GetPath()}.{attr}) "
+                             f"{'is a directory' if f.is_dir() else 'does not exist'}; keep the exported "
+                             f"folder next to the layer, or export the material again")
+    manifest, state = read_weights(manifest_file, weights_file)  # InputError: unreadable, size, sha256
+    arch = manifest["architecture"]
+    return manifest, state, arch, {"latent_channels": arch["latent_channels"], "frames": arch["frames"],
+                                   "decoder_hidden": list(arch["decoder_hidden"])}
 
 
 def load_neural(path, material: str | None = None, device: str = "cpu") -> ExportedNeuralMaterial:
@@ -110,11 +129,14 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
     manifest_file = _resolved(_get(prim, "neural:weightsManifest", path), prim, "neural:weightsManifest", path)
     weights_file = _resolved(_get(prim, "neural:weights", path), prim, "neural:weights", path)
     textures = [_resolved(a, prim, "neural:latentTextures", path) for a in _get(prim, "neural:latentTextures", path)]
-    manifest, state = read_weights(manifest_file, weights_file)
-    arch = manifest["architecture"]
-    checks = {"neural:latentChannels": (channels, arch["latent_channels"]),
-              "neural:frameCount": (int(_get(prim, "neural:frameCount", path)), arch["frames"]),
-              "neural:decoderLayers": (list(_get(prim, "neural:decoderLayers", path)), arch["decoder_hidden"])}
+    try:
+        manifest, state, arch, shape = _read_weights(manifest_file, weights_file, prim, path)
+    except (KeyError, TypeError, ValueError) as exc:  # tensor entries that do not fit the binary
+        raise InputError(f"{manifest_file}: malformed weights manifest ({type(exc).__name__}: {exc}); "
+                         f"export the material again") from None
+    checks = {"neural:latentChannels": (channels, shape["latent_channels"]),
+              "neural:frameCount": (int(_get(prim, "neural:frameCount", path)), shape["frames"]),
+              "neural:decoderLayers": (list(_get(prim, "neural:decoderLayers", path)), shape["decoder_hidden"])}
     for name, (usd_value, file_value) in checks.items():
         if usd_value != file_value:
             raise InputError(f"{path}: {prim.GetPath()}.{name} = {usd_value} but {manifest_file} says "

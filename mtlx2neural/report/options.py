@@ -32,10 +32,13 @@ class RenderOptions:
     """USD prim path, prim name or MaterialX material name (may be left out when the asset selects
     exactly one)."""
     model: str = field(default="reference", metadata={"choices": ("reference", "neural")})
-    """reference (the MaterialX reference BRDF) or neural (the trained checkpoint)."""
+    """reference (the MaterialX reference BRDF) or neural: read from the exported layer and its files
+    when ASSET is the ``*_neural.usda`` layer or that layer lies beside ASSET, else from the training
+    checkpoint."""
     checkpoint: str | None = field(default=None, metadata={"metavar": "PATH"})
-    """The neural model's ``checkpoint.pt`` or its folder (default:
-    ``<asset stem>_neural/<material folder>/checkpoint.pt`` beside the asset)."""
+    """Render the neural model of this ``checkpoint.pt`` (or its folder) instead of the exported layer
+    (default, when no layer records the material: ``<asset stem>_neural/<material folder>/checkpoint.pt``
+    beside the asset)."""
     geometry: str = "sphere"
     """sphere, plane, teapot (MaterialX's ``resources/Geometry/teapot.obj``) or a path to an .obj."""
     env: str = "sky"

@@ -5,8 +5,11 @@ arguments. Geometry is ``sphere``, ``plane``, ``teapot`` (MaterialX's
 ``resources/Geometry/teapot.obj``, found through MATERIALX_SEARCH_PATH or the
 ``../shared`` assets next to the repository) or a path to an ``.obj``; lighting
 is ``sky`` (the procedural :meth:`EnvironmentMap.sky`) or a lat-long ``.hdr``/``.exr``
-file. The neural model's checkpoint defaults to the one ``mtlx2neural ASSET``
-writes: ``<asset folder>/<asset stem>_neural/<material folder>/checkpoint.pt``.
+file. The neural model comes from the exported layer and its files (what ships,
+:func:`~mtlx2neural.export.load.load_neural`) when there is one, else from the
+training checkpoint that ``mtlx2neural ASSET`` writes:
+``<asset folder>/<asset stem>_neural/<material folder>/checkpoint.pt``
+(:func:`neural_source` says which, and why).
 The EXR (float32 linear RGB) and the PNG (sRGB, exposure 1) are written through
 temporary files and renamed into place, so a failed run leaves no partial file.
 """
@@ -22,15 +25,27 @@ import numpy as np
 
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
+from mtlx2neural.export.load import load_neural
+from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.graph import compile_material
 from mtlx2neural.model.checkpoint import load_checkpoint
-from mtlx2neural.pipeline.layout import default_output, material_folder
+from mtlx2neural.pipeline.layout import (
+    FOLDER_MARKER,
+    LAYER_SUFFIXES,
+    SNAPSHOT_NAME,
+    LayerRecord,
+    OutputLayout,
+    material_folder,
+    read_layer_record,
+    resolve_output,
+)
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
 from mtlx2neural.render.lighting import EnvironmentMap
 from mtlx2neural.render.renderer import render_scene, save_png
 from mtlx2neural.report.options import RenderOptions
 from mtlx2neural.scene import find_material
+from mtlx2neural.scene.dependencies import canonical
 
 GEOMETRIES = ("sphere", "plane", "teapot")
 TEAPOT = Path("resources") / "Geometry" / "teapot.obj"
@@ -93,13 +108,66 @@ def write_png(path, img: np.ndarray) -> None:
         save_png(tmp, img)
 
 
+def conversion_outputs(asset) -> OutputLayout:
+    """Where ``mtlx2neural ASSET`` (no ``-o``) writes for ``asset``: the folder ``<asset stem>_neural``
+    beside it and the layer ``<asset stem>_neural.usda``. A stage snapshot (``OUT/stage-snapshot.usda``
+    in a folder this tool marked, written when an in-memory or edited stage was converted) belongs
+    to the conversion that wrote it: folder ``OUT``, layer ``OUT.usda``."""
+    path = Path(asset).resolve()
+    if path.name == SNAPSHOT_NAME and (path.parent / FOLDER_MARKER).is_file():
+        return resolve_output(path, path.parent)
+    return resolve_output(path)
+
+
 def default_checkpoint(asset, material_name: str) -> Path:
-    """Where ``mtlx2neural ASSET`` puts the checkpoint of ``material_name`` (or, when only that
-    exists, where mtlx2neural 0.2 put it: the name with every run of other characters as ``_``)."""
-    out = default_output(asset)
+    """Where ``mtlx2neural ASSET`` puts the checkpoint of ``material_name`` (in the folder of
+    :func:`conversion_outputs`; or, when only that exists, where mtlx2neural 0.2 put it: the name
+    with every run of other characters as ``_``)."""
+    out = conversion_outputs(asset).folder
     current = out / material_folder(material_name) / "checkpoint.pt"
     legacy = out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", material_name.strip("/")) or "material") / "checkpoint.pt"
     return legacy if legacy.is_file() and not current.is_file() else current
+
+
+def neural_layer_record(asset) -> LayerRecord | None:
+    """The record of ``asset`` when it is a neural layer this tool wrote, else None."""
+    path = Path(asset)
+    if path.suffix.lower() not in LAYER_SUFFIXES or not path.is_file():
+        return None
+    return read_layer_record(path)
+
+
+def _layer_entry(layer: Path, record: LayerRecord, material: str | None) -> tuple[str | None, str | None]:
+    """(material name, prim path) of ``material`` among the neural layer's recorded materials;
+    (None, material) when the record lists none (a layer of mtlx2neural 0.2: load_neural chooses)."""
+    entries = record.materials
+    if not entries:
+        return None, material
+    if material is None:
+        if len(entries) == 1:
+            name = next(iter(entries))
+            return name, entries[name].get("prim")
+        raise InputError(f"{layer}: {len(entries)} neural materials ({', '.join(sorted(entries))}); "
+                         f"choose one with --material")
+    for name, e in entries.items():
+        prim = e.get("prim") or ""
+        if material in (name, prim, prim.rsplit("/", 1)[-1]) or "/" + material.lstrip("/") == prim:
+            return name, prim
+    raise InputError(f"{layer}: no neural material {material!r}; it holds {', '.join(sorted(entries))}")
+
+
+def neural_source(asset, material_name: str) -> tuple[str, Path, str | None]:
+    """Where the neural model of ``material_name`` of the original ``asset`` comes from, without
+    ``--checkpoint``: ``("layer", layer, prim path)`` when the layer of :func:`conversion_outputs`
+    exists, was written for this ``asset`` and records this material (it and its files are what
+    ships, so they are preferred: a corrupt or missing exported file is then an error, not a
+    silent fall-back); else ``("checkpoint", default_checkpoint(...), None)``, as before layers
+    were read back."""
+    layer = conversion_outputs(asset).layer
+    record = neural_layer_record(layer)
+    if record is not None and record.source == canonical(asset) and material_name in record.materials:
+        return "layer", layer, record.materials[material_name].get("prim")
+    return "checkpoint", default_checkpoint(asset, material_name), None
 
 
 def render_asset(asset, output: str | Path | RenderOptions, material: str | None = None, model: str = "reference",
@@ -109,6 +177,21 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
                  seed: int = 0, allow_missing_textures: bool = False, mis: str = "own") -> dict:
     """Render ``material`` of ``asset`` with the reference or neural ``model``; write ``output`` (.exr)
     and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError.
+
+    ``asset`` is the original asset, a stage snapshot a conversion wrote, or the neural layer
+    ``mtlx2neural ASSET`` wrote (recognised by its ``customLayerData`` record). Which neural
+    model renders (the summary's ``neural_source``, ``"layer"`` or ``"checkpoint"``, and
+    ``neural_path``):
+
+    - ``checkpoint`` given: that training checkpoint (or its folder), always;
+    - ``asset`` is a neural layer: the layer and its exported files (:func:`load_neural`:
+      FP16 weights, latent EXRs), never a checkpoint; ``model="reference"`` renders the
+      original material of the input the layer records;
+    - otherwise :func:`neural_source`: the exported layer beside the asset when it records
+      this material, else the checkpoint.
+
+    A missing or malformed exported file (latent EXR, weights.bin, weights.json) is an
+    :class:`InputError` naming the file.
 
     ``mis="own"`` adds, per pass, one direction from the model's own sampler (the reference's lobe
     mixture, or the neural model's learned proxy) to the environment's light sample, combined by
@@ -134,26 +217,46 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
         raise InputError(f"--res and --spp must be positive (got {res}, {spp})")
     if distance <= 1.0 or not 0.0 < fov < 180.0:
         raise InputError("--distance must exceed 1 (bounding radii) and --fov lie in (0, 180) degrees")
-    src = find_material(asset, material)  # InputError for an unknown or ambiguous material
-    geo, lights = make_geometry(geometry), make_lights(env)
-    if model == "neural":
-
-        ck = Path(checkpoint) if checkpoint else default_checkpoint(asset, src.name)
-        material = load_checkpoint(ck)
-        texels = tuple(int(s) for s in material.latents.levels[0].shape[1:])
+    register_schema()  # before USD's schema registry is first built (a neural layer applies the API)
+    record = neural_layer_record(asset)
+    src = None
+    if record is not None:  # the neural layer: its record names the materials
+        name, prim = _layer_entry(Path(asset), record, material)
+        if model == "reference" and record.source is not None:
+            asset, material = record.source, name or material  # the input the layer was written for
+        name = name or material
     else:
-
+        src = find_material(asset, material)  # InputError for an unknown or ambiguous material
+        name, prim = src.name, None
+    geo, lights = make_geometry(geometry), make_lights(env)
+    source, ck = None, None
+    if model == "neural":
+        if checkpoint:
+            source, ck = "checkpoint", Path(checkpoint)
+        elif record is not None:
+            source, ck = "layer", Path(asset)
+        else:
+            source, ck, prim = neural_source(asset, name)
+        if source == "layer":
+            shading = load_neural(ck, prim)
+            name = name or shading.usd_info["material"]
+        else:
+            shading = load_checkpoint(ck)
+        texels = tuple(int(s) for s in shading.latents.levels[0].shape[1:])
+    else:
+        src = src or find_material(asset, material)
         compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
-        material, texels, ck = ReferenceMaterial(compiled), (1, 1), None
+        shading, texels, name = ReferenceMaterial(compiled), (1, 1), src.name
     t0 = time.time()
     # mis="own": the material samples its own directions (the reference's lobe mixture, the neural
     # model's learned proxy), through the Material protocol's sample/pdf.
-    img = render_scene(material, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed,
-                       sampler=material if mis == "own" else None)
+    img = render_scene(shading, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed,
+                       sampler=shading if mis == "own" else None)
     seconds = time.time() - t0
     png = output.with_suffix(".png")
     write_exr(output, img)
     write_png(png, img)
-    return {"material": src.name, "model": model, "checkpoint": str(ck) if ck else None, "exr": str(output),
+    return {"material": name, "model": model, "checkpoint": str(ck) if source == "checkpoint" else None,
+            "neural_source": source, "neural_path": str(ck) if ck else None, "exr": str(output),
             "png": str(png), "geometry": geometry, "env": env or "sky", "mis": mis, "res": res, "spp": spp,
             "seconds": round(seconds, 2), "mean": float(np.mean(img))}

@@ -1,0 +1,209 @@
+"""``mtlx2neural render --model neural`` from the exported layer and its files (what ships), the
+choice between that layer and the training checkpoint, stage snapshots, and a clear exit 2
+naming the file for every missing or corrupt exported file.
+
+No training: a seeded random NeuralMaterial is exported with :func:`export_asset` (about a second),
+so these tests check which model renders and what the errors say, not fidelity. Renders are 12x12
+at 2 spp on a plane (about a second each on 2 shared cores).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from cli_helpers import assert_clean_input_error, run_cli
+from conftest import SIMPLE_MTLX, write_float_image
+from materials import usd_painted_ball
+from pxr import Usd
+
+from mtlx2neural.export import export_asset
+from mtlx2neural.export.load import load_neural
+from mtlx2neural.model.neural_material import NeuralMaterial
+from mtlx2neural.pipeline.layout import (
+    SNAPSHOT_NAME,
+    material_folder,
+    prepare_folder,
+    resolve_output,
+)
+from mtlx2neural.report.views import render_asset
+from mtlx2neural.scene.snapshot import flatten, write_snapshot
+
+COMMON = ("--res", "12", "--spp", "2", "--geometry", "plane")
+KW = {"res": 12, "spp": 2, "geometry": "plane"}
+
+
+def random_model(seed: int) -> NeuralMaterial:
+    """A textured (5x3 latent grid, 6 channels: two latent EXRs) model with random latents."""
+    torch.manual_seed(seed)
+    m = NeuralMaterial((3, 5), in_dim=2, latent_dim=6, frames=2, decoder="2x16")
+    with torch.no_grad():
+        for lv in m.latents.levels:
+            lv.copy_(torch.randn(lv.shape))
+    return m.train(False)
+
+
+def summary(name: str) -> dict:
+    return {"material": name, "mtlx_material": name, "source_hash": "0" * 64, "flip_mean": 0.125, "steps": 30,
+            "device": "cpu", "device_name": "cpu (test)", "train_seconds": 1.5}
+
+
+def save_checkpoint(model: NeuralMaterial, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"model": model.state_dict(), "config": {"analytic_cosine": True}}, path)
+    return path
+
+
+def pixels(path) -> np.ndarray:
+    import OpenImageIO as oiio
+
+    return oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)
+
+
+@pytest.fixture
+def exported(tmp_path):
+    """red.mtlx, exported as ``mtlx2neural red.mtlx`` lays it out (red_neural.usda, red_neural/Red/neural/)."""
+    asset = tmp_path / "red.mtlx"
+    asset.write_text(SIMPLE_MTLX)
+    layout = resolve_output(asset)
+    folder = layout.folder / material_folder("Red")
+    layer, _ = export_asset(asset, [(random_model(0), summary("Red"), folder)], layout.folder, "fast")
+    return {"asset": asset, "layer": layer, "folder": folder, "files": folder / "neural"}
+
+
+def test_the_neural_layer_renders_its_exported_files_not_a_checkpoint(exported, tmp_path, capsys):
+    out = tmp_path / "layer.exr"
+    code, stdout, err = run_cli(capsys, "render", exported["layer"], "--model", "neural", "-o", out, *COMMON)
+    assert code == 0, err
+    assert f"from the layer {exported['layer']}" in stdout
+    s = render_asset(exported["layer"], tmp_path / "api.exr", model="neural", **KW)
+    assert (s["neural_source"], s["neural_path"], s["checkpoint"], s["material"]) == (
+        "layer", str(exported["layer"]), None, "Red")
+    np.testing.assert_array_equal(pixels(out), pixels(tmp_path / "api.exr"))  # same seed, same model
+
+    # The layer holds the model's FP16 values: a checkpoint of another model is a different image,
+    # a checkpoint of the loaded model the same one (equal to float32 rounding: tolerance 1e-5).
+    other = save_checkpoint(random_model(1), tmp_path / "other" / "checkpoint.pt")
+    s = render_asset(exported["layer"], tmp_path / "other.exr", model="neural", checkpoint=other, **KW)
+    assert (s["neural_source"], s["checkpoint"]) == ("checkpoint", str(other))
+    assert np.abs(pixels(tmp_path / "other.exr") - pixels(out)).max() > 1e-2
+    loaded = load_neural(exported["layer"], "Red")
+    same = save_checkpoint(loaded, tmp_path / "same" / "checkpoint.pt")
+    render_asset(exported["layer"], tmp_path / "same.exr", model="neural", checkpoint=same, **KW)
+    np.testing.assert_allclose(pixels(tmp_path / "same.exr"), pixels(out), rtol=1e-5, atol=1e-6)
+
+    # --model reference on the layer renders the original material of the input it records.
+    s = render_asset(exported["layer"], tmp_path / "ref.exr", **KW)
+    direct = render_asset(exported["asset"], tmp_path / "ref_direct.exr", **KW)
+    assert (s["material"], s["neural_source"]) == ("Red", None)
+    np.testing.assert_array_equal(pixels(tmp_path / "ref.exr"), pixels(tmp_path / "ref_direct.exr"))
+    assert direct["mean"] > 0
+
+
+def test_the_original_asset_prefers_the_layer_beside_it_then_the_checkpoint(exported, tmp_path):
+    ck = save_checkpoint(random_model(1), exported["folder"] / "checkpoint.pt")  # where training writes it
+    s = render_asset(exported["asset"], tmp_path / "a.exr", model="neural", **KW)
+    assert (s["neural_source"], s["neural_path"]) == ("layer", str(exported["layer"]))
+    from_layer = render_asset(exported["layer"], tmp_path / "b.exr", model="neural", **KW)
+    assert from_layer["neural_source"] == "layer"
+    np.testing.assert_array_equal(pixels(tmp_path / "a.exr"), pixels(tmp_path / "b.exr"))
+
+    # A layer written for another input does not count: the checkpoint renders.
+    record = exported["layer"].read_text()
+    exported["layer"].write_text(record.replace('string source = "./red.mtlx"', 'string source = "./blue.mtlx"'))
+    s = render_asset(exported["asset"], tmp_path / "c.exr", model="neural", **KW)
+    assert (s["neural_source"], s["checkpoint"]) == ("checkpoint", str(ck))
+    exported["layer"].unlink()  # no layer: the checkpoint, as before layers were read back
+    s = render_asset(exported["asset"], tmp_path / "d.exr", model="neural", **KW)
+    assert (s["neural_source"], s["checkpoint"]) == ("checkpoint", str(ck))
+    np.testing.assert_array_equal(pixels(tmp_path / "c.exr"), pixels(tmp_path / "d.exr"))
+    assert np.abs(pixels(tmp_path / "d.exr") - pixels(tmp_path / "a.exr")).max() > 1e-2
+
+
+def _truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[:-8])  # the last (1x1) MIP level's tile loses its data
+
+
+def _halve(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 4])  # inside the header
+
+
+def _three_channels(path: Path) -> None:
+    path.unlink()
+    write_float_image(path, np.full((3, 5, 3), 0.5, np.float32))
+
+
+def _garbage(path: Path) -> None:
+    path.write_bytes(b"\x76\x2f\x31\x01" + bytes(range(256)) * 4)  # the EXR magic number, then noise
+
+
+def _grow(path: Path) -> None:
+    path.write_bytes(path.read_bytes() + b"\0" * 64)
+
+
+def _bad_json(path: Path) -> None:
+    path.write_text(path.read_text()[:-40])
+
+
+def _no_architecture(path: Path) -> None:
+    manifest = json.loads(path.read_text())
+    del manifest["architecture"]
+    path.write_text(json.dumps(manifest))
+
+
+CORRUPTIONS = {
+    "missing latent EXR": ("latents_1.exr", Path.unlink, "does not exist"),
+    "truncated latent EXR": ("latents_0.exr", _truncate, "cannot be decoded"),
+    "latent EXR cut in its header": ("latents_0.exr", _halve, "cannot be read"),
+    "corrupt latent EXR": ("latents_0.exr", _garbage, "cannot be read"),
+    "three-channel latent EXR": ("latents_1.exr", _three_channels, "has 3 channel(s)"),
+    "missing weights.bin": ("weights.bin", Path.unlink, "does not exist"),
+    "weights.bin of the wrong size": ("weights.bin", _grow, "size or sha256 differs"),
+    "corrupt weights.json": ("weights.json", _bad_json, "cannot read the weights manifest"),
+    "weights.json without architecture": ("weights.json", _no_architecture, "malformed weights manifest"),
+    "missing weights.json": ("weights.json", Path.unlink, "does not exist"),
+}
+
+
+@pytest.mark.parametrize("case", list(CORRUPTIONS))
+def test_a_missing_or_corrupt_exported_file_exits_2_naming_it(exported, tmp_path, capsys, case):
+    name, corrupt, what = CORRUPTIONS[case]
+    target = exported["files"] / name
+    corrupt(target)
+    out = tmp_path / "x.exr"
+    for asset in (exported["layer"], exported["asset"]):  # the layer, and the asset it lies beside
+        code, stdout, err = run_cli(capsys, "render", asset, "--model", "neural", "-o", out, *COMMON)
+        assert_clean_input_error(code, stdout, err, os.path.realpath(target), what)
+        assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+def test_a_stage_snapshot_finds_its_conversions_layer_and_checkpoint(tmp_path, capsys):
+    """An in-memory stage's conversion writes OUT/stage-snapshot.usda, OUT/<material>/ and OUT.usda
+    (the steps of pipeline.convert, without training): ``render OUT/stage-snapshot.usda --model
+    neural`` reads OUT.usda, or without it OUT/<material>/checkpoint.pt."""
+    stage = Usd.Stage.CreateInMemory()
+    stage.GetRootLayer().ImportFromString(usd_painted_ball("float inputs:base = 0.8"))
+    layout = resolve_output(None, tmp_path / "out")
+    snapshot = layout.folder / SNAPSHOT_NAME
+    prepare_folder(layout, snapshot, "test")
+    write_snapshot(flatten(stage), snapshot)
+    name = "/World/Looks/Paint"
+    folder = layout.folder / material_folder(name)
+    layer, _ = export_asset(snapshot, [(random_model(0), summary(name), folder)], layout.folder, "fast",
+                            usda=layout.layer)
+    out = tmp_path / "r.exr"
+    code, stdout, err = run_cli(capsys, "render", snapshot, "--model", "neural", "-o", out, *COMMON)
+    assert code == 0, err
+    assert f"from the layer {layer}" in stdout and pixels(out).shape == (12, 12, 3)
+    layer.unlink()
+    ck = save_checkpoint(random_model(0), folder / "checkpoint.pt")
+    s = render_asset(snapshot, out, model="neural", **KW)
+    assert (s["neural_source"], s["checkpoint"], s["material"]) == ("checkpoint", str(ck), name)
+    ck.unlink()  # neither: exit 2 naming the checkpoint it looked for
+    code, stdout, err = run_cli(capsys, "render", snapshot, "--model", "neural", "-o", out, *COMMON)
+    assert_clean_input_error(code, stdout, err, str(ck))
