@@ -226,7 +226,9 @@ def convert_asset(asset, options: ConvertOptions | None = None, *legacy, **legac
     flattened into ``OUT/stage-snapshot.usda`` (:mod:`mtlx2neural.scene.snapshot`, written
     atomically just before the export), which the neural layer sublayers and the summaries
     name as ``source``, so ``report`` and ``render`` can load the reference later; a file
-    stage with unsaved edits warns that the snapshot, not the file, is converted. An
+    stage with unsaved edits warns that the snapshot, not the file, is converted. A later
+    conversion from a file into the same folder deletes that snapshot, now stale (unless it
+    keeps other materials of the earlier layer, whose summaries may name it). An
     in-memory root layer has no folder, so ``out`` (or ``usda``) is then required. The
     stage is never changed and nothing is written outside the output folder and the layer.
 
@@ -314,6 +316,10 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
             write_snapshot(flat, source)
         layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
                                        tool_version=__version__)
+        if flat is None and not (keep and keep.entries):
+            # An earlier conversion's snapshot of an in-memory or edited stage: the new layer sublayers
+            # the file instead, so it is stale (kept materials' summaries may still name it: kept then).
+            (layout.folder / SNAPSHOT_NAME).unlink(missing_ok=True)
     for s, e in zip(summaries, exported):
         s["usd"], s["export_notes"] = str(layer), e.notes
     summaries.kept = sorted(keep.entries) if keep else []

@@ -75,11 +75,13 @@ def test_file_stage_with_unsaved_edits_converts_a_snapshot_and_a_clean_one_the_f
         f"{PAINT}/SR.inputs:base").default == pytest.approx(0.25)
 
     # Saved, the same stage is the file: no warning, the layer sublayers the file, and the
-    # run may replace the snapshot run's layer (this tool's, for this output folder).
+    # run may replace the snapshot run's layer (this tool's, for this output folder); the
+    # snapshot, which nothing names any more, is deleted.
     stage.Save()
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
         clean = convert_asset(stage, _options())
+    assert not snapshot.exists() and (folder / "World.Looks.Paint" / "checkpoint.pt").is_file()
     # The material is the snapshot's (base 0.25): its training is reused, its source is now the file.
     assert clean[0]["source"] == str(asset) and clean[0]["cached"]
     written = Sdf.Layer.OpenAsAnonymous(str(layer))
