@@ -11,6 +11,7 @@ sane scale, and render it with GlslRenderer and with ``render_scene``.
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import shutil
 import subprocess
@@ -52,8 +53,38 @@ from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.trainer import Trainer
 
-GL_REASON = gl_unavailable()
-needs_gl = pytest.mark.skipif(GL_REASON is not None, reason=f"no GL context for MaterialX's renderer: {GL_REASON}")
+GL_PROBE = ("import MaterialX.PyMaterialXRender as r, MaterialX.PyMaterialXRenderGlsl as g; "
+            "g.GlslRenderer.create(8, 8, r.BaseType.UINT8).initialize()")
+
+
+@functools.cache
+def gl_reason() -> str | None:
+    """Why MaterialX's renderer cannot run here (None: it can), found once per session: what
+    ``gl_unavailable`` checks, then a real GL context, started in a child process as the renders do
+    (xvfb-run present but no Mesa, or a DISPLAY without GLX, fails there, not in the tests)."""
+    reason = gl_unavailable()
+    if reason is not None:
+        return reason
+    cmd = [sys.executable, "-c", GL_PROBE]
+    if shutil.which("xvfb-run"):
+        cmd = ["xvfb-run", "-a", "-s", "-screen 0 64x64x24"] + cmd
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return f"starting a GL context took over 120 s ({' '.join(cmd[:2])})"
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or [f"exit code {proc.returncode}"])[-1]
+        return f"GlslRenderer.initialize() failed ({last}); install libgl1-mesa-dri and libglx-mesa0"
+    return None
+
+
+@pytest.fixture(scope="session")
+def gl_context():
+    if gl_reason() is not None:
+        pytest.skip(f"no GL context for MaterialX's renderer: {gl_reason()}")
+
+
+needs_gl = pytest.mark.usefixtures("gl_context")
 
 LIGHT = (0.4, 0.7, 0.6)  # towards the light, world space (y up)
 INTENSITY = 3.0
@@ -240,8 +271,8 @@ def environment_image(height: int = 32, width: int = 64) -> np.ndarray:
 def trained_node(tmp_path_factory):
     """A textured material trained for a few steps (seeded), FP16-rounded, exported, with its node,
     the original material's document, a directional light rig and an environment."""
-    if GL_REASON is not None:
-        pytest.skip(f"no GL context for MaterialX's renderer: {GL_REASON}")
+    if gl_reason() is not None:
+        pytest.skip(f"no GL context for MaterialX's renderer: {gl_reason()}")
     root = tmp_path_factory.mktemp("materialx_gl")
     original = textured_document(root)
     doc = mx.createDocument()
