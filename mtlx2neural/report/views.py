@@ -22,11 +22,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf
 
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
 from mtlx2neural.export.load import load_neural
-from mtlx2neural.export.usd_writer import register_schema
+from mtlx2neural.export.usd_writer import LEGACY_DOC_PREFIX, RECORD_KEY, register_schema
 from mtlx2neural.graph import compile_material
 from mtlx2neural.model.checkpoint import load_checkpoint
 from mtlx2neural.pipeline.layout import (
@@ -133,6 +134,13 @@ def neural_layer_record(asset) -> LayerRecord | None:
     """The record of ``asset`` when it is a neural layer this tool wrote, else None."""
     path = Path(asset)
     if path.suffix.lower() not in LAYER_SUFFIXES or not path.is_file():
+        return None
+    try:  # the header alone first: an input asset (maybe large) is not read twice
+        head = Sdf.Layer.OpenAsAnonymous(str(path), True)  # metadataOnly
+    except Exception:  # noqa: BLE001 - any unreadable file is "not a neural layer" here
+        return None
+    if head is None or (RECORD_KEY not in dict(head.customLayerData)
+                        and not (head.documentation or "").startswith(LEGACY_DOC_PREFIX)):
         return None
     return read_layer_record(path)
 
