@@ -1,4 +1,5 @@
-"""Geometry for evaluation renders: a pinhole camera, an analytic sphere and plane, and OBJ meshes.
+"""Geometry for evaluation renders: perspective and orthographic cameras, an analytic sphere and
+plane, and OBJ meshes.
 
 Conventions (all torch float32, world units as the geometry defines them):
 
@@ -9,6 +10,10 @@ Conventions (all torch float32, world units as the geometry defines them):
   ``distance`` bounding-sphere radii (> 1: the camera is outside the object), with
   a full vertical field of view ``fov`` (degrees). Images are square, row 0 at the
   top; each pixel's ray passes through a uniformly jittered point of the pixel.
+- :class:`OrthographicCamera` looks from the same ``azimuth``/``elevation`` with
+  parallel rays: the image spans +-``half_width`` bounding-sphere radii (1.1: the
+  unit sphere with a margin, the evaluation views of ``renderer.render``); each
+  ray starts 2 radii in front of the centre, outside the bounding sphere.
 - :meth:`intersect` returns a :class:`Hits` for every ray: ``mask`` (hit or not),
   ``t`` (distance along the unit ray), ``position``, the orthonormal right-handed
   shading frame ``tangent``/``bitangent``/``normal`` (tangent = the surface's
@@ -16,17 +21,19 @@ Conventions (all torch float32, world units as the geometry defines them):
   flipped where the uv map is mirrored so that it follows +v), ``uv``, the uv
   density ``dpdu``/``dpdv`` (|dP/du|, |dP/dv| in world units per uv unit) and
   ``cos`` = |cos| between the ray and the geometric normal. Misses hold zeros.
-- Level of detail (:func:`ray_cone_lod`): a ray cone with spread angle
-  ``2 tan(fov/2) / res`` (one pixel) has width ``spread * t`` at the hit; the
-  footprint on the surface is that width / ``cos``, in uv units footprint/|dP/du|
-  and footprint/|dP/dv|, in texels of the finest level those times (w, h); lod =
-  log2 of the larger, clamped at 0.
+- Level of detail (:func:`ray_cone_lod`): every ray carries a cone of width
+  ``width + spread * t`` at distance ``t``. A pinhole's cone has width 0 at the
+  eye and spread ``2 tan(fov/2) / res`` (one pixel's angle); an orthographic
+  beam has the constant width of one pixel, ``2 half_width radius / res``, and
+  spread 0. The footprint on the surface is that width / ``cos``, in uv units
+  footprint/|dP/du| and footprint/|dP/dv|, in texels of the finest level those
+  times (w, h); lod = log2 of the larger, clamped at 0.
 
 Surfaces:
 
 - :class:`Sphere`: the unit sphere at the origin; u = 0.5 + atan2(x, z) / 2pi
-  around the y axis, v = acos(-y) / pi from the south pole (as render.py's
-  orthographic sphere).
+  around the y axis, v = acos(-y) / pi from the south pole; the tangent points
+  along increasing u.
 - :class:`Plane`: the square [-1, 1]^2 in the xz plane (y = 0, normal +y), uv over
   [0, 1]^2 repeated ``tiles`` times; u along +x, v along -z. Two-sided: seen from
   below, the normal and bitangent flip.
@@ -36,13 +43,15 @@ Surfaces:
   in the spirit of MikkTSpace). It is rasterised, not ray traced: each triangle is
   projected into the camera, every pixel of its screen bounding box is tested
   with an exact ray/triangle test against that pixel's ray, and a z-buffer keeps
-  the nearest hit. This needs the camera (``Rays.pinhole``) and is brute force
-  over triangles (no BVH), chunked to bound memory.
+  the nearest hit. This needs the camera's projection (``Rays.project``, from
+  either camera) and is brute force over triangles (no BVH), chunked to bound
+  memory.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,6 +62,25 @@ import torch.nn.functional as F
 from mtlx2neural.errors import InputError
 
 CANDIDATE_CHUNK = 1 << 21  # (triangle, pixel) pairs tested at once by the mesh rasteriser
+
+
+def _view_basis(azimuth: float, elevation: float):
+    """(d, right, up): the unit vector from the target towards a camera at ``azimuth``/``elevation``
+    (degrees), and the image axes (right = world_up x d, up = d x right; world up is +y, or -z when
+    looking straight down or up)."""
+    az, el = math.radians(azimuth), math.radians(elevation)
+    d = torch.tensor([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
+    world_up = torch.tensor([0.0, 1.0, 0.0]) if abs(d[1]) < 0.999 else torch.tensor([0.0, 0.0, -1.0])
+    right = F.normalize(torch.linalg.cross(world_up, d), dim=0)
+    return d, right, torch.linalg.cross(d, right)
+
+
+def _jittered_pixels(res: int, generator: torch.Generator | None):
+    """Image-plane coordinates (x, y) in [-1, 1] of one uniformly jittered point per pixel, row-major,
+    row 0 at the top (y = 1)."""
+    ij = torch.stack(torch.meshgrid(torch.arange(res), torch.arange(res), indexing="ij"), -1)
+    ij = ij.reshape(-1, 2).float() + torch.rand(res * res, 2, generator=generator)
+    return ij[:, 1] / res * 2 - 1, 1 - ij[:, 0] / res * 2
 
 
 @dataclass(frozen=True)
@@ -66,36 +94,80 @@ class Camera:
 
     def basis(self):
         """(d, right, up): unit vector from the target to the camera, and the image axes."""
-        az, el = math.radians(self.azimuth), math.radians(self.elevation)
-        d = torch.tensor([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
-        world_up = torch.tensor([0.0, 1.0, 0.0]) if abs(d[1]) < 0.999 else torch.tensor([0.0, 0.0, -1.0])
-        right = F.normalize(torch.linalg.cross(world_up, d), dim=0)
-        return d, right, torch.linalg.cross(d, right)
+        return _view_basis(self.azimuth, self.elevation)
 
     def rays(self, res: int, centre, radius: float, generator: torch.Generator | None = None) -> Rays:
-        """One ray per pixel (row-major, row 0 at the top) through a jittered point of the pixel."""
+        """One ray per pixel (row-major, row 0 at the top) through a jittered point of the pixel, all
+        from the eye: cones of width 0 at the eye and spread ``2 tan(fov/2) / res`` radians."""
         if self.distance <= 1.0:
             raise ValueError(f"camera distance {self.distance} must exceed 1 bounding-sphere radius")
         d, right, up = self.basis()
         origin = torch.as_tensor(centre, dtype=torch.float32) + d * (self.distance * radius)
         tan_half = math.tan(math.radians(self.fov) / 2)
-        ij = torch.stack(torch.meshgrid(torch.arange(res), torch.arange(res), indexing="ij"), -1)
-        ij = ij.reshape(-1, 2).float() + torch.rand(res * res, 2, generator=generator)
-        x = (ij[:, 1] / res * 2 - 1) * tan_half
-        y = (1 - ij[:, 0] / res * 2) * tan_half
-        dirs = F.normalize(-d + x[:, None] * right + y[:, None] * up, dim=-1)
-        return Rays(origin, dirs, 2 * tan_half / res, (d, right, up, tan_half, res))
+        x, y = _jittered_pixels(res, generator)
+        dirs = F.normalize(-d + (x * tan_half)[:, None] * right + (y * tan_half)[:, None] * up, dim=-1)
+
+        def project(points: torch.Tensor):
+            rel = points - origin
+            z = -(rel @ d)
+            zs = torch.where(z > 0, z, torch.ones_like(z))
+            return ((rel @ right) / zs / tan_half + 1) / 2 * res, (1 - (rel @ up) / zs / tan_half) / 2 * res, z
+
+        return Rays(origin, dirs, 2 * tan_half / res, 0.0, project)
+
+
+@dataclass(frozen=True)
+class OrthographicCamera:
+    """Parallel projection looking at the bounding-sphere centre (see the module docstring): the
+    image spans +-``half_width`` bounding radii around the centre in both axes."""
+
+    azimuth: float = 0.0
+    elevation: float = 20.0
+    half_width: float = 1.1
+
+    def basis(self):
+        """(d, right, up): unit vector from the target towards the camera, and the image axes."""
+        return _view_basis(self.azimuth, self.elevation)
+
+    def rays(self, res: int, centre, radius: float, generator: torch.Generator | None = None) -> Rays:
+        """One ray per pixel (row-major, row 0 at the top) through a jittered point of the pixel, all
+        along ``-d``; each starts on the plane 2 radii in front of the centre (outside the bounding
+        sphere). Beams of constant width ``2 half_width radius / res`` (world units) and spread 0."""
+        if self.half_width <= 0:
+            raise ValueError(f"orthographic half width {self.half_width} must be positive")
+        d, right, up = self.basis()
+        c = torch.as_tensor(centre, dtype=torch.float32)
+        span = self.half_width * radius
+        x, y = _jittered_pixels(res, generator)
+        origins = c + d * (2 * radius) + (x * span)[:, None] * right + (y * span)[:, None] * up
+        dirs = (-d).expand(res * res, 3).contiguous()
+
+        def project(points: torch.Tensor):
+            rel = points - c
+            return ((rel @ right) / span + 1) / 2 * res, (1 - (rel @ up) / span) / 2 * res, 2 * radius - rel @ d
+
+        return Rays(origins, dirs, 0.0, 2 * span / res, project)
 
 
 @dataclass
 class Rays:
-    """Primary rays sharing one ``origin`` [3]; ``dirs`` [P,3] unit; ``spread`` the cone angle
-    per pixel (radians); ``pinhole`` = (d, right, up, tan_half, res) for rasterising meshes."""
+    """Primary rays, one per pixel of a square ``res`` x ``res`` image (row-major).
+
+    ``origin``: [3] shared by every ray (a pinhole) or [P,3] one per ray (orthographic); ``dirs`` [P,3]
+    unit. Each ray carries a cone (module docstring, Level of detail) of ``width`` world units at the
+    origin that grows by ``spread`` radians per unit of distance. ``project`` maps world points [V,3]
+    to (column, row, depth) [V] each: pixel coordinates of the point (0..res across the image) and its
+    distance in front of the rays' origins (<= 0: behind), for rasterising meshes."""
 
     origin: torch.Tensor
     dirs: torch.Tensor
     spread: float
-    pinhole: tuple | None = None
+    width: float = 0.0
+    project: Callable | None = None
+
+    def origins(self, index: torch.Tensor) -> torch.Tensor:
+        """The origins of the rays ``index`` ([3] when they share one, else [len(index), 3])."""
+        return self.origin if self.origin.dim() == 1 else self.origin[index]
 
 
 @dataclass
@@ -128,9 +200,15 @@ class Hits:
         return w[:, 0:1] * self.tangent + w[:, 1:2] * self.bitangent + w[:, 2:3] * self.normal
 
 
-def ray_cone_lod(hits: Hits, spread: float, texels: tuple[int, int]) -> torch.Tensor:
-    """Level of detail [P] = log2(footprint in finest-level texels), >= 0 (module docstring)."""
-    foot = spread * hits.t / hits.cos.clamp_min(1e-4)
+def ray_cone_lod(hits: Hits, spread: float, texels: tuple[int, int], width: float = 0.0) -> torch.Tensor:
+    """Level of detail [P] = log2(footprint in finest-level texels), clamped to [0, 30].
+
+    The cone's width at the hit is ``width + spread * t`` world units (``width`` at the ray's origin,
+    ``spread`` radians: 0 and one pixel's angle for a pinhole, one pixel's size and 0 for an
+    orthographic beam); divided by ``cos`` it is the footprint on the surface, divided by
+    ``dpdu``/``dpdv`` and times the texel counts (h, w) it is in texels; the larger of the two axes
+    counts (module docstring)."""
+    foot = (width + spread * hits.t) / hits.cos.clamp_min(1e-4)
     h, w = texels
     du = foot * w / hits.dpdu.clamp_min(1e-12)
     dv = foot * h / hits.dpdv.clamp_min(1e-12)
@@ -156,7 +234,7 @@ class Sphere:
     def intersect(self, rays: Rays) -> Hits:
         o, d = rays.origin, rays.dirs
         b = (d * o).sum(-1)
-        disc = b * b - (o @ o - 1.0)
+        disc = b * b - ((o * o).sum(-1) - 1.0)
         t = -b - disc.clamp_min(0).sqrt()
         mask = (disc > 0) & (t > 0)
         p = o + t[:, None] * d
@@ -182,7 +260,7 @@ class Plane:
     def intersect(self, rays: Rays) -> Hits:
         o, d = rays.origin, rays.dirs
         dy = torch.where(d[:, 1].abs() < 1e-9, torch.full_like(d[:, 1], 1e-9), d[:, 1])
-        t = -o[1] / dy
+        t = -o[..., 1] / dy
         p = o + t[:, None] * d
         mask = (t > 0) & (p[:, 0].abs() <= 1) & (p[:, 2].abs() <= 1)
         side = torch.where(d[:, 1] < 0, 1.0, -1.0)[:, None]  # +1 seen from above
@@ -246,15 +324,15 @@ class Mesh:
         return c, float((self.positions - c).norm(dim=-1).max())
 
     def intersect(self, rays: Rays) -> Hits:
-        if rays.pinhole is None:
-            raise ValueError("meshes are rasterised: the rays must come from Camera.rays")
-        d, right, up, tan_half, res = rays.pinhole
-        rel = self.positions - rays.origin
-        z = -(rel @ d)
+        if rays.project is None:
+            raise ValueError("meshes are rasterised: the rays must come from Camera.rays or "
+                             "OrthographicCamera.rays (Rays.project)")
+        res = math.isqrt(len(rays.dirs))
+        if res * res != len(rays.dirs):
+            raise ValueError(f"meshes are rasterised into a square image; got {len(rays.dirs)} rays")
+        sx, sy, z = rays.project(self.positions)  # column, row, depth
         if bool((z <= 1e-6).any()):
             raise ValueError("the camera is inside the mesh's bounding sphere")
-        sx = ((rel @ right) / z / tan_half + 1) / 2 * res  # column coordinate
-        sy = (1 - (rel @ up) / z / tan_half) / 2 * res  # row coordinate
         tri = self.triangles
         x, y = sx[tri], sy[tri]
         j0 = (x.min(1).values - 1e-3).floor().clamp(0, res).long()
@@ -277,7 +355,7 @@ class Mesh:
             k = torch.repeat_interleave(ks, cnt)
             off = torch.arange(int(cnt.sum())) - torch.repeat_interleave(torch.cumsum(cnt, 0) - cnt, cnt)
             pix = (i0[k] + off // w[k]) * res + j0[k] + off % w[k]
-            t, _, _ = self._ray_triangle(rays.origin, rays.dirs[pix], k)
+            t, _, _ = self._ray_triangle(rays.origins(pix), rays.dirs[pix], k)
             t = torch.where(t > 0, t, math.inf)
             ct = torch.full((npix,), math.inf).scatter_reduce(0, pix, t, "amin")
             win = torch.isfinite(t) & (t == ct[pix])
@@ -309,8 +387,8 @@ class Mesh:
         if len(idx) == 0:
             return hits
         k = best_k[idx]
-        dirs = rays.dirs[idx]
-        t, b1, b2 = self._ray_triangle(rays.origin, dirs, k)
+        dirs, origin = rays.dirs[idx], rays.origins(idx)
+        t, b1, b2 = self._ray_triangle(origin, dirs, k)
         bary = torch.stack([1 - b1 - b2, b1, b2], -1).clamp_min(0)
         bary = bary / bary.sum(-1, keepdim=True)
         tri = self.triangles[k]
@@ -322,7 +400,7 @@ class Mesh:
         tan, bit = _orthonormal(n, interp(self.tangents), self.handed[k])
         gn = self.geo_normal[k]
         hits.mask[idx] = True
-        for name, val in (("t", t), ("position", rays.origin + t[:, None] * dirs), ("tangent", tan),
+        for name, val in (("t", t), ("position", origin + t[:, None] * dirs), ("tangent", tan),
                           ("bitangent", bit), ("normal", n), ("uv", interp(self.uvs)),
                           ("dpdu", self.dpdu_len[k]), ("dpdv", self.dpdv_len[k]),
                           ("cos", (dirs * gn).sum(-1).abs())):

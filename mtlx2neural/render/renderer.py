@@ -1,30 +1,31 @@
-"""A small batched torch renderer for evaluation: a UV-mapped sphere under a directional light.
+"""A small batched torch renderer for evaluation: one direct-lighting loop, :func:`render_scene`,
+for every camera, geometry and light of :mod:`.geometry` and :mod:`.lighting`.
 
 Every material here is a :class:`~mtlx2neural.contract.Material` (the reference, the neural and
-the analytic one alike): the renderers call only its ``eval`` (and, for multiple importance
+the analytic one alike): the renderer calls only its ``eval`` (and, for multiple importance
 sampling, a material's ``sample`` and ``pdf``) with directions in the local shading frame (z the
 normal, x the tangent, ``wi`` to the camera, ``wo`` to the light) and a
 :class:`~mtlx2neural.contract.ShadingPoint` (``uv``, ``lod``, ``u_level``) per hit.
 
-Orthographic camera, unit sphere, y up. UVs are spherical (u around the y axis,
-v from the south pole), the tangent points along increasing u. Each pixel's
-colour is ``material.eval(wi, wo, ShadingPoint(uv, lod, u_level)) * intensity`` (f*cos,
-the cosine included), so a reference and a neural model are compared on the
-same geometry; ``spp`` jittered sub-pixel samples antialias both. The level of
-detail comes from the uv footprint of a pixel (finite differences between
-neighbouring pixels), in texels of the material's finest level, scaled to the
-footprint of one of the ``spp`` samples (:func:`sample_footprint_scale`).
+:func:`render_scene` takes a camera (perspective :class:`.geometry.Camera` or
+:class:`.geometry.OrthographicCamera`), a geometry (sphere, plane, OBJ mesh) and lights
+(directional lights, importance-sampled environment maps). Each of ``spp`` passes jitters every
+pixel's ray; a pixel's colour is the mean over passes of ``material.eval(wi, wo, at) * intensity``
+(f*cos, the cosine included) per directional light, plus one light sample (and optionally one
+BSDF sample, combined by MIS) per environment map. The level of detail comes from the ray cone
+(:func:`.geometry.ray_cone_lod`: a pinhole's cone spreads from the eye, an orthographic beam keeps
+one pixel's width), in texels of the material's finest level, scaled to the footprint of one of the
+``spp`` samples (:func:`sample_footprint_scale`).
 
-``compare`` renders several fixed views and reports HDR FLIP (flip-evaluator),
-mean absolute error and relative MSE per view; each render is stored under the name of the
-material it shows (``"reference"``, and the label given to the other, e.g. ``"neural"`` or
-``"analytic"``).
+:func:`render` is the evaluation view: the unit sphere (y up; u around the y axis, v from the south
+pole, the tangent along increasing u) seen orthographically (+-1.1 radii) from a :class:`View`'s
+azimuth/elevation under its directional light; a thin wrapper over :func:`render_scene`.
 
-:func:`render_scene` is the general entry point: a perspective camera on any
-geometry of :mod:`.geometry` (analytic sphere and plane, OBJ meshes) under the
-lights of :mod:`.lighting` (directional lights, importance-sampled environment
-maps), with ray-cone levels of detail. ``compare(..., geometry=, lights=)``
-uses it instead of the orthographic sphere.
+``compare`` renders several fixed views of a reference and another material with the same seeds
+and reports HDR FLIP (flip-evaluator), mean absolute error and relative MSE per view; each render
+is stored under the name of the material it shows (``"reference"``, and the label given to the
+other, e.g. ``"neural"`` or ``"analytic"``). By default the views are :func:`render`'s;
+``compare(..., geometry=, lights=)`` uses a perspective camera on any geometry and lights.
 """
 
 from __future__ import annotations
@@ -37,7 +38,13 @@ import numpy as np
 import torch
 
 from mtlx2neural.contract import Material, ShadingPoint
-from mtlx2neural.render.geometry import Camera, Hits, Sphere, ray_cone_lod
+from mtlx2neural.render.geometry import (
+    Camera,
+    Hits,
+    OrthographicCamera,
+    Sphere,
+    ray_cone_lod,
+)
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
 
 
@@ -54,30 +61,6 @@ class View:
 VIEWS = (View(0.0, 15.0), View(70.0, 35.0, (-0.6, 0.5, 0.6)), View(200.0, -10.0, (0.2, 0.2, -1.0)))
 
 
-def _camera(view: View):
-    az, el = math.radians(view.azimuth), math.radians(view.elevation)
-    d = torch.tensor([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
-    right = torch.nn.functional.normalize(torch.linalg.cross(torch.tensor([0.0, 1.0, 0.0]), d), dim=0)
-    up = torch.linalg.cross(d, right)
-    return d, right, up
-
-
-def _shade_points(res: int, view: View, jitter: torch.Tensor):
-    d, right, up = _camera(view)
-    ij = torch.stack(torch.meshgrid(torch.arange(res), torch.arange(res), indexing="ij"), -1).reshape(-1, 2).float()
-    px = (ij[:, 1] + jitter[0]) / res * 2.2 - 1.1
-    py = 1.1 - (ij[:, 0] + jitter[1]) / res * 2.2
-    r2 = px * px + py * py
-    hit = r2 < 1.0
-    z = (1.0 - r2).clamp_min(0).sqrt()
-    p = px[:, None] * right + py[:, None] * up + z[:, None] * d
-    u = 0.5 + torch.atan2(p[:, 0], p[:, 2]) / (2 * math.pi)
-    v = torch.acos((-p[:, 1]).clamp(-1, 1)) / math.pi
-    t = torch.nn.functional.normalize(torch.stack([p[:, 2], torch.zeros_like(u), -p[:, 0]], -1) + 1e-9, dim=-1)
-    b = torch.linalg.cross(p, t, dim=-1)
-    return p, t, b, torch.stack([u, v], -1), hit, d
-
-
 def sample_footprint_scale(spp: int) -> float:
     """The share of a pixel's footprint that one of ``spp`` jittered samples filters over:
     max(1/8, 1/sqrt(spp)), pbrt-v4's scale of camera-ray differentials.
@@ -90,47 +73,19 @@ def sample_footprint_scale(spp: int) -> float:
     return max(0.125, 1.0 / math.sqrt(max(spp, 1)))
 
 
-def _lod(uv: torch.Tensor, res: int, texels: tuple[int, int], scale: float = 1.0) -> torch.Tensor:
-    """log2 of ``scale`` times a pixel's uv footprint in finest-level texels (finite
-    differences, seam-aware), >= 0."""
-    g = uv.view(res, res, 2)
-    du = torch.diff(g, dim=1, append=g[:, -1:]).abs()
-    dv = torch.diff(g, dim=0, append=g[-1:]).abs()
-    du = torch.minimum(du, 1 - du)
-    dv = torch.minimum(dv, 1 - dv)
-    texel = torch.tensor([texels[1], texels[0]], dtype=uv.dtype)
-    foot = torch.maximum((du * texel).amax(-1), (dv * texel).amax(-1)).reshape(-1) * scale
-    return torch.log2(foot.clamp_min(1.0))
-
-
 def render(material: Material, view: View, res: int = 96, spp: int = 4, texels: tuple[int, int] = (1, 1),
            seed: int = 0, footprint: float | None = None) -> np.ndarray:
     """[res, res, 3] float32 linear HDR image of ``material.eval(wi, wo, ShadingPoint(uv, lod, u_level))``
-    (f*cos, local frame) on the sphere under ``view``'s directional light.
+    (f*cos, local frame) on the unit sphere under ``view``'s directional light, seen by an
+    :class:`.geometry.OrthographicCamera` at ``view``'s azimuth/elevation (the image spans +-1.1).
 
-    ``lod`` is log2 of ``footprint`` times the pixel's uv footprint in texels of ``texels``
-    (h, w); ``footprint`` defaults to :func:`sample_footprint_scale` of ``spp``."""
-    g = torch.Generator().manual_seed(seed)
-    scale = sample_footprint_scale(spp) if footprint is None else footprint
-    light = torch.nn.functional.normalize(torch.tensor(view.light, dtype=torch.float32), dim=0)
-    img = torch.zeros(res * res, 3)
-    for _ in range(spp):
-        jitter = torch.rand(2, generator=g)
-        p, t, b, uv, hit, d = _shade_points(res, view, jitter)
-        lod = _lod(uv, res, texels, scale)
-        idx = hit.nonzero()[:, 0]
-        n = p[idx]
-
-        def local(w):
-            return torch.stack([(w * t[idx]).sum(-1), (w * b[idx]).sum(-1), (w * n).sum(-1)], -1)
-
-        wi = local(d.expand(len(idx), 3))
-        wo = local(light.expand(len(idx), 3))
-        u_level = torch.rand(len(idx), generator=g)
-        with torch.no_grad():
-            f = material.eval(wi, wo, ShadingPoint(uv=uv[idx], lod=lod[idx], u_level=u_level))
-        img[idx] += f * view.intensity
-    return (img / spp).view(res, res, 3).numpy().astype(np.float32)
+    :func:`render_scene` with that camera, :class:`.geometry.Sphere` and one
+    :class:`.lighting.DirectionalLight`: ``lod`` is log2 of ``footprint`` times one pixel's width
+    on the surface (the orthographic beam's, divided by the cosine) in texels of ``texels`` (h, w);
+    ``footprint`` defaults to :func:`sample_footprint_scale` of ``spp``."""
+    return render_scene(material, Sphere(), OrthographicCamera(view.azimuth, view.elevation),
+                        [DirectionalLight(view.light, view.intensity)], res, spp, texels, seed,
+                        footprint=footprint)
 
 
 def render_scene(material: Material, geometry, camera, lights, res: int = 128, spp: int = 16,
@@ -139,11 +94,11 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
     """[res, res, 3] float32 linear HDR image of ``material`` on ``geometry``: its
     ``eval(wi, wo, ShadingPoint(uv, lod, u_level))`` (f*cos, local frame of each hit).
 
-    ``camera`` is a :class:`.geometry.Camera`, ``lights`` a sequence of
+    ``camera`` is a :class:`.geometry.Camera` or :class:`.geometry.OrthographicCamera`, ``lights`` a sequence of
     :class:`.lighting.DirectionalLight` / :class:`.lighting.EnvironmentMap`.
     Each of the ``spp`` passes jitters every pixel's ray, intersects the
     geometry, picks the level of detail from the ray cone (``texels`` = the
-    material's finest level, (h, w); the cone's spread times ``footprint``, by
+    material's finest level, (h, w); the cone's width and spread times ``footprint``, by
     default :func:`sample_footprint_scale` of ``spp``) and the latent level with
     one uniform per pixel, and adds for every directional light ``f*cos(wo) * intensity`` and
     for every environment map one light sample ``f*cos(wo) * L(wo) / pdf(wo)``.
@@ -170,7 +125,7 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
     for _ in range(spp):
         rays = camera.rays(res, centre, radius, g)
         hits = geometry.intersect(rays)
-        lod = ray_cone_lod(hits, rays.spread * scale, texels)
+        lod = ray_cone_lod(hits, rays.spread * scale, texels, rays.width * scale)
         u_level = torch.rand(npix, generator=g)
         light_u = [torch.rand(npix, 3, generator=g) if isinstance(li, EnvironmentMap) else None for li in lights]
         bsdf_u = [torch.rand(npix, 2, generator=g) if isinstance(li, EnvironmentMap) and sampler is not None

@@ -1,6 +1,7 @@
-"""Evaluation renderer and image errors: the orthographic sphere of ``render``/``compare``, and
-``render_scene`` with its geometry (sphere, plane, OBJ mesh), lights (directional, environment maps),
-ray-cone levels of detail and the ``mtlx2neural render`` command. Seeded, a few seconds in all."""
+"""Evaluation renderer and image errors: ``render_scene`` with its cameras (perspective,
+orthographic), geometry (sphere, plane, OBJ mesh), lights (directional, environment maps) and
+ray-cone levels of detail; ``render``/``compare``'s orthographic sphere on top of it; the
+``mtlx2neural render`` command. Seeded, a few seconds in all."""
 
 from __future__ import annotations
 
@@ -18,7 +19,14 @@ from mtlx2neural.baseline.analytic_model import AnalyticMaterial
 from mtlx2neural.cli import main
 from mtlx2neural.contract import as_point
 from mtlx2neural.model.neural_material import NeuralMaterial
-from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj, ray_cone_lod
+from mtlx2neural.render.geometry import (
+    Camera,
+    OrthographicCamera,
+    Plane,
+    Sphere,
+    load_obj,
+    ray_cone_lod,
+)
 from mtlx2neural.render.lighting import (
     DirectionalLight,
     EnvironmentMap,
@@ -26,7 +34,7 @@ from mtlx2neural.render.lighting import (
 )
 from mtlx2neural.render.renderer import (
     VIEWS,
-    _lod,
+    View,
     compare,
     compare_many,
     image_errors,
@@ -47,15 +55,6 @@ def test_sphere_render_and_flip():
     assert same["flip"] == 0.0 and same["mae"] == 0.0
     dark = image_errors(img, img * 0.5)
     assert dark["flip"] > 0.05 and dark["relmse"] > 0.0  # halving the brightness is clearly visible
-
-
-def test_lod_grows_with_texture_resolution():
-    uv = torch.rand(32 * 32, 2)
-    uv = torch.stack(torch.meshgrid(torch.linspace(0, 0.5, 32), torch.linspace(0, 0.5, 32), indexing="xy"), -1)
-    uv = uv.reshape(-1, 2)
-    # One pixel spans 0.5/31 of UV: ~16 texels of a 1024 texture (lod ~4), less than one of a 16 texture.
-    assert abs(float(_lod(uv, 32, (1024, 1024)).median()) - np.log2(1024 * 0.5 / 31)) < 0.1
-    assert float(_lod(uv, 32, (16, 16)).max()) == 0.0
 
 
 class _Eval:
@@ -109,6 +108,77 @@ def _lambert(wi, wo, at=None):
 
 
 lambert = _Eval(_lambert)
+
+
+def _camera_light(azimuth: float, elevation: float) -> tuple:
+    """The direction towards a camera at ``azimuth``/``elevation`` (degrees): a light there lights every
+    pixel the camera sees (the renderer skips pixels whose light is below the horizon)."""
+    az, el = math.radians(azimuth), math.radians(elevation)
+    return (math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el))
+
+
+def test_orthographic_rays_are_parallel_and_cover_the_sphere():
+    """Every ray runs along -d from its own origin; the unit sphere's disc covers pi / (4 * 1.1^2) of the
+    +-1.1 image. 64x64 jittered pixels: ~180 straddle the silhouette, each hit or missed at random, so the
+    fraction's standard deviation is ~0.002; the test allows 0.01."""
+    cam = OrthographicCamera(30.0, 20.0)
+    rays = cam.rays(64, *Sphere().bounds(), torch.Generator().manual_seed(0))
+    d, right, up = cam.basis()
+    assert rays.origin.shape == (64 * 64, 3) and rays.spread == 0.0
+    assert rays.width == pytest.approx(2.2 / 64)
+    assert torch.allclose(rays.dirs, -d.expand(64 * 64, 3))
+    # origins fill the image plane 2 radii in front of the centre, within +-1.1 in both axes
+    assert torch.allclose(rays.origin @ d, torch.full((64 * 64,), 2.0))
+    assert float((rays.origin @ right).abs().max()) <= 1.1 and float((rays.origin @ up).abs().max()) <= 1.1
+    hits = Sphere().intersect(rays)
+    assert abs(float(hits.mask.float().mean()) - math.pi / (4 * 1.1 ** 2)) < 0.01
+    assert torch.allclose(hits.t[hits.mask], 2 - (1 - (rays.origin[hits.mask] @ right) ** 2
+                                                  - (rays.origin[hits.mask] @ up) ** 2).sqrt(), atol=1e-5)
+
+
+def test_orthographic_sphere_uv_follows_the_spherical_map():
+    """At every hit the uv is the analytic one of the point under the pixel: p = x right + y up +
+    sqrt(1 - x^2 - y^2) d for the ray's image-plane (x, y); u = 0.5 + atan2(p.x, p.z) / 2pi, v =
+    acos(-p.y) / pi; the tangent is along +u, (p.z, 0, -p.x) normalised (float32: 1e-5)."""
+    cam = OrthographicCamera(200.0, -10.0)
+    rays = cam.rays(24, *Sphere().bounds(), torch.Generator().manual_seed(1))
+    hits = Sphere().intersect(rays)
+    d, right, up = cam.basis()
+    m = hits.mask
+    x, y = rays.origin[m] @ right, rays.origin[m] @ up
+    p = x[:, None] * right + y[:, None] * up + (1 - x * x - y * y).clamp_min(0).sqrt()[:, None] * d
+    u = 0.5 + torch.atan2(p[:, 0], p[:, 2]) / (2 * math.pi)
+    v = torch.acos(-p[:, 1]) / math.pi
+    assert torch.allclose(hits.uv[m], torch.stack([u, v], -1), atol=1e-5)
+    t = torch.nn.functional.normalize(torch.stack([p[:, 2], torch.zeros_like(u), -p[:, 0]], -1), dim=-1)
+    assert torch.allclose(hits.tangent[m], t, atol=1e-5)
+    assert torch.allclose(hits.normal[m], p, atol=1e-5)
+
+
+def test_orthographic_lod_is_flat_at_the_centre_and_grows_to_the_silhouette():
+    """Seen from the equator, the image centre is the point (0, 0, 1): cos 1, |dP/du| = 2 pi, |dP/dv| =
+    pi, so one pixel (2.2 / res wide) covers 2.2 / res * h / pi texels along v: lod = log2 of that. The
+    jitter moves the point by < 1 pixel (cos > 0.999, < 0.002 levels); the test allows 0.01. Along the
+    middle row the footprint grows as 1 / cos towards the silhouette."""
+    res, texels = 64, (1024, 1024)
+    view = View(0.0, 0.0, _camera_light(0.0, 0.0), 1.0)
+    lod = render(_lod_echo, view, res=res, spp=1, texels=texels, footprint=1.0)[..., 0]
+    centre = lod[30:34, 30:34]
+    assert np.allclose(centre, math.log2(2.2 / res * 1024 / math.pi), atol=0.01)
+    row = lod[32, 32:60:4]  # x from 0 to ~0.85: 1 / cos grows from 1 to ~1.9
+    assert np.all(np.diff(row) > 0), row
+    assert row[-1] - row[0] > 0.5
+
+
+def test_render_of_a_lambertian_sphere_is_cos_albedo_intensity():
+    """At the centre pixel of a 101-pixel view from the equator the normal is (0, 0, 1) up to the pixel's
+    jitter (< 0.016 rad): the image is albedo / pi * cos(light) * intensity within 1 % (the cosine's
+    slope times that tilt is < 0.8 %)."""
+    light = (0.3, 0.5, 1.0)
+    img = render(lambert, View(0.0, 0.0, light, 2.0), res=101, spp=1)
+    cos = 1.0 / float(np.linalg.norm(light))
+    assert np.allclose(img[50, 50], (ALBEDO / math.pi).numpy() * cos * 2.0, rtol=0.01)
+    assert img[0, 0].sum() == 0  # a corner misses the sphere
 
 
 def test_lambertian_plane_under_a_directional_light_is_exact():
@@ -301,15 +371,19 @@ def test_compare_many_names_each_render_after_its_material():
 def test_teapot_rasterises_exactly_with_plausible_coverage():
     mesh = load_obj(shared_path("materialx", "resources", "Geometry", "teapot.obj"))
     assert len(mesh.triangles) > 20_000 and bool((mesh.uvs.max(0).values > 0.9).all())  # it has vt
-    rays = Camera(123, -30, 2.5, 40).rays(16, *mesh.bounds(), torch.Generator().manual_seed(3))
-    hits = mesh.intersect(rays)
-    best = torch.full((len(rays.dirs),), math.inf)  # brute force over every triangle
     every = torch.arange(len(mesh.triangles))
-    for i in range(len(rays.dirs)):
-        t, _, _ = mesh._ray_triangle(rays.origin, rays.dirs[i].expand(len(every), 3), every)
-        best[i] = torch.where(t > 0, t, math.inf).min()
-    assert torch.equal(torch.isfinite(best), hits.mask)
-    assert torch.allclose(best[hits.mask], hits.t[hits.mask], rtol=1e-6)
+    # the perspective camera's shared origin and the orthographic camera's one origin per ray
+    for cam in (Camera(123, -30, 2.5, 40), OrthographicCamera(123, -30, 0.8)):
+        rays = cam.rays(16, *mesh.bounds(), torch.Generator().manual_seed(3))
+        hits = mesh.intersect(rays)
+        best = torch.full((len(rays.dirs),), math.inf)  # brute force over every triangle
+        for i in range(len(rays.dirs)):
+            o = rays.origin if rays.origin.dim() == 1 else rays.origin[i]
+            t, _, _ = mesh._ray_triangle(o, rays.dirs[i].expand(len(every), 3), every)
+            best[i] = torch.where(t > 0, t, math.inf).min()
+        assert 0.1 < float(hits.mask.float().mean()) < 0.9, cam
+        assert torch.equal(torch.isfinite(best), hits.mask), cam
+        assert torch.allclose(best[hits.mask], hits.t[hits.mask], rtol=1e-6), cam
     img = render_scene(lambert, mesh, Camera(30, 20), [EnvironmentMap.sky()], res=48, spp=2)
     coverage = (img.sum(-1) > 0).mean()
     assert 0.25 < coverage < 0.6, coverage
