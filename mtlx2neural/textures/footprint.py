@@ -26,6 +26,7 @@ import math
 
 import torch
 
+from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.textures.parameter_stack import ParameterStack
 
 SIGMA_TEXELS = 0.5  # the footprint's standard deviation, in level-k texels
@@ -51,9 +52,11 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
     """Footprint-averaged reference values [N,3] (f * cos, linear RGB) for each query.
 
     ``reference`` is a :class:`~mtlx2neural.reference.ReferenceMaterial` of the same
-    compiled material as ``stack``; ``level`` [N] holds integer MIP levels. ``point_eval(wi, wo,
-    uv=... or params=...)`` replaces ``reference.eval`` at each point (the trainer passes its
-    cone-mollified value, :func:`mtlx2neural.train.mollify.cone_mean`).
+    compiled material as ``stack``; ``level`` [N] holds integer MIP levels. Each point is a
+    :class:`~mtlx2neural.contract.ShadingPoint`: the stack's level-0 ``params`` at its uv when the
+    stack is at the textures' resolution, else its ``uv`` (the graph itself). ``point_eval(wi, wo,
+    at)`` replaces ``reference.eval`` at each point (the trainer passes its cone-mollified value,
+    :func:`mtlx2neural.train.mollify.cone_mean`).
     """
     point_eval = reference.eval if point_eval is None else point_eval
     n = wi.shape[0]
@@ -69,8 +72,8 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         offsets = stratified_gaussian(m, s, generator).to(uv.dtype).to(uv.device) * sigma
         pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
         wi_k, wo_k = wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0)
-        where = {"params": stack.sample(pts, 0)} if native else {"uv": pts}
-        vals = point_eval(wi_k, wo_k, **where)
+        at = ShadingPoint(params=stack.sample(pts, 0)) if native else ShadingPoint(uv=pts)
+        vals = point_eval(wi_k, wo_k, at)
         out[idx] = vals.view(m, s, 3).mean(1)
     return out
 

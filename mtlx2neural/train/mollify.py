@@ -23,20 +23,23 @@ import math
 
 import torch
 
+from mtlx2neural.contract import ShadingPoint, as_point
 from mtlx2neural.train.directions import cone_jitter
 
 
 def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs: int = 1,
-              generator: torch.Generator | None = None, uv: torch.Tensor | None = None,
-              params: dict | None = None) -> torch.Tensor:
+              generator: torch.Generator | None = None, at=None) -> torch.Tensor:
     """Estimate of m(wi, wo) [N,3] (module docstring), f*cos in linear RGB, local frame.
 
-    ``uv`` [N,2] or ``params`` (per-row parameters, :meth:`ParameterStack.sample`) select the
+    ``at`` (a :class:`~mtlx2neural.contract.ShadingPoint` with ``uv`` [N,2] or ``params``, per-row
+    parameters from :meth:`ParameterStack.sample`; or a [N,2] uv tensor; or ``None``) selects the
     point of a textured material, as for ``reference.eval``. ``angle`` in radians; 0 returns
-    ``reference.eval(wi, wo)``.
+    ``reference.eval(wi, wo, at)``.
     """
     if angle <= 0:
-        return reference.eval(wi, wo, uv, params=params)
+        return reference.eval(wi, wo, at)
+    point = as_point(at)
+    uv, params = point.uv, point.params
     if params is None and uv is not None and reference.compiled.spatial_nodes:
         params, uv = reference.parameters_at(uv), None  # the material graph once, not five times
     n = wi.shape[0]
@@ -46,19 +49,19 @@ def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs
     def rep(x):
         return None if x is None else x.repeat_interleave(pairs, 0)
 
-    wi_p, uv_p = rep(wi), rep(uv)
-    params_p = None if params is None else {k: rep(v) for k, v in params.items()}
+    wi_p = rep(wi)
+    at_p = ShadingPoint(uv=rep(uv), params=None if params is None else {k: rep(v) for k, v in params.items()})
     w_uniform = cone_jitter(wo, angle, pairs, generator)
     u = torch.rand(n * pairs, 2, generator=generator).to(wi.device)
-    w_sampled, _, _ = reference.sample(wi_p, u, uv_p, params=params_p)
+    w_sampled, _, _ = reference.sample(wi_p, u, at_p)
     w_sampled = torch.where(torch.isfinite(w_sampled).all(-1, keepdim=True), w_sampled, w_uniform)
     axis = rep(wo)
     total = torch.zeros(n * pairs, 3, dtype=wi.dtype, device=wi.device)
     for w in (w_uniform, w_sampled):
         inside = (w * axis).sum(-1) >= cos_max - 1e-7
         # balance heuristic over one sample of each strategy: f / (p_uniform + p_reference)
-        density = inside.to(wi.dtype) / omega + reference.pdf(wi_p, w, uv_p, params=params_p)
-        f = reference.eval(wi_p, w, uv_p, params=params_p)
+        density = inside.to(wi.dtype) / omega + reference.pdf(wi_p, w, at_p)
+        f = reference.eval(wi_p, w, at_p)
         ok = inside & (density > 0)
         total = total + torch.where(ok[:, None], f / density.clamp_min(1e-30)[:, None], torch.zeros_like(f))
     est = total.view(n, pairs, 3).mean(1) / omega
@@ -71,7 +74,7 @@ def lobe_directions(reference, wi: torch.Tensor, angle: float, generator: torch.
     ``angle`` (the mollified lobe, not only its core). Returns (wo [N,3], ok [N]): ``ok`` is False where
     the sample failed or fell at or below the horizon (the caller keeps another direction there)."""
     u = torch.rand(wi.shape[0], 2, generator=generator).to(wi.device)
-    ws, _, pdf = reference.sample(wi, u, uv)
+    ws, _, pdf = reference.sample(wi, u, ShadingPoint(uv=uv))
     if angle > 0:
         ws = cone_jitter(torch.where(torch.isfinite(ws), ws, wi), angle, 1, generator)
     ok = (pdf > 0) & (ws[:, 2] > 1e-4) & torch.isfinite(ws).all(-1)

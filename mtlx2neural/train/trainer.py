@@ -147,8 +147,8 @@ class Trainer:
         angle = self.mollify_angle()
         if self.textured:
             if cfg.mollify_mis and angle > 0:  # the cone mean at every footprint point, one pair each
-                def point_eval(wi_p, wo_p, **where):
-                    return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, **where)
+                def point_eval(wi_p, wo_p, at):
+                    return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, at)
 
                 return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
                                          point_eval)

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 import mtlx2neural as m2n
+from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.directions import cone_jitter
@@ -51,8 +52,8 @@ def test_cone_mean_matches_brute_force_on_a_sharp_coat(carpaint):
 
 
 def test_cone_mean_reads_a_textured_material_once_per_point():
-    """``uv`` is turned into parameters once (``parameters_at``): same random numbers, same result as
-    passing those parameters; and the result is finite, non-negative, and 0 for a cone below the horizon."""
+    """A ShadingPoint's ``uv`` is turned into parameters once (``parameters_at``): same random numbers,
+    same result as passing those parameters; and the result is finite, non-negative, and 0 for a cone below the horizon."""
     doc = Path(__file__).resolve().parents[2] / "samples" / "textured" / "ceramic_and_metal.usda"
     if not doc.exists():
         import subprocess
@@ -66,13 +67,14 @@ def test_cone_mean_reads_a_textured_material_once_per_point():
                                        - torch.tensor([1.0, 1.0, 0.0]), dim=-1)
     wo = wi * torch.tensor([-1.0, -1.0, 1.0])
     uv = torch.rand(n, 2, generator=g)
-    a = cone_mean(ref, wi, wo, math.radians(2.0), 1, torch.Generator().manual_seed(5), uv=uv)
-    b = cone_mean(ref, wi, wo, math.radians(2.0), 1, torch.Generator().manual_seed(5), params=ref.parameters_at(uv))
+    a = cone_mean(ref, wi, wo, math.radians(2.0), 1, torch.Generator().manual_seed(5), ShadingPoint(uv=uv))
+    b = cone_mean(ref, wi, wo, math.radians(2.0), 1, torch.Generator().manual_seed(5),
+                  ShadingPoint(params=ref.parameters_at(uv)))
     assert a.equal(b)
     assert bool(torch.isfinite(a).all()) and bool((a >= 0).all())
     # a cone wholly below the horizon (wo.z <= -0.1, more than 5 degrees down) sees nothing
     down = torch.nn.functional.normalize(torch.cat([wo[:, :2], -wo[:, 2:].clamp_min(0.1)], -1), dim=-1)
-    assert float(cone_mean(ref, wi, down, math.radians(2.0), 1, g, uv=uv).abs().max()) == 0.0
+    assert float(cone_mean(ref, wi, down, math.radians(2.0), 1, g, ShadingPoint(uv=uv)).abs().max()) == 0.0
 
 
 def test_lobe_directions_gather_around_the_coat(carpaint):
