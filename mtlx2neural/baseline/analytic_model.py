@@ -44,6 +44,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from mtlx2neural.atomic import atomic_path
 from mtlx2neural.baseline import analytic_sampling
 from mtlx2neural.contract import (
     above_horizon,
@@ -64,6 +65,8 @@ from mtlx2neural.train.losses import log_l1
 
 CHANNELS = ("base_r", "base_g", "base_b", "roughness", "metalness", "specular", "slope_x", "slope_y")
 MIN_ROUGHNESS = 0.02
+BASELINE_FILE = "analytic_baseline.pt"
+"""Where a conversion keeps a material's fitted baseline, in its material folder (:func:`save_analytic`)."""
 
 
 def _logit(p: torch.Tensor) -> torch.Tensor:
@@ -281,58 +284,133 @@ def _write_image(path: Path, img: np.ndarray) -> None:
     out.close()
 
 
+PREVIEW_TEXTURES = ("diffuseColor", "roughness", "metallic", "normal")
+"""The UsdPreviewSurface inputs read from the baked maps (:func:`write_preview_textures`)."""
+
+
+def author_preview_surface(stage, material_path, textures: dict, ior: float, prefix: str = "PreviewSurface",
+                           render_context: str = ""):
+    """Author a UsdPreviewSurface network under ``material_path`` on ``stage`` (at its edit target) and
+    connect the Material's ``outputs:surface`` (``outputs:<render_context>:surface`` when given) to it.
+
+    ``textures``: {UsdPreviewSurface input (:data:`PREVIEW_TEXTURES`): asset path string, as the
+    layer states it}. Shaders: ``<prefix>`` (UsdPreviewSurface, uniform ``ior``), ``<prefix>_st``
+    (``UsdPrimvarReader_float2`` of the primvar ``st``) and ``<prefix>_<input>Texture`` (UsdUVTexture,
+    ``sourceColorSpace = raw``: the maps are linear; the normal map's scale 2 / bias -1 undo its
+    n * 0.5 + 0.5 encoding, tangent space). Ancestors missing on the stage are authored as ``over``.
+    Returns the UsdPreviewSurface shader.
+    """
+    from pxr import Sdf, UsdShade
+
+    t = Sdf.ValueTypeNames
+
+    def shader(name):
+        prim = stage.OverridePrim(Sdf.Path(str(material_path)).AppendChild(name))
+        prim.SetSpecifier(Sdf.SpecifierDef)
+        prim.SetTypeName("Shader")
+        return UsdShade.Shader(prim)
+
+    material = UsdShade.Material(stage.GetPrimAtPath(str(material_path)))
+    surf = shader(prefix)
+    surf.CreateIdAttr("UsdPreviewSurface")
+    surf.CreateInput("ior", t.Float).Set(float(ior))
+    material.CreateSurfaceOutput(render_context).ConnectToSource(surf.ConnectableAPI(), "surface")
+    st = shader(f"{prefix}_st")
+    st.CreateIdAttr("UsdPrimvarReader_float2")
+    st.CreateInput("varname", t.String).Set("st")
+    st_out = st.CreateOutput("result", t.Float2)
+    wiring = {"diffuseColor": ("rgb", t.Color3f, t.Float3), "roughness": ("r", t.Float, t.Float),
+              "metallic": ("r", t.Float, t.Float), "normal": ("rgb", t.Normal3f, t.Float3)}
+    for name in PREVIEW_TEXTURES:
+        out_name, in_type, out_type = wiring[name]
+        tex = shader(f"{prefix}_{name}Texture")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", t.Asset).Set(Sdf.AssetPath(textures[name]))
+        tex.CreateInput("sourceColorSpace", t.Token).Set("raw")
+        tex.CreateInput("st", t.Float2).ConnectToSource(st_out)
+        if name == "normal":  # stored as n * 0.5 + 0.5
+            tex.CreateInput("scale", t.Float4).Set((2.0, 2.0, 2.0, 1.0))
+            tex.CreateInput("bias", t.Float4).Set((-1.0, -1.0, -1.0, 0.0))
+        surf.CreateInput(name, in_type).ConnectToSource(tex.CreateOutput(out_name, out_type))
+    return surf
+
+
 def _author_usda(path: Path, files: dict, ior: float) -> None:
-    from pxr import Sdf, Usd, UsdShade
+    from pxr import Usd, UsdShade
 
     stage = Usd.Stage.CreateNew(str(path))
     stage.SetDefaultPrim(stage.DefinePrim("/Looks", "Scope"))
-    mat = UsdShade.Material.Define(stage, "/Looks/Analytic")
-    surf = UsdShade.Shader.Define(stage, "/Looks/Analytic/PreviewSurface")
-    surf.CreateIdAttr("UsdPreviewSurface")
-    surf.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(float(ior))
-    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
-    st = UsdShade.Shader.Define(stage, "/Looks/Analytic/st")
-    st.CreateIdAttr("UsdPrimvarReader_float2")
-    st.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
-    st_out = st.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    wiring = {"diffuseColor": ("rgb", Sdf.ValueTypeNames.Color3f, Sdf.ValueTypeNames.Float3),
-              "roughness": ("r", Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Float),
-              "metallic": ("r", Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Float),
-              "normal": ("rgb", Sdf.ValueTypeNames.Normal3f, Sdf.ValueTypeNames.Float3)}
-    for name, (out_name, in_type, out_type) in wiring.items():
-        tex = UsdShade.Shader.Define(stage, f"/Looks/Analytic/{name}Texture")
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{files[name]}"))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st_out)
-        if name == "normal":  # stored as n * 0.5 + 0.5
-            tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
-            tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
-        surf.CreateInput(name, in_type).ConnectToSource(tex.CreateOutput(out_name, out_type))
+    UsdShade.Material.Define(stage, "/Looks/Analytic")
+    author_preview_surface(stage, "/Looks/Analytic", {k: f"./{v}" for k, v in files.items()}, ior)
     stage.GetRootLayer().Save()
 
 
-def export_usd_preview(model: AnalyticMaterial, folder) -> dict:
-    """Write ``model``'s level-0 maps and a UsdPreviewSurface ``analytic.usda`` into ``folder``.
+def write_preview_textures(model: AnalyticMaterial, folder) -> dict:
+    """Bake ``model``'s level-0 maps into ``folder`` (created if needed) for a UsdPreviewSurface.
 
-    Textures are half-float EXR, linear, ``sourceColorSpace = raw``: ``diffuseColor.exr`` (base
-    colour), ``roughness.exr``, ``metallic.exr``, ``normal.exr`` (tangent-space n * 0.5 + 0.5, with
-    the reader's scale 2 / bias -1). UsdPreviewSurface has no per-texel dielectric F0, so the mean
-    ``specular`` becomes its uniform ``ior`` (F0 = ((ior - 1)/(ior + 1))^2 = 0.08 specular). The
-    folder is written whole into a temporary sibling and swapped in (an old one is replaced).
-    Returns ``{"usda": Path, "textures": {input: Path}, "ior": float}``.
+    Half-float EXR, linear (``sourceColorSpace = raw``), row 0 the top (v = 1): ``diffuseColor.exr``
+    (base colour), ``roughness.exr`` (perceptual), ``metallic.exr``, ``normal.exr`` (tangent-space
+    n * 0.5 + 0.5: x tangent, z the geometric normal). UsdPreviewSurface has no per-texel dielectric
+    F0, so the mean ``specular`` becomes its uniform ``ior`` (F0 = ((ior - 1)/(ior + 1))^2 = 0.08
+    specular). Returns ``{"textures": {input: Path}, "ior": float}``.
     """
     folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     maps = model.level_maps(0)
     images = {"diffuseColor": maps["base"], "roughness": maps["roughness"], "metallic": maps["metalness"],
               "normal": maps["normal"] * 0.5 + 0.5}
     f0 = float(np.clip(0.08 * maps["specular"].mean(), 1e-4, 0.5))
     ior = (1 + math.sqrt(f0)) / (1 - math.sqrt(f0))
+    files = {}
+    for name in PREVIEW_TEXTURES:
+        files[name] = folder / f"{name}.exr"
+        _write_image(files[name], images[name])
+    return {"textures": files, "ior": ior}
+
+
+def export_usd_preview(model: AnalyticMaterial, folder) -> dict:
+    """Write ``model``'s baked maps (:func:`write_preview_textures`) and a UsdPreviewSurface
+    ``analytic.usda`` (Material ``/Looks/Analytic``, :func:`author_preview_surface`) into ``folder``.
+
+    The folder is written whole into a temporary sibling and swapped in (an old one is replaced).
+    Returns ``{"usda": Path, "textures": {input: Path}, "ior": float}``.
+    """
+    folder = Path(folder)
     with Staging(folder.parent) as st:
         tmp = st.stage(folder)
-        files = {}
-        for name, img in images.items():
-            files[name] = f"{name}.exr"
-            _write_image(tmp / files[name], img)
-        _author_usda(tmp / "analytic.usda", files, ior)
-    return {"usda": folder / "analytic.usda", "textures": {k: folder / v for k, v in files.items()}, "ior": ior}
+        baked = write_preview_textures(model, tmp)
+        _author_usda(tmp / "analytic.usda", {k: p.name for k, p in baked["textures"].items()}, baked["ior"])
+    return {"usda": folder / "analytic.usda", "textures": {k: folder / p.name for k, p in baked["textures"].items()},
+            "ior": baked["ior"]}
+
+
+# ----------------------------------------------------------------------------- saving a fitted baseline
+
+
+def save_analytic(model: AnalyticMaterial, path) -> Path:
+    """Save a fitted ``model`` (its maps, resolution and final loss) to ``path`` (torch format)
+    atomically; :func:`load_analytic` reads it back."""
+    path = Path(path)
+    state = {"format": 1, "resolution": list(model.resolution),
+             "levels": [lv.detach().cpu().float() for lv in model.maps.levels],
+             "final_loss": getattr(model, "final_loss", math.nan)}
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+    return path
+
+
+def load_analytic(path) -> AnalyticMaterial:
+    """The :class:`AnalyticMaterial` saved at ``path`` by :func:`save_analytic` (CPU, float32);
+    ``ValueError`` naming the file when it is not one."""
+    try:
+        state = torch.load(Path(path), map_location="cpu", weights_only=True)
+        model = AnalyticMaterial(tuple(state["resolution"]))
+        with torch.no_grad():
+            if len(state["levels"]) != model.maps.num_levels:
+                raise ValueError(f"{len(state['levels'])} levels, expected {model.maps.num_levels}")
+            for lv, saved in zip(model.maps.levels, state["levels"]):
+                lv.copy_(saved)
+    except (OSError, KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{path}: not a saved analytic baseline ({exc})") from None
+    model.final_loss = float(state.get("final_loss", math.nan))
+    return model.train(False)

@@ -13,6 +13,12 @@ default; the layer sits beside it, so by default next to the input)::
             weights.bin, weights.json  FP16 weights and their manifest
             NeuralMaterial_<name>.slang (+ .fp16.bin, .coopvec.bin), NeuralMaterial.slang,
             NeuralLayers.slang         generated shader module and runtime (mtlx2neural.codegen)
+            materialx/                 the material as a MaterialX BSDF node (mtlx2neural.codegen.materialx_node),
+              NeuralMaterial_<ident>.mtlx, .glsl, .slang    validated when written; its genglsl / genslang
+                                       implementations beside it, the latents above read as ../latents_<k>.exr
+                                       (a folder of its own: the node's .slang would overwrite the module's)
+            preview/                   the analytic baseline baked for the UsdPreviewSurface fallback:
+              diffuseColor.exr, roughness.exr, metallic.exr, normal.exr   (half, linear)
             export.json                source hash, metrics and FP16 notes of this export
 
 Every file is first written into a staging folder beside the layer and moved into
@@ -25,7 +31,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from mtlx2neural.baseline.analytic_model import (
+    BASELINE_FILE,
+    load_analytic,
+    write_preview_textures,
+)
 from mtlx2neural.codegen import write_material_shader
+from mtlx2neural.codegen.materialx_node import write_materialx_node
+from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
 from mtlx2neural.export.usd_writer import (
     ExportedMaterial,
@@ -36,6 +49,8 @@ from mtlx2neural.formats.weights import write_weights
 from mtlx2neural.staging import Staging
 
 EXPORT_FOLDER = "neural"
+PREVIEW_FOLDER = "preview"
+MATERIALX_FOLDER = "materialx"
 
 
 def layer_path(out) -> Path:
@@ -48,22 +63,48 @@ def metrics(summary: dict, preset: str) -> dict:
     """The ``neural:metrics:*`` values from a training summary."""
     return {"flip": summary.get("flip_mean", float("nan")), "iterations": summary.get("steps", 0),
             "preset": preset, "device": summary.get("device_name") or summary.get("device", ""),
-            "train_seconds": summary.get("train_seconds", summary.get("seconds", 0.0))}
+            "train_seconds": summary.get("train_seconds", summary.get("seconds", 0.0)),
+            "preview_flip": summary.get("preview_flip")}
 
 
-def export_material(model, summary: dict, staged: Path, final: Path, preset: str) -> ExportedMaterial:
-    """Write ``model``'s latents and weights into ``staged``; paths in the result point at ``final``."""
+def export_material(model, summary: dict, staged: Path, final: Path, preset: str,
+                    baseline: Path | None = None) -> ExportedMaterial:
+    """Write ``model``'s latents, weights, shaders and MaterialX node into ``staged``; paths in the
+    result point at ``final``. ``baseline``: the fitted analytic baseline
+    (:func:`~mtlx2neural.baseline.analytic_model.save_analytic`), baked into ``preview/`` for the
+    UsdPreviewSurface fallback; without it (an export of an older training) there is none, and a note
+    says so. A failure raises naming the material."""
+    name = summary["material"]
     textures, notes = write_latent_textures(list(model.latents.levels), staged)
     manifest, wnotes = write_weights(model, staged)
-    write_material_shader(model, staged, summary["material"])  # NeuralMaterial_<name>.slang + runtime
+    write_material_shader(model, staged, name)  # NeuralMaterial_<name>.slang + runtime
+    try:  # from the FP16 weights and latents as stored, which it references beside it
+        mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
+    except Mtlx2NeuralError as exc:
+        raise type(exc)(f"material {name}: cannot write its MaterialX node: {exc}") from exc
+    preview, pnotes = None, []
+    if baseline is not None and Path(baseline).is_file():
+        try:
+            baked = write_preview_textures(load_analytic(baseline), staged / PREVIEW_FOLDER)
+        except (OSError, ValueError) as exc:
+            raise Mtlx2NeuralError(f"material {name}: cannot bake its UsdPreviewSurface fallback: {exc}") from exc
+        preview = {"textures": {k: final / PREVIEW_FOLDER / p.name for k, p in baked["textures"].items()},
+                   "ior": baked["ior"]}
+    else:
+        pnotes.append(f"{name}: no fitted analytic baseline ({baseline}); the layer has no UsdPreviewSurface "
+                      f"fallback for it (trained by an older version: rerun with --force)")
     m = ExportedMaterial(
-        name=summary["material"], material=summary.get("mtlx_material", summary["material"]), folder=final,
+        name=name, material=summary.get("mtlx_material", name), folder=final,
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],
         manifest=final / "weights.json", architecture=manifest["architecture"],
-        source_hash=summary.get("source_hash", ""), metrics=metrics(summary, preset), notes=notes + wnotes)
+        source_hash=summary.get("source_hash", ""), metrics=metrics(summary, preset), notes=notes + wnotes + pnotes,
+        mtlx_document=final / MATERIALX_FOLDER / mtlx.name, preview=preview)
     record = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
               "latent_textures": [p.name for p in m.latent_textures], "weights": m.weights.name,
-              "manifest": m.manifest.name}
+              "manifest": m.manifest.name, "mtlx_document": f"{MATERIALX_FOLDER}/{mtlx.name}",
+              "preview": None if preview is None else {
+                  "textures": {k: f"{PREVIEW_FOLDER}/{p.name}" for k, p in preview["textures"].items()},
+                  "ior": preview["ior"]}}
     (staged / "export.json").write_text(json.dumps(record, indent=2) + "\n")
     return m
 
@@ -81,6 +122,7 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
     with Staging(usda.parent) as st:
         for model, summary, folder in trained:
             final = Path(folder).resolve() / EXPORT_FOLDER
-            exported.append(export_material(model, summary, st.stage(final), final, preset))
+            exported.append(export_material(model, summary, st.stage(final), final, preset,
+                                            baseline=Path(folder).resolve() / BASELINE_FILE))
         write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version)
     return usda, exported

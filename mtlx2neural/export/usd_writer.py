@@ -15,21 +15,45 @@ nothing): ``/Materials`` holds one Material per converted material, whose origin
 network stays MaterialX: a Shader ``MaterialX`` whose implementation is the
 ``.mtlx`` file (``info:implementationSource = "sourceAsset"``,
 ``info:mtlx:sourceAsset``, sub-identifier the surfacematerial's name) feeds
-``outputs:mtlx:surface``.
+``outputs:mtlx:surface``. It is authored in the ``original`` variant, so that the
+``neural`` variant's own ``outputs:mtlx:surface`` is not shadowed.
 
 Per converted Material, everything neural lives in the ``neural`` variant of the
-variant set ``neuralMaterial`` (selected by default): the applied
-``NeuralMaterialAPI`` and its ``neural:*`` attributes, the ``NeuralBSDF`` Shader
-(with a ``UsdPrimvarReader_float2`` for ``st``) and the connection of
-``outputs:neural:surface`` to it. The ``original`` variant is empty, so selecting it
-gives back exactly the input's Material (a variant cannot block an opinion authored
-outside it, so the neural opinions must not be authored outside). Asset paths are
-relative to the layer (``./...``).
+variant set ``neuralMaterial`` (selected by default):
+
+- the applied ``NeuralMaterialAPI`` and its ``neural:*`` attributes (``neural:metrics:flip``: the
+  neural material's mean HDR FLIP against the reference; ``neural:metrics:previewFlip``: the
+  UsdPreviewSurface fallback's, so a pipeline sees what each render context costs);
+- ``outputs:neural:surface``: the ``NeuralBSDF`` Shader (with a ``UsdPrimvarReader_float2`` for
+  ``st``), read by this project (:func:`~mtlx2neural.export.load.load_neural`);
+- ``outputs:mtlx:surface``: the MaterialX network of the material's ``NeuralMaterial_<ident>.mtlx``
+  (:mod:`.usd_mtlx_network`), for Hydra Storm and other renderers built with UsdMtlx;
+- ``outputs:surface`` (universal): a ``UsdPreviewSurface`` (Shader ``NeuralPreview``) of the
+  analytic baseline (Lambert + GGX fitted to the reference) and its baked textures, for tools
+  that read neither MaterialX nor custom shaders (Storm without UsdMtlx, Blender's importer,
+  RealityKit / QuickLook).
+
+The ``original`` variant holds nothing else, so selecting it gives back exactly the input's
+Material (a variant cannot block an opinion authored outside it, so the neural opinions must
+not be authored outside). The converse also holds: an output that the input itself connects on
+the Material (for a USD input, in its own layer stack) is stronger than the variant's, so the
+variant's network for it is authored but not composed; the material's export notes say so.
+Asset paths are relative to the layer (``./...``).
+
+Viewing the MaterialX network (a USD build with UsdMtlx, e.g. usdview or a DCC on Hydra Storm):
+set ``PXR_MTLX_PLUGIN_SEARCH_PATHS`` to the folders holding the ``NeuralMaterial_<ident>.mtlx``
+files (``OUT/<material folder>/neural/materialx``; several joined with ``:``, ``;`` on Windows), which the
+layer lists in its record (``mtlxPluginSearchPaths``, relative to the layer) and in its
+documentation string. ``PXR_MTLX_STDLIB_SEARCH_PATHS`` is needed only when the build does not find
+MaterialX's standard libraries itself. Each ``.mtlx`` finds its ``.glsl`` / ``.slang``
+implementation beside it and its latent textures one folder up; in the layer, the network's
+latent inputs are asset paths relative to the layer, which Hydra resolves itself.
 
 The layer records what it holds in its ``customLayerData`` under
 :data:`RECORD_KEY`: the input it was written for (``source``, relative to the
-layer), the tool version and, per material name, its prim, source hash and
-material folder. That record is how a later run recognises the layer as this
+layer), the tool version, per material name its prim, source hash, material folder and
+``.mtlx`` document (``mtlxDocument``), and the folders of those documents
+(``mtlxPluginSearchPaths``). That record is how a later run recognises the layer as this
 tool's (:mod:`.outputs`) and how a ``--material`` run keeps the other materials:
 their prim specs are copied unchanged from the previous layer (``keep``).
 """
@@ -41,6 +65,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mtlx2neural import usd_schema
+from mtlx2neural.baseline.analytic_model import author_preview_surface
+from mtlx2neural.export.usd_mtlx_network import author_mtlx_network
 from mtlx2neural.formats import FORMAT_VERSION
 
 VARIANT_SET = "neuralMaterial"
@@ -50,6 +76,8 @@ API = "NeuralMaterialAPI"
 MTLX_SCOPE = "/Materials"
 RECORD_KEY = "mtlx2neural"
 """``customLayerData`` key of the layer's record (module docstring)."""
+PREVIEW_PREFIX = "NeuralPreview"
+"""Name of the UsdPreviewSurface fallback's Shader (and prefix of its texture readers)."""
 LEGACY_DOC_PREFIX = "mtlx2neural neural materials for"
 """How layers written before the record began their documentation string."""
 
@@ -90,7 +118,14 @@ class ExportedMaterial:
     metrics: dict
     """flip (mean HDR FLIP), iterations, preset, device, train_seconds."""
     notes: list[str] = field(default_factory=list)
-    """FP16 range-check notes."""
+    """FP16 range-check notes, and what the layer could not author (shadowed outputs)."""
+    mtlx_document: Path | None = None
+    """``NeuralMaterial_<ident>.mtlx`` (:mod:`mtlx2neural.codegen.materialx_node`): with it the
+    ``neural`` variant holds the MaterialX network (:mod:`.usd_mtlx_network`)."""
+    preview: dict | None = None
+    """``{"textures": {UsdPreviewSurface input: Path}, "ior": float}``, the analytic baseline baked
+    (:func:`mtlx2neural.baseline.analytic_model.write_preview_textures`): with it the ``neural``
+    variant's universal ``outputs:surface`` is a UsdPreviewSurface of them."""
 
 
 def relative_asset(path, anchor_dir) -> str:
@@ -141,6 +176,8 @@ def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
     _set(prim, "neural:sourceHash", t.String, m.source_hash)
     x = m.metrics
     _set(prim, "neural:metrics:flip", t.Float, float(x["flip"]))
+    if x.get("preview_flip") is not None:  # the UsdPreviewSurface fallback's mean HDR FLIP
+        _set(prim, "neural:metrics:previewFlip", t.Float, float(x["preview_flip"]))
     _set(prim, "neural:metrics:iterations", t.Int, int(x["iterations"]))
     _set(prim, "neural:metrics:preset", t.Token, str(x["preset"]))
     _set(prim, "neural:metrics:device", t.String, str(x["device"]))
@@ -167,6 +204,28 @@ def _neural_shader(stage, material, m: ExportedMaterial, rel) -> None:
     material.CreateSurfaceOutput("neural").ConnectToSource(out)
 
 
+def _shadowed(material, output: str) -> bool:
+    """Whether ``output`` of ``material`` already has connections composed from the input: local
+    opinions of the sublayered input are stronger than any variant's, so a variant cannot change it."""
+    attr = material.GetPrim().GetAttribute(output)
+    return bool(attr) and attr.HasAuthoredConnections()
+
+
+def _neural_extras(stage, material, m: ExportedMaterial, rel, shadowed: dict) -> None:
+    """The MaterialX network and the UsdPreviewSurface fallback of ``m``, where it has them."""
+    if m.mtlx_document is not None:
+        author_mtlx_network(stage, material, m.name, [rel(p) for p in m.latent_textures])
+    if m.preview is not None:
+        author_preview_surface(stage, material.GetPath(), {k: rel(p) for k, p in m.preview["textures"].items()},
+                               m.preview["ior"], prefix=PREVIEW_PREFIX)
+    for output, what in (("outputs:mtlx:surface", "MaterialX network"),
+                         ("outputs:surface", "UsdPreviewSurface fallback")):
+        if shadowed.get(output) and (m.mtlx_document if "mtlx" in output else m.preview) is not None:
+            m.notes.append(f"{m.name}: the input connects {output} of this Material itself, and the input's "
+                           f"opinions are stronger than the '{NEURAL}' variant's, so the variant's {what} "
+                           f"is authored but not composed; viewers that read {output} show the original")
+
+
 def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> None:
     from pxr import Sdf, UsdShade
 
@@ -175,7 +234,6 @@ def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> No
     shader.SetSourceAssetSubIdentifier(m.material, "mtlx")
     out = shader.CreateOutput("out", Sdf.ValueTypeNames.Token)
     material.CreateSurfaceOutput("mtlx").ConnectToSource(out)
-    material.GetPrim().SetCustomDataByKey("mtlx2neural:material", m.material)
 
 
 def _mtlx_prim_paths(materials, reserved=()) -> list[str]:
@@ -230,7 +288,7 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
     ``anchor`` whose prim specs are copied over unchanged (those not in ``materials``).
     Returns ``out_usda``. The input is only read.
     """
-    from pxr import Sdf, Usd, UsdGeom, UsdShade
+    from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 
     asset = Path(asset).resolve()
     out_usda = Path(out_usda)
@@ -267,7 +325,7 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
     for m, path in zip(materials, paths):
         if is_mtlx:
             material = UsdShade.Material.Define(stage, path)
-            _mtlx_original(stage, material, m, asset, rel)
+            material.GetPrim().SetCustomDataByKey("mtlx2neural:material", m.material)
         else:
             prim = stage.GetPrimAtPath(path)
             if prim and prim.IsDefined() and not prim.IsA(UsdShade.Material):
@@ -276,13 +334,19 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
             # A Material that usd-core cannot compose (from a referenced .mtlx file, which needs the
             # usdMtlx plugin) is not on this stage: the over still applies where usdMtlx composes it.
             material = UsdShade.Material(prim if prim else stage.OverridePrim(path))
+        shadowed = {o: _shadowed(material, o) for o in ("outputs:mtlx:surface", "outputs:surface")}
         vset = material.GetPrim().GetVariantSets().AddVariantSet(VARIANT_SET)
         vset.AddVariant(ORIGINAL)
         vset.AddVariant(NEURAL)
+        if is_mtlx:  # in the original variant: an opinion outside the variants would shadow the neural one
+            vset.SetVariantSelection(ORIGINAL)
+            with vset.GetVariantEditContext():
+                _mtlx_original(stage, material, m, asset, rel)
         vset.SetVariantSelection(NEURAL)
         with vset.GetVariantEditContext():
             _api_attributes(material.GetPrim(), m, rel)
             _neural_shader(stage, material, m, rel)
+            _neural_extras(stage, material, m, rel, shadowed)
     del stage  # a live stage would recompose (and warn) when the sublayer path becomes relative
     if kept:
         _copy_kept(keep.layer, layer, kept)
@@ -290,12 +354,21 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
         layer.subLayerPaths[0] = rel(asset)
     entries = {m.name: {"prim": str(p), "sourceHash": m.source_hash, "folder": rel(Path(m.folder).parent)}
                for m, p in zip(materials, paths)}
+    for m in materials:
+        if m.mtlx_document is not None:
+            entries[m.name]["mtlxDocument"] = rel(m.mtlx_document)
     entries.update(kept)
-    layer.customLayerData = {**dict(layer.customLayerData), RECORD_KEY: {
-        "formatVersion": FORMAT_VERSION, "tool": f"mtlx2neural {tool_version}".strip(), "source": rel(asset),
-        "materials": {k: entries[k] for k in sorted(entries)}}}
+    record = {"formatVersion": FORMAT_VERSION, "tool": f"mtlx2neural {tool_version}".strip(), "source": rel(asset),
+              "materials": {k: entries[k] for k in sorted(entries)}}
+    documents = sorted(e["mtlxDocument"] for e in entries.values() if "mtlxDocument" in e)
+    if documents:  # what a UsdMtlx viewer must find (module docstring)
+        record["mtlxPluginSearchPaths"] = Vt.StringArray(sorted({d.rsplit("/", 1)[0] for d in documents}))
+    layer.customLayerData = {**dict(layer.customLayerData), RECORD_KEY: record}
     layer.documentation = (f"{LEGACY_DOC_PREFIX} {asset.name}: " + ", ".join(sorted(entries))
                            + f". Variant set '{VARIANT_SET}' on each Material: '{NEURAL}' (default) or '{ORIGINAL}'.")
+    if documents:
+        layer.documentation += (" MaterialX viewers: list the folders of " + ", ".join(documents)
+                                + " (relative to this layer) in PXR_MTLX_PLUGIN_SEARCH_PATHS.")
     if not layer.Export(str(out_usda)):
         raise OSError(f"{out_usda}: cannot write the USD layer")
     return out_usda

@@ -46,6 +46,7 @@ import shutil
 import warnings
 from pathlib import Path
 
+from mtlx2neural.baseline.analytic_model import BASELINE_FILE
 from mtlx2neural.errors import InputError
 from mtlx2neural.export import export_asset
 from mtlx2neural.export.bundle import EXPORT_FOLDER
@@ -136,12 +137,16 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
                "bound_prims": list(src.bound_prims), "source_hash": plan.digest, "shared_with": plan.shared_with,
                "latent": plan.latent_info()}
     summary.pop("cached", None)
-    ckpt = folder / "checkpoint.pt"  # so that `render --material` finds it
-    ckpt.unlink(missing_ok=True)
-    try:
-        os.link(rep_folder / "checkpoint.pt", ckpt)
-    except OSError:
-        shutil.copyfile(rep_folder / "checkpoint.pt", ckpt)
+    # the checkpoint, so that `render --material` finds it; the analytic baseline, for the export's preview
+    for name in ("checkpoint.pt", BASELINE_FILE):
+        target = folder / name
+        target.unlink(missing_ok=True)
+        if not (rep_folder / name).exists():
+            continue
+        try:
+            os.link(rep_folder / name, target)
+        except OSError:
+            shutil.copyfile(rep_folder / name, target)
     write_summary(folder, summary)
     return summary
 

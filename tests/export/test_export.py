@@ -281,7 +281,9 @@ def test_output_layout(converted):
         shader = "NeuralMaterial_" + name.rsplit(".", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
         assert files == sorted(["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json",
                                 f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin",
-                                "NeuralLayers.slang", "NeuralMaterial.slang"])
+                                "NeuralLayers.slang", "NeuralMaterial.slang", "materialx", "preview"])
+        assert sorted(p.name for p in (converted["out"] / name / "neural" / "materialx").iterdir()) == [
+            f"{shader}.glsl", f"{shader}.mtlx", f"{shader}.slang"]  # the MaterialX node (test_usd_mtlx_network)
     assert not [p for p in converted["asset"].parent.rglob("*") if "staging" in p.name or ".tmp" in p.name]
     assert sha(converted["asset"]) == converted["before"]  # the input is never touched
 
@@ -378,7 +380,9 @@ def new_errors(result: dict, output, original) -> list:
 def test_usd_validation_finds_nothing_new(converted):
     result = validate(converted["asset"], converted["usda"])
     assert result["sdr"], "the NeuralBSDF Sdr definition was not registered"
-    assert new_errors(result, converted["usda"], converted["asset"]) == []
+    # usd-core has no UsdMtlx: the MaterialX network's nodedef ids (ND_...) are unknown to its Sdr registry
+    assert [e for e in new_errors(result, converted["usda"], converted["asset"])
+            if not (e[0] == "MissingShaderIdInRegistry" and "shaderId 'ND_" in e[2])] == []
     assert all(s == ["NeuralMaterialAPI"] for s in result[str(converted["usda"]) + ":schemas"].values())
     assert len(result[str(converted["usda"]) + ":schemas"]) == 2
 
@@ -531,12 +535,15 @@ def test_mtlx_input_gets_a_materials_scope(tmp_path):
     assert not stage.GetRootLayer().subLayerPaths and stage.GetDefaultPrim().GetPath() == Sdf.Path("/Materials")
     prim = stage.GetPrimAtPath("/Materials/Red")
     assert prim.IsA(UsdShade.Material) and "NeuralMaterialAPI" in applied_schemas(prim)
+    prim.GetVariantSets().GetVariantSet("neuralMaterial").SetVariantSelection("original")  # the input's network
     mtlx = UsdShade.Material(prim).ComputeSurfaceSource("mtlx")[0]
     assert mtlx.GetSourceAsset("mtlx").path == "./red.mtlx" and mtlx.GetSourceAssetSubIdentifier("mtlx") == "Red"
+    prim.GetVariantSets().GetVariantSet("neuralMaterial").SetVariantSelection("neural")
     assert_round_trip(m2n.load_neural(usda), load_checkpoint(tmp_path / "red_neural" / "Red"))
     result = validate(usda)
-    # usd-core has no MaterialX Sdr parser: the only error allowed is the unknown 'mtlx' source type.
-    assert [e[0] for e in result[str(usda)]] in ([], ["MissingSourceTypeInRegistry"])
+    # usd-core has no MaterialX Sdr parser: the only errors allowed are the unknown 'mtlx' source type and
+    # the neural variant's MaterialX ids (checked one by one in test_usd_mtlx_network.test_usd_validation).
+    assert {e[0] for e in result[str(usda)]} <= {"MissingSourceTypeInRegistry", "MissingShaderIdInRegistry"}
     assert sha(asset) == before
 
 

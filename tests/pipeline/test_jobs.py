@@ -101,6 +101,26 @@ def count_trainings(monkeypatch) -> list:
     return runs
 
 
+def count_fits(monkeypatch) -> list:
+    """Patch the jobs' analytic fit (the UsdPreviewSurface baseline) to record each fit's step count."""
+    from mtlx2neural.pipeline import jobs
+
+    fits, original = [], jobs.fit_analytic
+
+    def fit(*args, **kwargs):
+        fits.append(kwargs.get("iterations"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(jobs, "fit_analytic", fit)
+    return fits
+
+
+def preview_flip_in_layer(usda: Path, prim: str) -> float:
+    from pxr import Usd
+
+    return Usd.Stage.Open(str(usda)).GetPrimAtPath(prim).GetAttribute("neural:metrics:previewFlip").Get()
+
+
 # ----------------------------------------------------------------------------- the error budget
 
 
@@ -133,11 +153,12 @@ def test_choose_decoder_keeps_the_best_when_nothing_meets_the_budget():
 def test_budget_missed_trains_every_size_and_says_so(tmp_path, capsys, monkeypatch):
     asset = tmp_path / "two.mtlx"
     asset.write_text(TWO_MTLX)
-    runs = count_trainings(monkeypatch)
+    runs, fits = count_trainings(monkeypatch), count_fits(monkeypatch)
     code = main([str(asset), "--material", "Red", "--max-error", "1e-9", "--quiet", "--workers", "1", *CLI_TINY])
     out = capsys.readouterr().out
     assert code == 0
     assert runs == ["2x16", "2x32", "3x64"]
+    assert len(fits) == 1  # the preview baseline does not depend on the decoder: fitted once
     assert "budget HDR FLIP <= 1e-09: NOT met" in out
     assert "warning: HDR FLIP budget 1e-09 not met: even the largest decoder, 3x64" in out
     folder = tmp_path / "two_neural" / "Red"
@@ -148,15 +169,22 @@ def test_budget_missed_trains_every_size_and_says_so(tmp_path, capsys, monkeypat
     assert summary["flip_mean"] == min(summary["budget"]["flip_by_decoder"].values())
     assert summary["config"]["decoder"] == kept and any("not met" in n for n in summary["notes"])
     assert not (folder / "budget").exists()  # the other sizes' files are gone; the kept one moved up
+    assert (folder / "analytic_baseline.pt").is_file() and math.isfinite(summary["preview_flip"])
+    assert summary["preview_flip"] > 0  # float32 in the layer against the summary's 4 decimals:
+    assert preview_flip_in_layer(tmp_path / "two_neural.usda", "/Materials/Red") == pytest.approx(
+        summary["preview_flip"], abs=1e-6)
     assert m2n.load_neural(tmp_path / "two_neural.usda", "Red").usd_info["material"] == "/Materials/Red"
     arch = json.loads((folder / "neural" / "weights.json").read_text())["architecture"]
     layers, width = map(int, kept.split("x"))
     assert arch["decoder_hidden"] == [width] * layers  # the kept size is what was exported
 
-    runs.clear()  # unchanged: the whole budgeted result is cached
+    runs.clear()  # unchanged: the whole budgeted result is cached, the preview baseline too
+    fits.clear()
     assert main([str(asset), "--material", "Red", "--max-error", "1e-9", "--quiet", "--workers", "1",
                  *CLI_TINY]) == 0
-    assert runs == [] and "reused" in capsys.readouterr().out
+    assert runs == [] and fits == [] and "reused" in capsys.readouterr().out
+    assert preview_flip_in_layer(tmp_path / "two_neural.usda", "/Materials/Red") == pytest.approx(
+        summary["preview_flip"], abs=1e-6)
 
 
 def test_budget_met_by_the_smallest_decoder(tmp_path, monkeypatch):
@@ -213,6 +241,7 @@ def test_identical_materials_train_once_and_unbound_ones_are_skipped(three_stage
     assert b["material"] == "/World/Looks/B" and b["content_hash"] == a["content_hash"]
     assert b["source_hash"] != a["source_hash"]  # the cache key names the material
     assert b["steps"] == a["steps"] and b["flip_mean"] == a["flip_mean"]
+    assert b["preview_flip"] == a["preview_flip"] and (out_dir / "World.Looks.B" / "analytic_baseline.pt").is_file()
     assert not (out_dir / "World.Looks.C").exists()
     usda = three_stage.parent / "three_neural.usda"
     wi = torch.tensor([[0.0, 0.6, 0.8], [0.3, 0.1, 0.95]])
@@ -223,10 +252,13 @@ def test_identical_materials_train_once_and_unbound_ones_are_skipped(three_stage
     assert (out_dir / "World.Looks.B" / "neural" / "weights.bin").read_bytes() == \
         (out_dir / "World.Looks.A" / "neural" / "weights.bin").read_bytes()
 
+    assert preview_flip_in_layer(usda, "/World/Looks/B") == pytest.approx(b["preview_flip"], abs=1e-6)
+
     runs.clear()  # again: A is reused, B shares it again, nothing trains
+    fits = count_fits(monkeypatch)
     assert main([str(three_stage), "--workers", "1", "--quiet", *CLI_TINY]) == 0
     out = capsys.readouterr().out
-    assert runs == [] and "/World/Looks/A: reused" in out and "/World/Looks/B: identical to /World/Looks/A" in out
+    assert runs == [] and fits == [] and "/World/Looks/A: reused" in out and "/World/Looks/B: identical to /World/Looks/A" in out
 
 
 def test_materials_differing_in_a_value_both_train(tmp_path, monkeypatch):

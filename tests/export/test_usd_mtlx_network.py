@@ -1,0 +1,181 @@
+"""The export's MaterialX node and the neural variant's MaterialX network and UsdPreviewSurface fallback.
+
+A one-material ``.mtlx`` input (nothing in the input shadows the variant's outputs) and the
+sample USD scene (whose Materials connect ``outputs:mtlx:surface`` / ``outputs:surface``
+themselves, which a variant cannot override). Trainings are tiny (30 steps): these tests
+check files, prims and connections, not fidelity.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import MaterialX as mx
+import pytest
+from conftest import SIMPLE_MTLX
+
+from mtlx2neural.codegen.materialx_node import generate_node_shader, node_names
+from mtlx2neural.graph.library import with_libraries
+from mtlx2neural.pipeline.convert import convert_asset
+from mtlx2neural.pipeline.options import ConvertOptions
+from mtlx2neural.train.config import preset
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "samples" / "layered_spheres.usda"
+TINY = preset("fast", iterations=30, batch=256, seed=0)
+
+
+@pytest.fixture(scope="module")
+def red(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("red")
+    asset = folder / "red.mtlx"
+    asset.write_text(SIMPLE_MTLX)
+    summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
+    return {"asset": asset, "summary": summaries[0], "usda": Path(summaries[0]["usd"]),
+            "export": folder / "red_neural" / "Red" / "neural"}
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sample")
+    asset = folder / SAMPLE.name
+    shutil.copyfile(SAMPLE, asset)
+    summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
+    return {"asset": asset, "summaries": summaries, "usda": Path(summaries[0]["usd"]),
+            "out": folder / "layered_spheres_neural"}
+
+
+def _document(path: Path):
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(path))
+    return doc
+
+
+def _material(usda: Path, prim: str, variant: str = "neural"):
+    from pxr import Usd, UsdShade
+
+    stage = Usd.Stage.Open(str(usda))
+    p = stage.GetPrimAtPath(prim)
+    p.GetVariantSets().GetVariantSet("neuralMaterial").SetVariantSelection(variant)
+    return stage, UsdShade.Material(p)
+
+
+def test_every_converted_material_has_a_valid_node_that_generates(red, sample):
+    exports = [red["export"]] + [sample["out"] / n / "neural" for n in ("World.Looks.CarPaint", "World.Looks.Plastic")]
+    for export, name in zip(exports, ["Red", "/World/Looks/CarPaint", "/World/Looks/Plastic"]):
+        n = node_names(name)
+        mtlx = export / "materialx" / n.mtlx
+        assert mtlx.is_file() and (mtlx.parent / n.glsl).is_file() and (mtlx.parent / n.slang).is_file()
+        doc = _document(mtlx)
+        ok, message = with_libraries(doc).validate()
+        assert ok, message
+        node = doc.getNode(n.node)
+        for k in range(2):  # 8 latent channels: latents_0.exr, latents_1.exr beside the module
+            value = node.getInputValue(f"latent{k}")
+            assert value == f"../latents_{k}.exr" and (mtlx.parent / value).resolve() == export / f"latents_{k}.exr"
+        assert (export / f"NeuralMaterial_{n.ident}.slang").is_file()  # the Slang module is not overwritten
+        shader = generate_node_shader(mtlx, "genglsl")
+        assert n.function in shader.getSourceCode("pixel")
+
+
+def test_mtlx_network_in_the_neural_variant(red):
+    from pxr import UsdShade
+
+    n = node_names("Red")
+    mtlx = red["export"] / "materialx" / n.mtlx
+    stage, mat = _material(red["usda"], "/Materials/Red")
+    surface = mat.ComputeSurfaceSource("mtlx")[0]
+    assert surface.GetPath() == f"/Materials/Red/{n.surface}" and surface.GetShaderId() == "ND_surface"
+    (src,) = surface.GetInput("bsdf").GetConnectedSources()[0]
+    bsdf = UsdShade.Shader(src.source.GetPrim())
+    assert bsdf.GetShaderId() == n.nodedef == _document(mtlx).getNodeDefs()[0].getName()
+    for k in range(2):
+        asset = bsdf.GetInput(f"latent{k}").Get()
+        assert asset.path.startswith("./") and Path(asset.resolvedPath) == red["export"] / f"latents_{k}.exr"
+    (tc,) = bsdf.GetInput("texcoord").GetConnectedSources()[0]
+    reader = UsdShade.Shader(tc.source.GetPrim())
+    assert reader.GetShaderId() == "ND_geompropvalue_vector2" and reader.GetInput("geomprop").Get() == "st"
+    record = stage.GetRootLayer().customLayerData["mtlx2neural"]
+    doc_rel = record["materials"]["Red"]["mtlxDocument"]
+    assert (red["usda"].parent / doc_rel).resolve() == mtlx
+    assert list(record["mtlxPluginSearchPaths"]) == [doc_rel.rsplit("/", 1)[0]]
+    assert "PXR_MTLX_PLUGIN_SEARCH_PATHS" in stage.GetRootLayer().documentation
+    # the original variant: the input's MaterialX material only
+    stage, mat = _material(red["usda"], "/Materials/Red", "original")
+    original = mat.ComputeSurfaceSource("mtlx")[0]
+    assert original.GetSourceAsset("mtlx").path == "./red.mtlx" and original.GetSourceAssetSubIdentifier("mtlx") == "Red"
+    assert not mat.ComputeSurfaceSource()[0] and not stage.GetPrimAtPath(f"/Materials/Red/{n.node}")
+
+
+def test_preview_surface_and_its_flip(red):
+    from pxr import UsdShade
+
+    stage, mat = _material(red["usda"], "/Materials/Red")
+    surf = mat.ComputeSurfaceSource()[0]  # the universal render context
+    assert surf.GetPath() == "/Materials/Red/NeuralPreview" and surf.GetShaderId() == "UsdPreviewSurface"
+    for name in ("diffuseColor", "roughness", "metallic", "normal"):
+        (src,) = surf.GetInput(name).GetConnectedSources()[0]
+        tex = UsdShade.Shader(src.source.GetPrim())
+        assert Path(tex.GetInput("file").Get().resolvedPath) == red["export"] / "preview" / f"{name}.exr"
+    flip = red["summary"]["preview_flip"]
+    assert math.isfinite(flip) and flip > 0
+    # float32 attribute against the summary's 4-decimal value
+    assert mat.GetPrim().GetAttribute("neural:metrics:previewFlip").Get() == pytest.approx(flip, abs=1e-6)
+    assert (red["export"].parent / "analytic_baseline.pt").is_file()
+    assert red["summary"]["preview"]["iterations"] > 0
+
+
+def test_preview_flip_for_every_sample_material_and_shadowed_outputs_noted(sample):
+    for s in sample["summaries"]:
+        assert math.isfinite(s["preview_flip"]) and s["preview_flip"] > 0
+        stage, mat = _material(sample["usda"], s["material"])
+        attr = mat.GetPrim().GetAttribute("neural:metrics:previewFlip").Get()
+        assert attr == pytest.approx(s["preview_flip"], abs=1e-6)
+    notes = {s["material"]: " ".join(s["export_notes"]) for s in sample["summaries"]}
+    # CarPaint connects outputs:mtlx:surface itself, Plastic outputs:surface: the variant cannot win there
+    assert "outputs:mtlx:surface" in notes["/World/Looks/CarPaint"] and "outputs:surface" not in notes[
+        "/World/Looks/CarPaint"].replace("outputs:mtlx:surface", "")
+    assert "outputs:surface" in notes["/World/Looks/Plastic"] and "mtlx" not in notes["/World/Looks/Plastic"]
+    stage, carpaint = _material(sample["usda"], "/World/Looks/CarPaint")
+    assert carpaint.ComputeSurfaceSource()[0].GetPath() == "/World/Looks/CarPaint/NeuralPreview"
+    stage, plastic = _material(sample["usda"], "/World/Looks/Plastic")
+    n = node_names("/World/Looks/Plastic")
+    assert plastic.ComputeSurfaceSource("mtlx")[0].GetPath() == f"/World/Looks/Plastic/{n.surface}"
+
+
+VALIDATE = textwrap.dedent("""
+    import json, sys
+    from mtlx2neural import usd_schema
+    usd_schema.register()
+    from pxr import Usd, UsdValidation as V
+    ctx = V.ValidationContext(V.ValidationRegistry().GetOrLoadAllValidators())
+    out = {}
+    for name in sys.argv[1:]:
+        errs = [e for e in ctx.Validate(Usd.Stage.Open(name)) if e.GetType() == V.ValidationErrorType.Error]
+        out[name] = sorted({(e.GetName(), ",".join(str(s.GetPrim().GetPath()) if s.GetPrim() else ""
+                                                   for s in e.GetSites()), e.GetMessage()) for e in errs})
+    print(json.dumps(out))
+""")
+
+
+def test_usd_validation(red):
+    proc = subprocess.run([sys.executable, "-c", VALIDATE, str(red["usda"])], capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    errors = json.loads(proc.stdout.strip().splitlines()[-1])[str(red["usda"])]
+    # usd-core has no UsdMtlx, whose Sdr discovery would know the MaterialX nodedefs: their ids are
+    # missing from its registry. They must be exactly the network's three ids, each a real nodedef
+    # (the standard library's, or the exported document's); any other error fails.
+    n = node_names("Red")
+    ids = {"ND_surface", "ND_geompropvalue_vector2", n.nodedef}
+    doc = with_libraries(_document(red["export"] / "materialx" / n.mtlx))
+    assert all(doc.getNodeDef(i) for i in ids)
+    missing = {e[2].split("'")[1] for e in errors if e[0] == "MissingShaderIdInRegistry"}
+    assert missing == ids
+    assert [e for e in errors if e[0] not in ("MissingShaderIdInRegistry", "MissingSourceTypeInRegistry")] == []
