@@ -130,7 +130,9 @@ class _Kernel:
     source_hash: str
 
 
-def _compile(osrc: _OracleSource, cache_dir=None) -> _Kernel:
+def _compile(osrc: _OracleSource, cache_dir=None, inputs=("mxo_wi", "mxo_wo")) -> _Kernel:
+    """Compile (or reuse) the kernel of `osrc`; `inputs` name its input buffers (bound, empty, by the
+    first dispatch that compiles it)."""
     import slangpy as spy
 
     digest = hashlib.sha256(osrc.source.encode()).hexdigest()
@@ -166,7 +168,7 @@ def _compile(osrc: _OracleSource, cache_dir=None) -> _Kernel:
             )
             kernel.dispatch(
                 thread_count=[1, 1, 1],
-                vars={"mxo_wi": dummy, "mxo_wo": dummy, "mxo_out": dummy, "mxo_texels": tbuf, "mxo_count": 0},
+                vars={**{name: dummy for name in inputs}, "mxo_out": dummy, "mxo_texels": tbuf, "mxo_count": 0},
             )
         except Exception as exc:
             raise OracleError(f"Slang compilation of the oracle shader failed: {exc}") from exc
