@@ -29,6 +29,7 @@ BENCHMARKS = {
     "tradeoff": ("bench_tradeoff.py", [], {}),
     "lighting": ("bench_lighting.py", ["CarPaint", "GlazedCeramic"], {}),
     "shaders": ("bench_shaders.py", [], {"OMP_NUM_THREADS": "1"}),
+    "viewer": ("bench_viewer.py", [], {}),
 }
 
 
