@@ -11,8 +11,10 @@ the value passes through exactly), asks MaterialX's Slang generator for its pixe
 * every ``normal*`` field is its ``normal`` (default +Z); tangent +X, bitangent +Y and vertex colours 1
   stay as in the direction-pair oracle; the viewer sits one unit along the normal.
 
-The probe carries at most three channels per call of the fragment function, so a four-channel output
-is read in two calls that a probe ``ifgreater`` switches between (exact selection, no arithmetic).
+The probe carries three channels per call of the fragment function.  Several targets (or a four-channel
+one) are split into three-channel chunks that a chain of probe ``ifgreater`` nodes selects between (exact
+selection, no arithmetic): the kernel calls the fragment function once per chunk, setting the selector
+uniforms to the chunk's index, so one compiled shader reads many node outputs.
 Kernels are compiled and cached by :mod:`mtlx2neural.oracle.runner`.
 """
 
@@ -94,61 +96,67 @@ def _connect(inp, conn: dict):
         inp.setOutputString(conn["output"])
 
 
-def _probe_document(document, target: str, output: str | None):
-    """A copy of `document` with the probe material wired to the target: (document, material, C)."""
+def _probe_document(document, targets: list[tuple[str, str | None]]):
+    """A copy of `document` with the probe material wired to the targets: (document, material, channel
+    count of each target, number of three-channel chunks)."""
     import MaterialX as mx
 
     doc = mx.createDocument()
     doc.copyContentFrom(document)
     doc.setSourceUri(document.getSourceUri())
-    conn, mx_type = _target(doc, target, output)
-    if mx_type not in _CHANNELS:
-        raise OracleError(f"{target!r} has type {mx_type!r}; the node oracle reads {sorted(_CHANNELS)}")
-    n = _CHANNELS[mx_type]
-    if mx_type in ("integer", "boolean"):
-        cv = doc.addNode("convert", _PREFIX + "float", "float")
-        _connect(cv.addInput("in", mx_type), conn)
-        conn, mx_type = {"nodename": cv.getName()}, "float"
+    chunks: list[list[dict | None]] = []  # per chunk: three channel sources (None: zero)
+    counts = []
+    for j, (target, output) in enumerate(targets):
+        conn, mx_type = _target(doc, target, output)
+        if mx_type not in _CHANNELS:
+            raise OracleError(f"{target!r} has type {mx_type!r}; the node oracle reads {sorted(_CHANNELS)}")
+        n = _CHANNELS[mx_type]
+        counts.append(n)
+        if mx_type in ("integer", "boolean"):
+            cv = doc.addNode("convert", f"{_PREFIX}float{j}", "float")
+            _connect(cv.addInput("in", mx_type), conn)
+            conn, mx_type = {"nodename": cv.getName()}, "float"
+        sources: list[dict | None] = []
+        for k in range(n):
+            if n == 1:
+                sources.append(conn)
+                continue
+            ex = doc.addNode("extract", f"{_PREFIX}t{j}x{k}", "float")
+            _connect(ex.addInput("in", mx_type), conn)
+            ex.setInputValue("index", k, "integer")
+            sources.append({"nodename": ex.getName()})
+        sources += [None] * (-len(sources) % 3)
+        chunks += [sources[i:i + 3] for i in range(0, len(sources), 3)]
 
-    def channel(k: int) -> dict | None:
-        if n == 1:
-            return conn if k == 0 else None
-        if k >= n:
-            return None
-        ex = doc.addNode("extract", f"{_PREFIX}x{k}", "float")
-        _connect(ex.addInput("in", mx_type), conn)
-        ex.setInputValue("index", k, "integer")
-        return {"nodename": ex.getName()}
-
-    def combine(name: str, ks: list[int]):
-        node = doc.addNode("combine3", _PREFIX + name, "color3")
-        for slot, k in enumerate(ks, start=1):
-            src = channel(k)
+    colour = None
+    for c, sources in enumerate(chunks):
+        node = doc.addNode("combine3", f"{_PREFIX}c{c}", "color3")
+        for slot, src in enumerate(sources, start=1):
             inp = node.addInput(f"in{slot}", "float")
             if src is None:
                 inp.setValue(0.0, "float")
             else:
                 _connect(inp, src)
-        return node
-
-    colour = combine("rgb", [0, 1, 2])
-    if n == 4:
-        alpha = combine("a", [3, 4, 5])
-        pick = doc.addNode("ifgreater", _PREFIX + "pick", "color3")
-        pick.setInputValue("value1", 0.0, "float")  # a uniform that the kernel sets to 1 for the alpha call
-        pick.setInputValue("value2", 0.5, "float")
-        pick.addInput("in1", "color3").setNodeName(alpha.getName())
+        if colour is None:
+            colour = node
+            continue
+        # Chunk c when the selector (a uniform the kernel sets to the chunk index) is >= c: exact selection.
+        pick = doc.addNode("ifgreater", f"{_PREFIX}pick{c}", "color3")
+        pick.setInputValue("value1", 0.0, "float")
+        pick.setInputValue("value2", c - 0.5, "float")
+        pick.addInput("in1", "color3").setNodeName(node.getName())
         pick.addInput("in2", "color3").setNodeName(colour.getName())
         colour = pick
     surf = doc.addNode("surface_unlit", _PREFIX + "surface", "surfaceshader")
     surf.addInput("emission_color", "color3").setNodeName(colour.getName())
     mat = doc.addNode("surfacematerial", _PREFIX + "material", "material")
     mat.addInput("surfaceshader", "surfaceshader").setNodeName(surf.getName())
-    return doc, mat.getName(), n
+    return doc, mat.getName(), counts, len(chunks)
 
 
-def _points_kernel(select: str | None):
-    """Kernel writer for :func:`source._patch_source`: per-thread uv, position and normal."""
+def _points_kernel(selectors: list[str], n_chunks: int):
+    """Kernel writer for :func:`source._patch_source`: per-thread uv, position and normal; one call of
+    the fragment function per three-channel chunk, chosen by the `selectors` (static globals)."""
 
     def write(frag: str, init_src: str, fields) -> str:
         per_thread = []
@@ -166,10 +174,12 @@ def _points_kernel(select: str | None):
                 raise OracleError(f"unexpected vertex field type {typ} {name}")
             per_thread.append(f"    v.{name} = {val};")
         assigns = "\n".join(per_thread)
-        second = ""
-        if select:
-            second = (f"    {select} = 1.0;\n    float4 alpha = {frag}(v);\n    {select} = 0.0;\n"
-                      "    mxo_out[6 * i + 3] = alpha.x;\n")
+        calls = []
+        for c in range(n_chunks):
+            calls += [f"    {sel} = {float(c)!r};" for sel in selectors]
+            calls.append(f"    mxo_c = {frag}(v);")
+            calls += [f"    mxo_out[{3 * n_chunks} * i + {3 * c + k}] = mxo_c.{'xyz'[k]};" for k in range(3)]
+        body = "\n".join(calls)
         return f"""
 // ---- mtlx2neural per-point node oracle kernel ----
 StructuredBuffer<float> mxo_uv;
@@ -193,39 +203,36 @@ void {_ENTRY}(uint3 tid : SV_DispatchThreadID)
 {assigns}
     u_viewPosition = mxo_p + mxo_n;
     mxo_lightIntensity = 0.0;
-    float4 rgb = {frag}(v);
-    mxo_out[6 * i + 0] = rgb.x;
-    mxo_out[6 * i + 1] = rgb.y;
-    mxo_out[6 * i + 2] = rgb.z;
-{second}}}
+    float4 mxo_c;
+{body}
+}}
 """
 
     return write
 
 
-def _node_source(document, target: str, output: str | None) -> tuple[_OracleSource, int]:
+def _node_source(document, targets: list[tuple[str, str | None]]) -> tuple[_OracleSource, list[int], int]:
     import MaterialX as mx
 
     uri = document.getSourceUri()
     base_dir = Path(uri).resolve().parent if uri else Path.cwd()
     xml_hash = hashlib.sha256(mx.writeToXmlString(document).encode()).hexdigest()
-    key = (xml_hash, str(base_dir), target, output)
+    key = (xml_hash, str(base_dir), tuple(targets))
     with _lock:
         cached = _sources.get(key)
     if cached is not None:
         return cached
-    doc, material, n = _probe_document(document, target, output)
+    doc, material, counts, n_chunks = _probe_document(document, targets)
     src, uniforms = _generate_pixel_shader(doc, material)
-    select = None
-    if n == 4:
-        names = [u for u in uniforms if u == _PREFIX + "pick_value1"]
-        if len(names) != 1:
-            raise OracleError(f"probe selector uniform not found among {sorted(uniforms)}")
-        select = names[0]
-    patched, textures = _patch_source(src, uniforms, base_dir, kernel=_points_kernel(select))
-    if select and not re.search(rf"\bstatic\s+float\s+{select}\b", patched):
-        raise OracleError(f"probe selector {select} is not a patchable global")
-    result = (_OracleSource(patched, textures), n)
+    selectors = [f"{_PREFIX}pick{c}_value1" for c in range(1, n_chunks)]
+    missing = [sel for sel in selectors if sel not in uniforms]
+    if missing:
+        raise OracleError(f"probe selector uniforms {missing} not found among {sorted(uniforms)}")
+    patched, textures = _patch_source(src, uniforms, base_dir, kernel=_points_kernel(selectors, n_chunks))
+    for sel in selectors:
+        if not re.search(rf"\bstatic\s+float\s+{sel}\b", patched):
+            raise OracleError(f"probe selector {sel} is not a patchable global")
+    result = (_OracleSource(patched, textures), counts, n_chunks)
     with _lock:
         _sources[key] = result
     return result
@@ -243,8 +250,8 @@ def _rows(a, width: int, name: str, n: int | None) -> np.ndarray:
     return a
 
 
-def mtlx_node_eval(document, target: str, uv, position, *, normal=None, output: str | None = None,
-                   cache_dir=None) -> np.ndarray:
+def mtlx_node_eval(document, target, uv, position, *, normal=None, output: str | None = None,
+                   cache_dir=None):
     """Value [N, C] (float64 holding MaterialX's float32 results) of one output of a MaterialX document,
     computed by MaterialX's generated Slang code at N surface points.
 
@@ -253,12 +260,19 @@ def mtlx_node_eval(document, target: str, uv, position, *, normal=None, output: 
     only one), or the path "graph/output" of a nodegraph output; `output` also names the output of a
     multi-output node.  C is the output type's channel count (float, integer, boolean: 1; vector2: 2;
     vector3, color3: 3; vector4, color4: 4); integers and booleans come back as floats.
+    `target` may also be a list of such names or (name, output) pairs: then the result is a list of
+    arrays, one per target, from one shader (one compilation for all).
     `uv` [N, 2]: texture coordinates (MaterialX's convention).  `position` [N, 3]: the point, used as
     both object- and world-space position (units of the document).  `normal` [N, 3] (default +Z for every
     point): the surface normal, object and world space alike; it is used as given (not normalised).
     Colour values are as the generated shader computes them (in the working colour space, no output
-    transform).  Each (document, target, output) is generated and compiled once.
+    transform).  Each (document, targets) is generated and compiled once.
     """
+    single = isinstance(target, str)
+    if single:
+        targets = [(target, output)]
+    else:
+        targets = [(t, None) if isinstance(t, str) else (t[0], t[1]) for t in target]
     document = _load(document)
     uv = _rows(uv, 2, "uv", None)
     n = uv.shape[0]
@@ -267,26 +281,30 @@ def mtlx_node_eval(document, target: str, uv, position, *, normal=None, output: 
     ok, reason = oracle_available()
     if not ok:
         raise OracleError(f"oracle unavailable: {reason}")
-    osrc, channels = _node_source(document, target, output)
+    osrc, counts, n_chunks = _node_source(document, targets)
     k = _compile(osrc, cache_dir, inputs=("mxo_uv", "mxo_pos", "mxo_nrm"))
-    if n == 0:
-        return np.zeros((0, channels), dtype=np.float64)
+    raw = np.zeros((n, 3 * n_chunks), dtype=np.float64)
+    if n:
+        import slangpy as spy
 
-    import slangpy as spy
+        usage_in = spy.BufferUsage.shader_resource
+        usage_out = spy.BufferUsage.shader_resource | spy.BufferUsage.unordered_access
+        dev = k.device
 
-    usage_in = spy.BufferUsage.shader_resource
-    usage_out = spy.BufferUsage.shader_resource | spy.BufferUsage.unordered_access
-    dev = k.device
+        def buf(a):
+            return dev.create_buffer(usage=usage_in, struct_size=4,
+                                     data=np.ascontiguousarray(a, np.float32).reshape(-1))
 
-    def buf(a):
-        return dev.create_buffer(usage=usage_in, struct_size=4, data=np.ascontiguousarray(a, np.float32).reshape(-1))
-
-    with _lock:  # one dispatch at a time per process
-        b_out = dev.create_buffer(element_count=6 * n, struct_size=4, usage=usage_out)
-        k.kernel.dispatch(
-            thread_count=[n, 1, 1],
-            vars={"mxo_uv": buf(uv), "mxo_pos": buf(position), "mxo_nrm": buf(normal), "mxo_out": b_out,
-                  "mxo_texels": k.texels, "mxo_count": n},
-        )
-        raw = b_out.to_numpy().view(np.float32)[: 6 * n].reshape(n, 6).astype(np.float64)
-    return raw[:, :channels]
+        with _lock:  # one dispatch at a time per process
+            b_out = dev.create_buffer(element_count=3 * n_chunks * n, struct_size=4, usage=usage_out)
+            k.kernel.dispatch(
+                thread_count=[n, 1, 1],
+                vars={"mxo_uv": buf(uv), "mxo_pos": buf(position), "mxo_nrm": buf(normal), "mxo_out": b_out,
+                      "mxo_texels": k.texels, "mxo_count": n},
+            )
+            raw = b_out.to_numpy().view(np.float32)[: 3 * n_chunks * n].reshape(n, 3 * n_chunks).astype(np.float64)
+    results, col = [], 0
+    for c in counts:
+        results.append(raw[:, col:col + c])
+        col += 3 * -(-c // 3)
+    return results[0] if single else results

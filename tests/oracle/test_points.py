@@ -102,3 +102,15 @@ def test_input_validation():
         mtlx_node_eval(doc, "no_such_node", uv, pos)
     with pytest.raises(OracleError):
         mtlx_node_eval(doc, "st", uv, pos, output="outq")
+
+
+def test_many_targets_share_one_shader():
+    uv, pos = _points(64, seed=4)
+    doc = _doc(GEOMETRY)
+    got = mtlx_node_eval(doc, ["mixed", ("sp", "outy"), "t", "p"], uv, pos)
+    assert [g.shape for g in got] == [(64, 4), (64, 1), (64, 2), (64, 3)]
+    # Pure copies of the inputs: exact.
+    np.testing.assert_array_equal(got[0], np.stack([uv[:, 1], pos[:, 2], uv[:, 0], pos[:, 0]], 1))
+    np.testing.assert_array_equal(got[1], pos[:, 1:2])
+    np.testing.assert_array_equal(got[2], uv)
+    np.testing.assert_array_equal(got[3], pos)
