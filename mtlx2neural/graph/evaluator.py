@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 
 from mtlx2neural.errors import InputError
+from mtlx2neural.graph import noise  # noqa: F401  (registers the noise operators into OPS)
 from mtlx2neural.graph.ir import CHANNELS, Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS
 from mtlx2neural.graph.spatial import FRAME_AXES, SPATIAL, eval_source
@@ -98,14 +99,15 @@ class GraphEvaluator:
                          if isinstance(v, Ref) and self.spatial[v.node])
         return sorted(needed)
 
-    def run(self, nodes: list[int], uv: torch.Tensor) -> dict:
-        """Evaluate spatial ``nodes`` (from :meth:`spatial_closure`) at ``uv`` [N,2]."""
+    def run(self, nodes: list[int], uv: torch.Tensor, position: torch.Tensor | None = None) -> dict:
+        """Evaluate spatial ``nodes`` (from :meth:`spatial_closure`) at ``uv`` [N,2]; ``position``
+        [N,3] (optional) is the surface point that ``position`` nodes read (default (u, v, 0))."""
         env: dict = {}
         for i in nodes:
             node = self.graph[i]
             args = {k: self.value(v, env) for k, v in node.inputs.items()}
             if node.category in SPATIAL:
-                env[(i, "out")] = eval_source(node, args, uv)
+                env[(i, "out")] = eval_source(node, args, uv, position)
             else:
                 self._store(i, self._run_op(i, args), env)
         return env

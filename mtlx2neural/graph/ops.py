@@ -112,19 +112,21 @@ op("luminance")(lambda a, n: torch.cat([dot(a["in"][:, :3], a["lumacoeffs"])] * 
 
 @op("rotate3d")
 def _rotate3d(a, n):
-    # Rodrigues rotation of `in` about `axis` by `amount` degrees.
+    # Rodrigues' formula in MaterialX's row-vector convention: v' = v c + (v x k) s + k (k . v)(1 - c),
+    # i.e. clockwise by `amount` degrees seen from the tip of `axis`.
     v, k = torch.broadcast_tensors(a["in"], normalize(a["axis"]))
     ang = a["amount"] * (math.pi / 180.0)
     c, s = ang.cos(), ang.sin()
-    return v * c + torch.linalg.cross(k, v, dim=-1) * s + k * dot(k, v) * (1 - c)
+    return v * c + torch.linalg.cross(v, k, dim=-1) * s + k * dot(k, v) * (1 - c)
 
 
 @op("rotate2d")
 def _rotate2d(a, n):
+    # MaterialX's convention: clockwise by `amount` degrees, (c x + s y, -s x + c y).
     ang = a["amount"] * (math.pi / 180.0)
     c, s = ang.cos(), ang.sin()
     x, y = a["in"][:, :1], a["in"][:, 1:2]
-    return torch.cat([c * x - s * y, s * x + c * y], -1)
+    return torch.cat([c * x + s * y, -s * x + c * y], -1)
 
 
 # --- channels ---------------------------------------------------------------------

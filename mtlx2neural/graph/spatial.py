@@ -41,13 +41,20 @@ def needs_conversion(src: str, dst: str) -> bool:
     return bool(src) and not is_data(src) and canonical_colorspace(src) != canonical_colorspace(dst)
 
 
-def eval_source(node, args: dict, uv: torch.Tensor):
-    """Value of spatial source ``node`` for texture coordinates ``uv`` [N,2]."""
+def eval_source(node, args: dict, uv: torch.Tensor, position: torch.Tensor | None = None):
+    """Value of spatial source ``node`` for texture coordinates ``uv`` [N,2].
+
+    ``position`` [N,3] (or None): the surface point, in the document's units; every ``position`` node
+    (object, world or model space alike) reads it. Without it, position is (u, v, 0), a flat unit
+    square standing in for the surface.
+    """
     n = uv.shape[0]
     cat = node.category
     if cat == "texcoord":
         return uv
     if cat == "position":
+        if position is not None:
+            return position
         return torch.cat([uv, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
     if cat == "geomcolor":
         return torch.ones(n, CHANNELS[node.type], dtype=uv.dtype, device=uv.device)
