@@ -15,7 +15,9 @@ chosen direction pairs:
   as on a flat plane, and the subsurface approximation sees zero curvature;
 * image textures become oracle samplers over one texel buffer (:mod:`mtlx2neural.oracle.textures`);
 * a ``[numthreads(32,1,1)]`` compute kernel fills the vertex data of a flat surface at the origin
-  (normal +Z, tangent +X, bitangent +Y, texcoords (0.5, 0.5), vertex colours 1), places the
+  (normal +Z, tangent +X, bitangent +Y, texcoords (0.5, 0.5), vertex colours 1; the object-space
+  position is (0.5, 0.5, 0), the reference's default (u, v, 0) at that uv, while the world-space
+  position, from which the view vector is measured, is the origin), places the
   viewer along ``wi``, and calls the generated fragment function twice: with the light at
   intensity ``_LIGHT_SCALE`` and at zero, writing both colours.  (:mod:`mtlx2neural.oracle.points`
   supplies its own kernel, with per-thread texcoords, positions and normals, to read node values.)
@@ -395,9 +397,15 @@ def _vertex_value(typ: str, name: str) -> str | None:
     vm = _VEC_RE.match(typ)
     n = int(vm.group(2)) if vm else 1
     low = name.lower()
-    if low.startswith(("sv_", "position")):
+    if low.startswith("sv_"):
         return None
-    if low.startswith("bitangent"):
+    if low.startswith("position"):
+        # The object-space position is the reference's default for a point, (u, v, 0) at the oracle's
+        # uv; the world-space position stays at the origin, where the view vector is measured from.
+        if low != "positionobject":
+            return None
+        v = [0.5, 0.5, 0.0]
+    elif low.startswith("bitangent"):
         v = [0.0, 1.0, 0.0]
     elif low.startswith("normal"):
         v = [0.0, 0.0, 1.0]

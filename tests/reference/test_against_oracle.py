@@ -2,7 +2,8 @@
 
 For every material in ``Examples/StandardSurface``, ``Examples/UsdPreviewSurface``
 and ``TestSuite/pbrlib`` of ../shared, ``eval`` must match the oracle
-(textured ones at uv (0.5, 0.5), the texel the oracle shades)
+(textured ones at uv (0.5, 0.5), the texel the oracle shades; position-driven ones
+at object-space position (0.5, 0.5, 0), the reference's default (u, v, 0) there)
 (:mod:`mtlx2neural.oracle.runner`) on 4096 seeded direction pairs, a
 quarter of them grazing (z in [1e-4, 0.02]).
 
@@ -38,7 +39,6 @@ NOT_COMPARED = {
     ("chiang_hair_bsdf.mtlx", "test_chiang_hair1_out"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("chiang_hair_surfaceshader.mtlx", "simple_hair_default"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("flake_surfaceshader.mtlx", "flake_surfaceshader"): (UnsupportedNodeError, "flake3d has no torch operator yet"),
-    ("standard_surface_marble_solid.mtlx", "Marble_3D"): (UnsupportedNodeError, "fractal3d noise not supported yet"),
     ("standard_surface_onyx_hextiled.mtlx", "M_OnyxHextiled"): (UnsupportedNodeError, "hextiledimage not supported"),
     ("surfacematerial_with_graph.mtlx", "M_EmptySurface"): (InputError, "the material has no surface shader"),
     ("mapped_surfaceshader.mtlx", "UnitMappedShaderMaterial"): (
