@@ -118,7 +118,8 @@ def count_fits(monkeypatch) -> list:
 def preview_flip_in_layer(usda: Path, prim: str) -> float:
     from pxr import Usd
 
-    return Usd.Stage.Open(str(usda)).GetPrimAtPath(prim).GetAttribute("neural:metrics:previewFlip").Get()
+    stage = Usd.Stage.Open(str(usda))  # held: a prim of a collected stage has expired
+    return stage.GetPrimAtPath(prim).GetAttribute("neural:metrics:previewFlip").Get()
 
 
 # ----------------------------------------------------------------------------- the error budget
