@@ -9,8 +9,9 @@
     mtlx2neural bench [NAME ...] [--list]
 
 Every flag comes from a field of an options dataclass (README's option tables list them all).
-Exit codes: 0 ok, 1 failure, 2 bad input (the message names the file, prim or
-node and what to do). A missed ``--max-error`` budget is not a failure: exit 0, with
+Exit codes: 0 ok, 1 failure, 2 bad input or nothing convertible (the message names the
+file, prim or node and what to do), 3 a conversion that skipped some materials it cannot
+convert (printed with node and reason) and converted the others (``--strict``: 2 instead). A missed ``--max-error`` budget is not a failure: exit 0, with
 a warning line per material and ``budget_met: false`` in its summary.
 """
 

@@ -1,8 +1,8 @@
 """Error types shared by every stage.
 
 ``InputError`` means the user's input is wrong (missing file, malformed document,
-unsupported node, ...). The CLI maps it to exit code 2; every other
-``Mtlx2NeuralError`` maps to exit code 1. Messages name the file, prim or node,
+unsupported node, ...). The CLI maps it to exit code 2 (a conversion that skips some materials
+for it, and converts the others, exits 3); every other ``Mtlx2NeuralError`` maps to exit code 1. Messages name the file, prim or node,
 say what is wrong, and say what to do about it.
 """
 
@@ -14,9 +14,17 @@ class Mtlx2NeuralError(Exception):
 
 
 class InputError(Mtlx2NeuralError):
-    """The input asset is missing, malformed or uses something unsupported."""
+    """The input asset is missing, malformed or uses something unsupported.
+
+    ``node``: the MaterialX node path (or USD prim) at fault, when one is (for per-material
+    failure reports); the message names it too.
+    """
 
     exit_code = 2
+
+    def __init__(self, *args, node: str | None = None):
+        super().__init__(*args)
+        self.node = node
 
 
 class UnsupportedNodeError(InputError):

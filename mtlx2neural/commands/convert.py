@@ -30,8 +30,16 @@ def preset_settings(_field: str, top: dict) -> TrainConfig:
     return dataclasses.replace(PRESETS[top.get("preset", ConvertOptions.preset)])
 
 
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_SKIPPED = 0, 1, 2, 3
+EPILOG = ("exit codes: 0 every selected material converted; 3 some were skipped (they cannot be converted: "
+          "each is printed with its node and reason, and recorded in the layer; the others converted); "
+          "2 bad input, or nothing convertible (with --strict: any material that cannot be converted), "
+          "nothing written; 1 a failure during the run (a write, Ctrl-C).")
+"""The exit codes of a conversion (``--help``; README's "Exit codes and failure modes")."""
+
+
 def add_parser(sub) -> argparse.ArgumentParser:
-    p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}.")
+    p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}.", epilog=EPILOG)
     p.add_argument("asset", metavar="ASSET", help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz)")
     add_options(p, ConvertOptions, parsers=PARSERS, bases=TRAIN_BASES)
     return p
@@ -52,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def convert(asset, options: ConvertOptions) -> int:
-    """Convert ``asset`` with ``options``, print a line per material; the exit code."""
+    """Convert ``asset`` with ``options``, print a line per material; the exit code (:data:`EPILOG`):
+    3 when some selected materials were skipped because they cannot be converted."""
     # Local: --help and option errors answer without importing torch.
     from mtlx2neural.pipeline.convert import convert_asset
 
@@ -63,14 +72,22 @@ def convert(asset, options: ConvertOptions) -> int:
         summaries = convert_asset(asset, options)
     except TrainingInterrupted as exc:
         print(f"mtlx2neural: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     except OSError as exc:  # writing failed after the up-front checks (disk full...); nothing partial was left
         where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
         print(f"mtlx2neural: error: cannot write the output{where} ({exc.strerror or exc}); the previous export, "
               f"if any, is unchanged", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     print_summaries(summaries)
-    return 0
+    failed = getattr(summaries, "failed", [])
+    for f in failed:
+        node = f" (node '{f['node']}')" if f.get("node") else ""
+        print(f"mtlx2neural: skipped {f['material']}{node}: {f['reason']}", file=sys.stderr)
+    if failed:
+        print(f"mtlx2neural: {len(failed)} material(s) not converted; they keep their original network "
+              f"(--strict makes this an error)", file=sys.stderr)
+        return EXIT_SKIPPED
+    return EXIT_OK
 
 
 def print_summaries(summaries) -> None:

@@ -110,11 +110,12 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
 
 
 def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep: KeptMaterials | None = None,
-                 tool_version: str = "") -> tuple[Path, list[ExportedMaterial]]:
+                 tool_version: str = "", skipped: dict[str, str] | None = None) -> tuple[Path, list[ExportedMaterial]]:
     """Export every ``(model, summary, material folder)`` of ``trained`` and write the layer.
 
     ``usda`` defaults to :func:`layer_path` of ``out``. ``keep``: materials of the
-    previous layer at ``usda`` to carry over (:func:`~.usd_writer.write_neural_layer`).
+    previous layer at ``usda`` to carry over (:func:`~.usd_writer.write_neural_layer`); ``skipped``:
+    materials left out (name -> reason), for the layer's record.
     Returns (layer path, exported materials).
     """
     usda = Path(usda).resolve() if usda else layer_path(out)
@@ -124,5 +125,6 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
             final = Path(folder).resolve() / EXPORT_FOLDER
             exported.append(export_material(model, summary, st.stage(final), final, preset,
                                             baseline=Path(folder).resolve() / BASELINE_FILE))
-        write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version)
+        write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version,
+                           skipped=skipped)
     return usda, exported

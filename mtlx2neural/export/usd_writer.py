@@ -53,7 +53,8 @@ The layer records what it holds in its ``customLayerData`` under
 :data:`RECORD_KEY`: the input it was written for (``source``, relative to the
 layer), the tool version, per material name its prim, source hash, material folder and
 ``.mtlx`` document (``mtlxDocument``), and the folders of those documents
-(``mtlxPluginSearchPaths``). That record is how a later run recognises the layer as this
+(``mtlxPluginSearchPaths``), and the materials a run skipped because they could not be
+converted, with the reason (``skippedMaterials``). That record is how a later run recognises the layer as this
 tool's (:mod:`.outputs`) and how a ``--material`` run keeps the other materials:
 their prim specs are copied unchanged from the previous layer (``keep``).
 """
@@ -279,13 +280,16 @@ def _copy_kept(old_path: Path, layer, kept: dict[str, dict]) -> None:
 
 
 def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, anchor=None,
-                       keep: KeptMaterials | None = None, tool_version: str = "") -> Path:
+                       keep: KeptMaterials | None = None, tool_version: str = "",
+                       skipped: dict[str, str] | None = None) -> Path:
     """Write the neural layer for ``materials`` of ``asset`` to ``out_usda``.
 
     ``anchor`` is where the layer will finally live (default ``out_usda``): relative
     asset and sublayer paths are computed from its folder, so the layer can be written
     into a staging folder first. ``keep``: materials of the previous layer at
     ``anchor`` whose prim specs are copied over unchanged (those not in ``materials``).
+    ``skipped``: material name -> why it could not be converted; recorded as the
+    record's ``skippedMaterials`` (those materials keep their original network only).
     Returns ``out_usda``. The input is only read.
     """
     from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
@@ -360,6 +364,8 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
     entries.update(kept)
     record = {"formatVersion": FORMAT_VERSION, "tool": f"mtlx2neural {tool_version}".strip(), "source": rel(asset),
               "materials": {k: entries[k] for k in sorted(entries)}}
+    if skipped:
+        record["skippedMaterials"] = {k: skipped[k] for k in sorted(skipped)}
     documents = sorted(e["mtlxDocument"] for e in entries.values() if "mtlxDocument" in e)
     if documents:  # what a UsdMtlx viewer must find (module docstring)
         record["mtlxPluginSearchPaths"] = Vt.StringArray(sorted({d.rsplit("/", 1)[0] for d in documents}))

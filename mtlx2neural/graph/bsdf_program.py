@@ -184,7 +184,7 @@ class _Builder:
         if n.category == "multiply":
             return Multiply(self.surface(n.inputs["in1"]), n.inputs["in2"], f"{n.path}.in2")
         raise UnsupportedNodeError(f"{self.ev.source}: surface shader node '{n.path}' ({n.nodedef}) is not "
-                                   f"supported as a reflectance; use a BSDF-based shader.")
+                                   f"supported as a reflectance; use a BSDF-based shader.", node=n.path)
 
     def drop(self, subtree, reason: str):
         """Record every lobe of a subtree that a combinator removes."""
@@ -269,7 +269,7 @@ class _Builder:
                 return Zero(0.0)
             return Multiply(child, n.inputs["in2"], f"{n.path}.in2")
         raise UnsupportedNodeError(f"{self.ev.source}: BSDF node '{n.path}' ({n.nodedef}) is not supported by "
-                                   f"the reflectance reference.")
+                                   f"the reflectance reference.", node=n.path)
 
     def _lobe(self, i: int):
         n = self.g[i]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import warnings
 from dataclasses import dataclass, field
 
 import MaterialX as mx
@@ -21,6 +23,7 @@ from mtlx2neural.graph.spatial import (
     texture_colorspaces,
 )
 from mtlx2neural.graph.validate import check_image_modes
+from mtlx2neural.imaging.resolve import resolve_case
 
 NATIVE = set(OPS) | CLOSURE_NODES | SPATIAL | set(FRAME_AXES)
 
@@ -35,6 +38,8 @@ class CompiledMaterial:
     evaluator: GraphEvaluator
     program: BsdfProgram
     spatial_nodes: list[int]
+    case_fixes: list[str] = field(default_factory=list)
+    """Warnings for texture paths read with another case (:func:`mtlx2neural.imaging.resolve.resolve_case`)."""
     _parameters: list | None = field(default=None, repr=False)
 
     def parameters(self) -> list[tuple[str, Input, str]]:
@@ -101,11 +106,14 @@ class CompiledMaterial:
 
 
 def compile_material(document: mx.Document, material: str | None = None, device="cpu",
-                     allow_missing_textures: bool = False) -> CompiledMaterial:
+                     allow_missing_textures: bool = False, strict_case: bool = False) -> CompiledMaterial:
     """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries).
 
     A missing texture is an error naming the file and node, unless
     ``allow_missing_textures``: then its image node returns its declared ``default``.
+    A texture path that does not exist but matches one file when case is ignored reads that
+    file, with a warning in ``case_fixes`` and the notes (``strict_case``: an error instead;
+    :func:`mtlx2neural.imaging.resolve.resolve_case`).
     """
     graph, root, source, notes = expand_material(document, material, NATIVE)
     ev = GraphEvaluator(graph, source, device=device)
@@ -116,17 +124,24 @@ def compile_material(document: mx.Document, material: str | None = None, device=
         needed += list(graph[leaf.node].inputs.values())
     spatial_nodes = ev.spatial_closure(needed)
     check_image_modes(source, graph, spatial_nodes)  # before any texture is read
+    case_fixes = []
     for i in spatial_nodes:
         n = graph[i]
         f = n.inputs.get("file")
         if n.category == "image" and isinstance(f, Const) and f.value:
             try:
+                found, fixed = resolve_case(f.value, node=n.path, strict=strict_case)
+                if fixed:
+                    warnings.warn(f"{source}: {fixed}", stacklevel=2)
+                    case_fixes.append(fixed)
+                    program.notes.append(fixed)
+                    n.inputs["file"] = f = dataclasses.replace(f, value=found)
                 texture(f.value, n.path)  # reads (and caches) the file now: errors surface at load time
             except InputError as exc:
                 if not allow_missing_textures:
                     raise InputError(f"{source}: {exc} Pass --allow-missing-textures to use the node's "
-                                     f"declared default instead.") from exc
+                                     f"declared default instead.", node=n.path) from exc
                 n.attrs["missing"] = "1"
                 program.notes.append(f"texture '{f.value}' of '{n.path}' is missing: its declared default is used")
     name = material or next(n.getName() for n in document.getMaterialNodes())
-    return CompiledMaterial(name, source, graph, ev, program, spatial_nodes)
+    return CompiledMaterial(name, source, graph, ev, program, spatial_nodes, case_fixes=case_fixes)

@@ -240,7 +240,8 @@ class Expander:
             raise UnsupportedNodeError(
                 f"{self.source}: node '{node.getNamePath()}' (category '{node.getCategory()}', type "
                 f"'{node.getType()}') matches no nodedef in the MaterialX libraries. Check the node's "
-                f"category, type and input types against the MaterialX specification.")
+                f"category, type and input types against the MaterialX specification.",
+                node=node.getNamePath())
         if path in self._active:
             raise InputError(f"{self.source}: cycle through node '{path}'.")
         self._active.add(path)
@@ -275,7 +276,8 @@ class Expander:
                 raise UnsupportedNodeError(
                     f"{self.source}: node '{node.getNamePath()}' uses nodedef '{nodedef.getName()}' "
                     f"(category '{category}'), which mtlx2neural cannot evaluate: it has no torch operator "
-                    f"and no nodegraph implementation to expand. Replace the node or bake it to a texture.")
+                    f"and no nodegraph implementation to expand. Replace the node or bake it to a texture.",
+                    node=node.getNamePath())
             child = _Scope(impl, f"{path}<{nodedef.getName()}>", inputs, library=True)
             return ("graph", child, nodedef)
         finally:
@@ -308,7 +310,8 @@ def expand_material(document: mx.Document, material: str | None, native: set[str
     node = find_material_node(exp.doc, material)
     if node.getCategory() != "surfacematerial":
         raise UnsupportedNodeError(f"{exp.source}: material '{node.getName()}' is a "
-                                   f"'{node.getCategory()}'; only surfacematerial is supported.")
+                                   f"'{node.getCategory()}'; only surfacematerial is supported.",
+                                   node=node.getName())
     shader_in = node.getInput("surfaceshader")
     if shader_in is None or not (shader_in.getNodeName() or shader_in.getNodeGraphString()):
         raise InputError(f"{exp.source}: material '{node.getName()}' has no surfaceshader connected. "

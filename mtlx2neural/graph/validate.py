@@ -69,7 +69,7 @@ def check_enum_inputs(source: str, node_path: str, nodedef: mx.NodeDef, inputs: 
             raise InputError(
                 f"{source}: node '{node_path}' ({nodedef.getName()}) has {ndin.getName()}={v!r}, which is not "
                 f"an allowed value; {ndin.getName()} must be one of: {', '.join(str(a) for a in allowed)}. "
-                f"Set one of these values (they are case-sensitive).")
+                f"Set one of these values (they are case-sensitive).", node=node_path)
 
 
 def check_image_modes(source: str, graph: IRGraph, nodes: list[int]) -> None:
@@ -92,4 +92,4 @@ def check_image_modes(source: str, graph: IRGraph, nodes: list[int]) -> None:
                 raise InputError(
                     f"{source}: image node '{n.path}' would be sampled with {name}={value.value!r}, which is not "
                     f"an allowed value; {name} must be one of: {', '.join(allowed)}. Fix the value where it is "
-                    f"set (the node or the nodegraph input it is connected to).")
+                    f"set (the node or the nodegraph input it is connected to).", node=n.path)

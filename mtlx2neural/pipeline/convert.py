@@ -76,7 +76,12 @@ from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
 )
 from mtlx2neural.pipeline.lock import output_lock
 from mtlx2neural.pipeline.options import ConvertOptions, check_options, options_record
-from mtlx2neural.pipeline.plan import DECODERS, latent_resolution, plan_materials  # noqa: F401 (latent_resolution: API)
+from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
+    DECODERS,
+    MaterialFailure,
+    latent_resolution,
+    plan_materials,
+)
 from mtlx2neural.pipeline.source_hash import cached_summary
 from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
@@ -106,6 +111,13 @@ def _select(scene, asset, material):
     return sources
 
 
+def _nothing_convertible(asset, failures) -> InputError:
+    """The error of a run none of whose selected materials can be converted (exit 2)."""
+    listing = "\n".join(f"  {f.material}: {f.reason}" for f in failures)
+    return InputError(f"{asset}: no material could be converted ({len(failures)} failed):\n{listing}",
+                      node=failures[0].node)
+
+
 def _reuse(folder: Path, digest: str):
     """(model, summary) of an earlier run of the same source hash in ``folder``, or None."""
     summary = cached_summary(folder, digest)
@@ -120,11 +132,14 @@ def _reuse(folder: Path, digest: str):
 
 class Summaries(list):
     """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
-    left out (``{"material", "reason"}``; only when no ``material`` was named), ``kept``: the
-    materials an existing layer kept from earlier runs (a ``--material`` run), ``folder``: the
-    output folder, and ``layer``: the neural layer written."""
+    left out (``{"material", "reason"}``; only when no ``material`` was named), ``failed``: the
+    selected materials that could not be converted and were skipped (``{"material", "node",
+    "reason"}``, :class:`~mtlx2neural.pipeline.plan.MaterialFailure`; the CLI then exits 3),
+    ``kept``: the materials an existing layer kept from earlier runs (a ``--material`` run),
+    ``folder``: the output folder, and ``layer``: the neural layer written."""
 
     skipped: list[dict]
+    failed: list[dict]
     kept: list[str]
     folder: Path
     layer: Path
@@ -285,7 +300,11 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     stage = asset if is_stage(asset) else None
     layout = _stage_layout(stage, options) if stage is not None else None  # an in-memory stage needs out
     # 2. the scene and the materials to convert
-    scene = load_asset(asset)
+    scene = load_asset(asset, keep_going=not options.strict)
+    # a named material that fails is reloaded by _select, which raises its error
+    failures = [MaterialFailure.of(n, e) for n, e in scene.failed] if material is None else []
+    if failures and not scene.materials:
+        raise _nothing_convertible(scene.asset, failures)
     sources = _select(scene, asset, material)
     # 3. where everything goes, checked against the files the input reads (nothing written yet)
     layout = layout or resolve_output(asset, options.out)
@@ -301,7 +320,14 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     record = check_output(layout, source, inputs, folders)
     # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
     plans = plan_materials(sources, cfg, options.allow_missing_textures, options.max_error,
-                           options.texel_density, stage if stage is not None else scene.asset)
+                           options.texel_density, stage if stage is not None else scene.asset,
+                           failures=None if options.strict else failures, strict=options.strict)
+    if failures:  # the others convert; a failed material keeps its original network only
+        if not plans:
+            raise _nothing_convertible(scene.asset, failures)
+        index = {id(s): i for i, s in enumerate(sources)}
+        kept = [index[id(p.source)] for p in plans]
+        sources, folders = [sources[i] for i in kept], [folders[i] for i in kept]
     for p in plans:
         p.compiled = None  # the workers compile again (on their device); keep the parent small
     if options.resume:
@@ -320,7 +346,7 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
         if flat is not None:
             write_snapshot(flat, source)
         layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
-                                       tool_version=__version__)
+                                       tool_version=__version__, skipped={f.material: f.reason for f in failures})
         if flat is None and not (keep and keep.entries):
             # An earlier conversion's snapshot of an in-memory or edited stage: the new layer sublayers
             # the file instead, so it is stale (kept materials' summaries may still name it: kept then).
@@ -328,6 +354,7 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     for s, e in zip(summaries, exported):
         s["usd"], s["export_notes"] = str(layer), e.notes
     summaries.kept = sorted(keep.entries) if keep else []
+    summaries.failed = [f.record() for f in failures]
     summaries.folder, summaries.layer = layout.folder, Path(layer)
     return summaries
 

@@ -63,6 +63,10 @@ class ConvertOptions:
     """Use an image node's declared default when its file is missing, instead of failing."""
     allow_untrained: bool = False
     """Accept ``iterations = 0``: export the untrained network (for pipeline tests)."""
+    strict: bool = False
+    """All or nothing: a material that cannot be converted (unsupported node, bad value, missing
+    texture) stops the run with exit 2 and nothing written, instead of being skipped (exit 3) while the
+    others convert; a texture file found only by ignoring case is an error instead of a warning."""
     progress: bool = field(default=True, metadata={"flag": "--quiet/--no-progress"})
     """Progress bars (a terminal) or progress lines (a log) while training; the flag turns them
     off."""

@@ -36,8 +36,10 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import re
 from dataclasses import dataclass, field
 
+from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
 from mtlx2neural.pipeline.source_hash import content_hash, source_hash
 from mtlx2neural.scene.texel_density import (
@@ -182,19 +184,59 @@ class MaterialPlan:
                 "notes": list(self.notes)}
 
 
+@dataclass
+class MaterialFailure:
+    """A material left out of a conversion because it cannot be compiled (the others convert)."""
+
+    material: str
+    """Its name (USD prim path, or the surfacematerial name for ``.mtlx`` input)."""
+    node: str | None
+    """The node (or prim) at fault, when the error names one."""
+    reason: str
+    """The error's message (names the file, node and what to do)."""
+
+    @classmethod
+    def of(cls, material: str, exc: InputError) -> MaterialFailure:
+        return cls(material, getattr(exc, "node", None) or _named_node(str(exc)), str(exc))
+
+    def record(self) -> dict:
+        """JSON-friendly: ``{"material", "node", "reason"}``."""
+        return dataclasses.asdict(self)
+
+
+def _named_node(message: str) -> str | None:
+    """The first ``node 'X'`` a message names (errors raised without ``node=``)."""
+    found = re.search(r"node '([^']+)'", message)
+    return found.group(1) if found else None
+
+
 def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = False,
                    max_error: float | None = None, texel_density: float | None = None,
-                   asset=None) -> list[MaterialPlan]:
+                   asset=None, failures: list[MaterialFailure] | None = None,
+                   strict: bool = False) -> list[MaterialPlan]:
     """Compile each of ``sources`` and decide its grid, settings, cache key and sharing (module docstring).
 
     ``texel_density``: latent texels per metre of surface (``--texel-density``); the
     meshes are measured on the USD stage ``asset`` (a path; the one the sources were
     loaded from). Without a USD ``asset`` it has no effect, and each plan notes why.
+
+    ``failures``: when a list, a material that cannot be compiled (an :class:`InputError`:
+    unsupported node, bad value, missing texture) is appended to it as a
+    :class:`MaterialFailure` and left out of the plans; None: the error propagates.
+    ``strict``: a texture found only by ignoring case is an error instead of a warning
+    (:func:`mtlx2neural.graph.compile.compile_material`).
     """
     plans, first = [], {}
     stage, no_stage = _density_stage(texel_density, asset)
     for src in sources:
-        compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
+        try:
+            compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
+                                        strict_case=strict)
+        except InputError as exc:
+            if failures is None:
+                raise
+            failures.append(MaterialFailure.of(src.name, exc))
+            continue
         surface = implied = None
         notes = []
         if texel_density and compiled.varying_parameters():
@@ -215,6 +257,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
                             grid, native, kind, shared_with=first.get(content), cfg=eff,
                             max_texels=cfg.max_resolution, texel_density=texel_density, surface=surface,
                             density_texels=implied, notes=notes)
+        plan.warnings += list(compiled.case_fixes)
         _explain(plan, cfg)
         first.setdefault(content, src.name)
         plans.append(plan)

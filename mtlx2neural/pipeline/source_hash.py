@@ -10,7 +10,8 @@
   never missed). For USD input it is the document built from that material's network;
 - every file a ``filename`` input of the document names (UDIM sets expanded to their
   tiles): its path and the sha256 of its bytes (memoised per path, size and mtime);
-  a missing file hashes as "missing", and whether missing textures are allowed;
+  a file found only by ignoring case (:mod:`mtlx2neural.imaging.resolve`) hashes as the file
+  read; a missing file hashes as "missing", and whether missing textures are allowed;
 - the training settings (``dataclasses.asdict(TrainConfig)``) except those that do not
   change the result (``IGNORED_SETTINGS``), and the OCIO config in use (``$OCIO``).
 
@@ -36,6 +37,7 @@ import os
 from pathlib import Path
 
 from mtlx2neural.formats import FORMAT_VERSION
+from mtlx2neural.imaging.resolve import on_disk
 from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
 
 IGNORED_SETTINGS = ("checkpoint_every", "compile")
@@ -92,6 +94,7 @@ def source_hash(source, cfg, allow_missing_textures: bool = False) -> str:
     put("document", mx.writeToXmlString(source.document))
     for f in referenced_files(source.document):
         put("file", f)
+        f = on_disk(f)  # the file read when the document's spelling differs only in case
         put("digest", file_digest(f) if os.path.isfile(f) else "missing")
     put("allow_missing_textures", str(bool(allow_missing_textures)))
     put("settings", json.dumps(settings_for_hash(cfg), sort_keys=True, default=str))

@@ -50,7 +50,7 @@ def _mtlx_loader(asset: str, doc: "mx.Document", name: str):
     return load
 
 
-def load_asset(path) -> SceneMaterials:
+def load_asset(path, keep_going: bool = False) -> SceneMaterials:
     """Find and convert every material that the asset's renderable geometry uses.
 
     ``path`` is a ``.mtlx`` file (every ``surfacematerial`` is a material) or a
@@ -63,12 +63,23 @@ def load_asset(path) -> SceneMaterials:
     itself is not changed). Each
     selected material is converted to its own MaterialX document. Nothing is
     written to disk. Raises InputError for missing, malformed or unsupported
-    input.
+    input; with ``keep_going``, a selected material whose own network cannot be read
+    (an InputError while converting it) is listed in ``failed`` instead, and the
+    others are still returned.
     """
     asset, cands = _candidates(path)
-    materials = [c.load() for c in cands if c.reason is None]
+    materials, failed = [], []
+    for c in cands:
+        if c.reason is not None:
+            continue
+        try:
+            materials.append(c.load())
+        except InputError as exc:
+            if not keep_going:
+                raise
+            failed.append((c.key, exc))
     skipped = [(c.key, c.reason) for c in cands if c.reason is not None]
-    return SceneMaterials(asset=asset, materials=materials, skipped=skipped)
+    return SceneMaterials(asset=asset, materials=materials, skipped=skipped, failed=failed)
 
 
 def find_material(path, material: str | None = None) -> MaterialSource:

@@ -44,6 +44,9 @@ class SceneMaterials:
     """Materials to compile, in stage/document order."""
     skipped: list[tuple[str, str]] = field(default_factory=list)
     """``(material name or prim path, human-readable reason)`` for each material left out."""
+    failed: list[tuple[str, Exception]] = field(default_factory=list)
+    """``(material name or prim path, InputError)`` for each selected material whose network could not
+    be read (only with ``load_asset(..., keep_going=True)``)."""
 
 
 @dataclass

@@ -61,6 +61,31 @@ def is_library_element(elem: "mx.Element") -> bool:
     return path.startswith(library_dir() + os.sep)
 
 
+TEXT_TYPES = {"string", "filename", "geomname", "token"}
+"""Value types every string parses as."""
+
+
+def unparsed_values(doc: "mx.Document") -> list[str]:
+    """One line per value of ``doc`` that does not parse as its type (``<input type="float"
+    value="abc">``), naming the node (its path), the input, the type and the value."""
+    lines = []
+    for elem in doc.traverseTree():
+        if not isinstance(elem, mx.ValueElement) or elem.getType() in TEXT_TYPES:
+            continue
+        text = elem.getValueString() if elem.hasValueString() else ""
+        if not text.strip():
+            continue
+        try:
+            value = elem.getValue()
+        except Exception:  # noqa: BLE001 - MaterialX raises plain exceptions for some types
+            value = None
+        if value is None:
+            owner = elem.getParent()
+            lines.append(f"Node {owner.getNamePath()!r} ({owner.getCategory()}): {elem.getCategory()} "
+                         f"{elem.getName()!r} has value {text!r}, which does not parse as a {elem.getType()}")
+    return lines
+
+
 def validate(doc: "mx.Document", what: str) -> None:
     """Validate ``doc`` against the standard libraries without modifying it.
 
@@ -74,6 +99,9 @@ def validate(doc: "mx.Document", what: str) -> None:
     # shadow library elements of the same name.
     scratch.setDataLibrary(standard_library())
     ok, message = scratch.validate()
+    unparsed = unparsed_values(doc)
+    if unparsed:
+        ok, message = False, "".join(f"{line}\n" for line in unparsed) + message
     # validate() accepts nodes that match no nodedef; nothing downstream can use them.
     for elem in doc.traverseTree():
         if not isinstance(elem, mx.Node):
