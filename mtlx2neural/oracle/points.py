@@ -24,6 +24,7 @@ import hashlib
 import re
 from pathlib import Path
 
+import MaterialX as mx
 import numpy as np
 
 from mtlx2neural.oracle.errors import OracleError
@@ -47,8 +48,6 @@ _sources: dict[tuple, tuple[_OracleSource, int]] = {}  # (XML hash, base dir, ta
 
 
 def _load(document):
-    import MaterialX as mx
-
     if isinstance(document, (str, Path)):
         doc = mx.createDocument()
         mx.readFromXmlFile(doc, str(document))
@@ -58,8 +57,6 @@ def _load(document):
 
 def _target(doc, target: str, output: str | None):
     """(connection attributes for an input reading the target, MaterialX type of the target)."""
-    import MaterialX as mx
-
     elem = doc.getDescendant(target)
     if elem is None:
         raise OracleError(f"no element {target!r} in the document")
@@ -99,8 +96,6 @@ def _connect(inp, conn: dict):
 def _probe_document(document, targets: list[tuple[str, str | None]]):
     """A copy of `document` with the probe material wired to the targets: (document, material, channel
     count of each target, number of three-channel chunks)."""
-    import MaterialX as mx
-
     doc = mx.createDocument()
     doc.copyContentFrom(document)
     doc.setSourceUri(document.getSourceUri())
@@ -212,8 +207,6 @@ void {_ENTRY}(uint3 tid : SV_DispatchThreadID)
 
 
 def _node_source(document, targets: list[tuple[str, str | None]]) -> tuple[_OracleSource, list[int], int]:
-    import MaterialX as mx
-
     uri = document.getSourceUri()
     base_dir = Path(uri).resolve().parent if uri else Path.cwd()
     xml_hash = hashlib.sha256(mx.writeToXmlString(document).encode()).hexdigest()
@@ -285,6 +278,7 @@ def mtlx_node_eval(document, target, uv, position, *, normal=None, output: str |
     k = _compile(osrc, cache_dir, inputs=("mxo_uv", "mxo_pos", "mxo_nrm"))
     raw = np.zeros((n, 3 * n_chunks), dtype=np.float64)
     if n:
+        # Local: slangpy is optional; oracle_available() has checked it
         import slangpy as spy
 
         usage_in = spy.BufferUsage.shader_resource

@@ -19,9 +19,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import shared_path
 
 from mtlx2neural.graph.node_eval import compile_output
 from mtlx2neural.graph.noise import cell_noise, hash_ints, perlin, worley
+from mtlx2neural.oracle.points import mtlx_node_eval
 from mtlx2neural.oracle.runner import oracle_available
 
 mx = pytest.importorskip("MaterialX")
@@ -126,8 +128,6 @@ def test_noise_matches_materialx_oracle(family):
     ok, reason = oracle_available()
     if not ok:
         pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
-    from mtlx2neural.oracle.points import mtlx_node_eval
-
     nodes = _unified_and_random() if family == "unified_random" else _perlin_family(family)
     doc = mx.createDocument()
     mx.readFromXmlString(doc, _document(nodes))
@@ -189,10 +189,6 @@ def test_marble_graph_matches_oracle_at_many_points():
     ok, reason = oracle_available()
     if not ok:
         pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
-    from conftest import shared_path
-
-    from mtlx2neural.oracle.points import mtlx_node_eval
-
     path = shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
                        "standard_surface_marble_solid.mtlx")
     doc = mx.createDocument()
