@@ -21,6 +21,8 @@ import logging
 import os
 from pathlib import Path
 
+from mtlx2neural.imaging.resolve import on_disk
+
 log = logging.getLogger(__name__)
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
@@ -67,7 +69,7 @@ def _mtlx_dependencies(document) -> set[Path]:
                 base = elem.getActiveSourceUri()
                 base = "" if _is_anonymous(base) else base
                 path = value if os.path.isabs(value) or not base else os.path.join(os.path.dirname(base), value)
-                found.add(canonical(path))
+                found.add(canonical(on_disk(path)))  # a texture named with another case: the file read
     return found
 
 

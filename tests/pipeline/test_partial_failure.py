@@ -19,6 +19,7 @@ from materials import document, image, standard_surface, usd_painted_ball
 from mtlx2neural.errors import InputError, UnsupportedNodeError
 from mtlx2neural.pipeline.plan import plan_materials
 from mtlx2neural.scene import load_asset
+from mtlx2neural.scene.dependencies import input_files
 from mtlx2neural.train.config import preset
 
 TINY = preset("fast", iterations=20, batch=256)
@@ -121,6 +122,12 @@ def test_a_texture_named_with_another_case_is_read_with_a_warning_and_strict_ref
     failures = []
     assert plan_materials(sources, TINY, failures=failures, strict=True) == []
     assert failures[0].node == "albedo" and "--strict" in failures[0].reason
+
+
+def test_the_mis_cased_texture_is_an_input_file_under_its_real_name(tmp_path):
+    mtlx = _mis_cased(tmp_path)
+    files = input_files(mtlx, load_asset(mtlx).materials)  # what no output may overwrite
+    assert (tmp_path / "basecolor.png").resolve() in files
 
 
 def test_cli_inspect_reads_the_mis_cased_texture_and_warns(tmp_path, capsys):
