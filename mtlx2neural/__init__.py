@@ -81,7 +81,7 @@ def convert(stage_or_path, options=None):
 
     ``options``: a :class:`mtlx2neural.pipeline.options.ConvertOptions` (None: the defaults; an
     in-memory stage needs ``out``). Returns a :class:`mtlx2neural.api.ConversionResult`: ``layer``
-    (the neural ``Sdf.Layer``), ``layer_path``, ``folder``, ``summaries`` and ``skipped``. See
+    (the neural ``Sdf.Layer``), ``layer_path``, ``folder``, ``summaries``, ``skipped`` and ``failed``. See
     :func:`mtlx2neural.api.convert`.
     """
     # Local: keeps `import mtlx2neural` cheap (no torch, USD or MaterialX until a conversion runs).

@@ -8,7 +8,7 @@ stage composes, exactly as ``mtlx2neural ASSET`` bakes a file
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from pxr import Sdf
@@ -35,6 +35,11 @@ class ConversionResult:
     skipped: list[dict]
     """The scene's materials left out (``{"material", "reason"}``, e.g. not bound to renderable
     geometry); empty when ``options.material`` named one."""
+    failed: list[dict] = field(default_factory=list)
+    """The selected materials that could not be converted (``{"material", "node", "reason"}``: an
+    unsupported node, a bad value, a missing texture): the others were; these keep their original
+    network only, and the layer's record lists them (``skippedMaterials``). Empty with
+    ``options.strict``, which raises instead."""
 
 
 def _open_layer(path: Path) -> Sdf.Layer:
@@ -65,10 +70,12 @@ def convert(stage_or_path, options: ConvertOptions | None = None) -> ConversionR
     ``fast`` preset on ``auto`` device; ``out`` defaults to ``<stem>_neural`` beside the file).
     Settings, device and every output path are checked before training; nothing is written
     outside the output folder and the layer. Raises :class:`~mtlx2neural.errors.InputError`
-    (a bad input or option, with what to do), ``OSError`` when writing fails (the previous
-    export stays).
+    (a bad input or option, with what to do; also when no selected material can be converted),
+    ``OSError`` when writing fails (the previous export stays). A material that cannot be converted
+    while others can is left out and listed in ``failed`` (``options.strict``: InputError instead).
     """
     summaries = convert_asset(stage_or_path, options if options is not None else ConvertOptions())
     path = Path(summaries.layer)
     return ConversionResult(layer=_open_layer(path), layer_path=path, folder=Path(summaries.folder),
-                            summaries=list(summaries), skipped=list(summaries.skipped))
+                            summaries=list(summaries), skipped=list(summaries.skipped),
+                            failed=list(getattr(summaries, "failed", [])))

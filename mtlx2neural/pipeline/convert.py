@@ -14,6 +14,10 @@ Steps (the library behind the default command):
    when that loses detail), the settings it trains with, its source hash, and which
    materials are identical (same name-free content hash, grid included): those train
    once and share the first one's result;
+   a selected material that cannot be read or compiled (an :class:`InputError`: unsupported
+   node, bad value, missing texture) is left out with its node and reason
+   (``Summaries.failed``, the layer's ``skippedMaterials``) and keeps its original network;
+   the others convert. None convertible, or ``strict``: the error, before anything is written;
 3. reuse: a material whose ``summary.json`` carries the same source hash (document,
    texture bytes, settings: :mod:`.source_hash`) is not trained again (``force``
    retrains);
@@ -256,7 +260,8 @@ def convert_asset(asset, options: ConvertOptions | None = None, *legacy, **legac
     ``cached`` (True: reused, nothing trained), ``shared_with`` (the material whose result
     it shares, else absent), ``warnings``, ``usd`` (the layer written) and
     ``export_notes`` (FP16 range-check notes) added; the list also carries ``skipped``,
-    ``kept``, ``folder`` and ``layer`` (:class:`Summaries`). ``neural:metrics:preset``
+    ``failed`` (materials that could not be converted, when others could; ``options.strict``
+    raises instead), ``kept``, ``folder`` and ``layer`` (:class:`Summaries`). ``neural:metrics:preset``
     records ``options.preset`` (or the preset ``options.train`` equals).
 
     Deprecated: the former signature ``convert_asset(asset, cfg, out=None, material=None,
