@@ -208,3 +208,17 @@ def test_cli_skips_the_unsupported_material_exits_3_and_records_it(tmp_path, cap
     layer = Sdf.Layer.FindOrOpen(str(tmp_path / "scene_neural.usda"))
     layer.Reload()
     assert "skippedMaterials" not in dict(layer.customLayerData)["mtlx2neural"]
+
+
+def test_the_library_result_carries_the_failures(monkeypatch, tmp_path):
+    from mtlx2neural import api
+    from mtlx2neural.pipeline.convert import Summaries
+
+    summaries = Summaries([{"material": "/World/Looks/Paint"}])
+    summaries.skipped, summaries.kept, summaries.folder = [], [], tmp_path
+    summaries.layer = tmp_path / "scene_neural.usda"
+    summaries.failed = [{"material": "/World/Looks/Hair", "node": "H", "reason": "unsupported"}]
+    monkeypatch.setattr(api, "convert_asset", lambda *_: summaries)
+    monkeypatch.setattr(api, "_open_layer", lambda path: None)
+    result = api.convert(tmp_path / "scene.usda")
+    assert result.failed == summaries.failed and result.skipped == []
