@@ -1,0 +1,192 @@
+"""Per-point oracle cases for whole node categories, built from the nodedefs (real MaterialX documents).
+
+:func:`category_nodes` writes one node per nodedef of a category whose inputs are driven per point, so
+that every input varies over the points:
+
+* an input named ``texcoord`` (vector2) reads the uv, which spans several units (negative included);
+  one named ``position`` (vector3) reads the position;
+* every other numeric, non-uniform input reads its own smooth function of uv and position,
+  ``mid + half * sin(a u + b v + c x + d z + e)`` with distinct seeded coefficients per input, so that
+  its values sweep the range ``[lo, hi]`` that :data:`RANGES` gives for the category or the input
+  (default [0.1, 0.9]: positive and away from 0 and 1, where divisions and logarithms are safe);
+* integer inputs floor such a value, boolean inputs compare one with 0.5;
+* uniform, string and filename inputs keep the nodedef's default.
+
+:func:`compare` evaluates every output of every node with MaterialX's generated Slang code (one shader
+for the whole document, :func:`mtlx2neural.oracle.points.mtlx_node_eval`) and with the torch compiler
+(:func:`mtlx2neural.graph.node_eval.compile_output`) and returns the error per output.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mtlx2neural.graph.library import standard_library
+from mtlx2neural.graph.node_eval import compile_output
+from mtlx2neural.oracle.points import mtlx_node_eval
+
+NUMERIC = {"float": 1, "integer": 1, "boolean": 1, "vector2": 2, "vector3": 3, "vector4": 4, "color3": 3,
+           "color4": 4}
+
+# (category) or (category, input) -> the range the driven values sweep.
+RANGES: dict = {}
+
+
+def nodedefs(category: str, skip: tuple[str, ...] = ()) -> list:
+    """The nodedefs of ``category`` whose inputs and outputs the node oracle can drive and read
+    (numeric, no matrices, no closures), minus the names in ``skip``."""
+    out = []
+    for nd in standard_library().getMatchingNodeDefs(category):
+        if nd.getNodeString() != category or nd.getName() in skip:
+            continue
+        types = [o.getType() for o in nd.getActiveOutputs()] + [
+            i.getType() for i in nd.getActiveInputs() if not (i.getIsUniform() or i.getType() in ("string",
+                                                                                                   "filename"))]
+        if all(t in NUMERIC for t in types):
+            out.append(nd)
+    return out
+
+
+class Builder:
+    """Accumulates the XML of one document: shared drivers, then the nodes under test."""
+
+    def __init__(self, seed: int):
+        self.rng = np.random.default_rng(seed)
+        self.lines = [
+            '  <texcoord name="t" type="vector2"/>',
+            '  <position name="p" type="vector3"/>',
+            '  <separate2 name="ts" type="multioutput"><input name="in" type="vector2" nodename="t"/></separate2>',
+            '  <separate3 name="ps" type="multioutput"><input name="in" type="vector3" nodename="p"/></separate3>',
+            '  <combine4 name="q" type="vector4"><input name="in1" type="float" nodename="ts" output="outx"/>'
+            '<input name="in2" type="float" nodename="ts" output="outy"/>'
+            '<input name="in3" type="float" nodename="ps" output="outx"/>'
+            '<input name="in4" type="float" nodename="ps" output="outz"/></combine4>',
+        ]
+        self.count = 0
+        self.targets: list[tuple[str, str | None, str]] = []  # (node, output or None, type)
+
+    def _name(self, stem: str) -> str:
+        self.count += 1
+        return f"{stem}{self.count}"
+
+    def scalar(self, lo: float, hi: float) -> str:
+        """A new float driver sweeping [lo, hi]; returns its node name."""
+        a, b, c, d = self.rng.uniform(-2.5, 2.5, 4)
+        e = self.rng.uniform(0, 6.283)
+        mid, half = (lo + hi) / 2, (hi - lo) / 2
+        dp, ph, s, m, o = (self._name(x) for x in ("dp", "ph", "s", "m", "o"))
+        self.lines += [
+            f'  <dotproduct name="{dp}" type="float"><input name="in1" type="vector4" nodename="q"/>'
+            f'<input name="in2" type="vector4" value="{a:.4f}, {b:.4f}, {c:.4f}, {d:.4f}"/></dotproduct>',
+            f'  <add name="{ph}" type="float"><input name="in1" type="float" nodename="{dp}"/>'
+            f'<input name="in2" type="float" value="{e:.4f}"/></add>',
+            f'  <sin name="{s}" type="float"><input name="in" type="float" nodename="{ph}"/></sin>',
+            f'  <multiply name="{m}" type="float"><input name="in1" type="float" nodename="{s}"/>'
+            f'<input name="in2" type="float" value="{half!r}"/></multiply>',
+            f'  <add name="{o}" type="float"><input name="in1" type="float" nodename="{m}"/>'
+            f'<input name="in2" type="float" value="{mid!r}"/></add>',
+        ]
+        return o
+
+    def driver(self, mx_type: str, lo: float, hi: float) -> str:
+        """A node of ``mx_type`` whose channels each sweep [lo, hi] (integers: floored; booleans: > 0.5)."""
+        if mx_type == "float":
+            return self.scalar(lo, hi)
+        if mx_type == "integer":
+            name = self._name("i")
+            self.lines.append(f'  <floor name="{name}" type="integer"><input name="in" type="float" '
+                              f'nodename="{self.scalar(lo, hi)}"/></floor>')
+            return name
+        if mx_type == "boolean":
+            name = self._name("b")
+            self.lines.append(f'  <ifgreater name="{name}" type="boolean"><input name="value1" type="float" '
+                              f'nodename="{self.scalar(0.0, 1.0)}"/><input name="value2" type="float" '
+                              f'value="0.5"/></ifgreater>')
+            return name
+        n = NUMERIC[mx_type]
+        parts = [self.scalar(lo, hi) for _ in range(n)]
+        name = self._name("v")
+        ins = "".join(f'<input name="in{k + 1}" type="float" nodename="{p}"/>' for k, p in enumerate(parts))
+        self.lines.append(f'  <combine{n} name="{name}" type="{mx_type}">{ins}</combine{n}>')
+        return name
+
+    def node(self, nd, name: str, values: dict | None = None) -> None:
+        """A node of nodedef ``nd`` named ``name``, its inputs driven (see the module docstring); ``values``
+        sets inputs to constants (name -> value string) instead."""
+        category = nd.getNodeString()
+        outs = nd.getActiveOutputs()
+        body = []
+        for inp in nd.getActiveInputs():
+            iname, itype = inp.getName(), inp.getType()
+            if values and iname in values:
+                body.append(f'<input name="{iname}" type="{itype}" value="{values[iname]}"/>')
+                continue
+            if inp.getIsUniform() or itype not in NUMERIC:
+                continue
+            if iname == "texcoord" and itype == "vector2":
+                src = "t"
+            elif iname == "position" and itype == "vector3":
+                src = "p"
+            else:
+                lo, hi = RANGES.get((category, iname), RANGES.get(category, (0.1, 0.9)))
+                src = self.driver(itype, lo, hi)
+            body.append(f'<input name="{iname}" type="{itype}" nodename="{src}"/>')
+        node_type = outs[0].getType() if len(outs) == 1 else "multioutput"
+        self.lines.append(f'  <{category} name="{name}" type="{node_type}" nodedef="{nd.getName()}">'
+                          f'{"".join(body)}</{category}>')
+        for o in outs:
+            self.targets.append((name, o.getName() if len(outs) > 1 else None, o.getType()))
+
+    def document(self):
+        import MaterialX as mx
+
+        doc = mx.createDocument()
+        mx.readFromXmlString(doc, '<?xml version="1.0"?>\n<materialx version="1.39">\n'
+                             + "\n".join(self.lines) + "\n</materialx>\n")
+        return doc
+
+
+def category_nodes(builder: Builder, category: str, skip: tuple[str, ...] = (), part: int | None = None,
+                   parts: int = 1) -> int:
+    """Add one driven node per drivable nodedef of ``category``; returns how many.
+
+    ``part`` (of ``parts``): only every ``parts``-th nodedef from the ``part``-th on.  MaterialX's Slang
+    generator emits a shared helper function once per nodedef that includes it (``burn``, ``dodge``: the
+    float function in the color3 and color4 ones), which does not compile when two such nodedefs share a
+    shader, so such categories are spread over several documents."""
+    nds = nodedefs(category, skip)
+    if part is not None:
+        nds = nds[part::parts]
+    for nd in nds:
+        builder.node(nd, f"x_{nd.getName()}")
+    return len(nds)
+
+
+def points(n: int, seed: int, uv_span: float = 3.0, pos_span: float = 3.0):
+    """``n`` seeded float32 points: uv in [-uv_span, uv_span]^2, positions in [-pos_span, pos_span]^3."""
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform(-uv_span, uv_span, (n, 2)).astype(np.float32)
+    pos = rng.uniform(-pos_span, pos_span, (n, 3)).astype(np.float32)
+    return uv, pos
+
+
+def compare(builder: Builder, uv, pos, normal=None):
+    """{(node, output): (torch [N,C], MaterialX [N,C])} for every target of ``builder``'s document."""
+    doc = builder.document()
+    targets = [(name, out) if out else name for name, out, _ in builder.targets]
+    want = mtlx_node_eval(doc, targets, uv.astype(np.float64), pos.astype(np.float64), normal=normal)
+    result = {}
+    for (name, out, _), expected in zip(builder.targets, want):
+        got = compile_output(doc, name, out)(torch.from_numpy(uv), torch.from_numpy(pos)).numpy()
+        result[(name, out)] = (got.astype(np.float64), expected)
+    return result
+
+
+def max_errors(results, atol: float, rtol: float) -> dict:
+    """{target: max |got - want| / (atol + rtol |want|)} (a value above 1 fails)."""
+    out = {}
+    for key, (got, want) in results.items():
+        assert got.shape == want.shape, (key, got.shape, want.shape)
+        out[key] = float((np.abs(got - want) / (atol + rtol * np.abs(want))).max())
+    return out
