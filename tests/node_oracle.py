@@ -111,9 +111,9 @@ class Builder:
         self.lines.append(f'  <combine{n} name="{name}" type="{mx_type}">{ins}</combine{n}>')
         return name
 
-    def node(self, nd, name: str, values: dict | None = None) -> None:
+    def node(self, nd, name: str, values: dict | None = None, sources: dict | None = None) -> None:
         """A node of nodedef ``nd`` named ``name``, its inputs driven (see the module docstring); ``values``
-        sets inputs to constants (name -> value string) instead."""
+        sets inputs to constants (name -> value string) instead, ``sources`` connects them to named nodes."""
         category = nd.getNodeString()
         outs = nd.getActiveOutputs()
         body = []
@@ -121,6 +121,9 @@ class Builder:
             iname, itype = inp.getName(), inp.getType()
             if values and iname in values:
                 body.append(f'<input name="{iname}" type="{itype}" value="{values[iname]}"/>')
+                continue
+            if sources and iname in sources:
+                body.append(f'<input name="{iname}" type="{itype}" nodename="{sources[iname]}"/>')
                 continue
             if inp.getIsUniform() or itype not in NUMERIC:
                 continue
@@ -137,6 +140,10 @@ class Builder:
                           f'{"".join(body)}</{category}>')
         for o in outs:
             self.targets.append((name, o.getName() if len(outs) > 1 else None, o.getType()))
+
+    def target(self, name: str, mx_type: str) -> None:
+        """Also read node ``name`` (a driver, say) at the points."""
+        self.targets.append((name, None, mx_type))
 
     def document(self):
         import MaterialX as mx
