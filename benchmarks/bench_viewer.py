@@ -9,8 +9,9 @@ temporary folder, kept for reuse) and converted there with ``mtlx2neural convert
 which ``samples/make_textured_sample.py`` writes when the repository has no copy); a rerun reuses
 the unchanged conversions. For each material:
 
-(a) its ``NeuralMaterial_<name>.mtlx`` node (written here from the exported ``neural/`` folder,
-    ``codegen.materialx_node.write_materialx_node``) rendered by MaterialX's ``GlslRenderer``
+(a) its ``NeuralMaterial_<name>.mtlx`` node (written here from the exported ``neural/`` folder by
+    ``codegen.materialx_node.write_materialx_node``, as the export writes ``neural/materialx/``, but
+    with ``env_samples`` 0: the renderer's FIS count, the one (c) uses) rendered by MaterialX's ``GlslRenderer``
     (``codegen.glsl_render``: Xvfb + Mesa llvmpipe) on a unit sphere, camera at (0, 0, 3), 45
     degrees vertical field of view, under one ``directional_light`` (a MaterialX light rig; light
     from world direction (0.4, 0.7, 0.6), y up, intensity 3);
@@ -33,7 +34,10 @@ median of ``--frames`` draws after a warm-up draw, in ``--rounds`` alternating r
 
 Prints a Markdown table and writes the figures as JSON (``--json``) with the machine (host, CPU,
 cores, GL renderer string). ``--screenshot PNG`` writes the original (left) and the neural node
-(right) side by side as MaterialX rendered them, for ``--screenshot-material`` under the sky.
+(right) side by side as MaterialX rendered them, for ``--screenshot-material`` under
+``--screenshot-lighting``: ``viewer`` (default: the timing frames, light rig plus the sky at 16
+directions, MaterialXView's defaults, 512² box-filtered to 256²), ``directional`` or ``environment``
+(the comparison frames).
 """
 
 from __future__ import annotations
@@ -202,13 +206,18 @@ def diagnose(d: dict, model, texels, b: np.ndarray, gl: dict, size: int) -> dict
     a_env = downsample(gl[("environment", "neural")], 4)[..., :3]
     c_env = downsample(gl[("environment", "original")], 4)[..., :3]
 
+    mask = downsample(gl[("environment", "original")], 4)[..., 3] > 0.999  # sphere pixels at this size
+
     def f(x, y):
         return round(image_errors(x, y)["flip"], 4)
 
     return {"directional": {"reference_vs_c": f(ref_dir, c_dir), "reference_vs_b": f(ref_dir, b)},
             "environment_quarter": {"reference_vs_c": f(env["reference"], c_env), "reference_vs_a": f(env["reference"], a_env),
                                 "reference_vs_torch_neural": f(env["reference"], env["neural"]),
-                                "a_vs_c": f(c_env, a_env)}}
+                                "a_vs_c": f(c_env, a_env),
+                                "mean_rgb_sphere": {k: np.round(v[mask].mean(0), 4).tolist() for k, v in
+                                                    (("torch_reference", env["reference"]),
+                                                     ("torch_neural", env["neural"]), ("a", a_env), ("c", c_env))}}}
 
 
 def run(args) -> dict:
@@ -300,7 +309,12 @@ def run(args) -> dict:
             "frame_time_ratio": round(sa / sc, 2), "images": str(d["folder"]),
         })
         if args.screenshot and m == args.screenshot_material:
-            side = np.concatenate([o[("environment", "original")][..., :3], o[("environment", "neural")][..., :3]], 1)
+            light = args.screenshot_lighting
+            if light == "viewer":  # the last timing frames, 512² box-filtered to 256²
+                pair = [downsample(read_exr(d["folder"] / f"gl_timing_{k}.exr")) for k in ("original", "neural")]
+            else:
+                pair = [o[(light, k)] for k in ("original", "neural")]
+            side = np.concatenate([x[..., :3] for x in pair], 1)
             Path(args.screenshot).parent.mkdir(parents=True, exist_ok=True)
             save_png(args.screenshot, side)
     return {"rows": rows, "machine": machine(results.get("renderer")), "gl_seconds": round(gl_seconds, 1),
@@ -354,7 +368,9 @@ def main(argv=None) -> int:
     ap.add_argument("--compare-samples", type=int, default=COMPARE_SAMPLES,
                     help="environment directions per pixel in the comparison frames")
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "viewer.json"))
-    ap.add_argument("--screenshot", help="PNG: original | neural, MaterialX's renders under the sky")
+    ap.add_argument("--screenshot", help="PNG: original | neural as MaterialX rendered them")
+    ap.add_argument("--screenshot-lighting", choices=("viewer", "directional", "environment"),
+                    default="viewer")
     ap.add_argument("--screenshot-material", default="GlazedCeramic")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds for the GlslRenderer process")
     args = ap.parse_args(argv)
