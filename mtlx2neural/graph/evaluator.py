@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 
 from mtlx2neural.errors import InputError
-from mtlx2neural.graph import blackbody, compositing, noise, ramps  # noqa: F401  (register their operators into OPS)
+from mtlx2neural.graph import blackbody, compositing, noise, ramps, transforms  # noqa: F401  (register operators)
 from mtlx2neural.graph.ir import CHANNELS, Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS
 from mtlx2neural.graph.spatial import FRAME_AXES, SPATIAL, eval_source

@@ -226,8 +226,6 @@ def _normalmap(a, n):
     return normalize(out)
 
 
-op("transformnormal", "transformvector")(lambda a, n: a["in"])  # local shading frame: spaces coincide
-op("transformpoint")(lambda a, n: a["in"])
 
 
 # --- colour models ---------------------------------------------------------------------

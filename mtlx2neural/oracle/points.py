@@ -7,7 +7,8 @@ the value passes through exactly), asks MaterialX's Slang generator for its pixe
 (:mod:`mtlx2neural.oracle.source`) into a compute kernel whose threads each get their own vertex data:
 
 * every ``texcoord*`` field is the thread's ``uv`` (MaterialX's convention: (0, 0) the image's lower left);
-* every ``position*`` field (object and world space alike: the probe has no transform) is its ``position``;
+* every ``position*`` field (object and world space alike: the probe has no transform) is its ``position``,
+  and the object-to-world matrices (``u_worldMatrix``, its inverse and transposes) are the identity;
 * every ``normal*`` field is its ``normal`` (default +Z); tangent +X, bitangent +Y and vertex colours 1
   stay as in the direction-pair oracle; the viewer sits one unit along the normal.
 
@@ -44,6 +45,7 @@ __all__ = ["mtlx_node_eval"]
 _PREFIX = "mxo_probe_"
 _CHANNELS = {"float": 1, "integer": 1, "boolean": 1, "vector2": 2, "vector3": 3, "color3": 3,
              "vector4": 4, "color4": 4}
+_WORLD_MATRIX = re.compile(r"(\bstatic\s+float4x4\s+u_world\w*Matrix\s*=\s*)float4x4\((?:\s*0\.0\s*,){15}\s*0\.0\s*\);")
 _sources: dict[tuple, tuple[_OracleSource, int]] = {}  # (XML hash, base dir, target, output) -> (source, C)
 
 
@@ -222,6 +224,10 @@ def _node_source(document, targets: list[tuple[str, str | None]]) -> tuple[_Orac
     if missing:
         raise OracleError(f"probe selector uniforms {missing} not found among {sorted(uniforms)}")
     patched, textures = _patch_source(src, uniforms, base_dir, kernel=_points_kernel(selectors, n_chunks))
+    # The generator publishes no value for the object-to-world matrices (they would stay zero): object
+    # space is world space here, so they and their inverses and transposes are the identity.
+    patched = _WORLD_MATRIX.sub(r"\1float4x4(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, "
+                                r"0.0, 0.0, 0.0, 1.0);", patched)
     for sel in selectors:
         if not re.search(rf"\bstatic\s+float\s+{sel}\b", patched):
             raise OracleError(f"probe selector {sel} is not a patchable global")
