@@ -5,9 +5,10 @@ that every input varies over the points:
 
 * an input named ``texcoord`` (vector2) reads the uv, which spans several units (negative included);
   one named ``position`` (vector3) reads the position;
-* every other numeric, non-uniform input reads its own smooth function of uv and position,
-  ``mid + half * sin(a u + b v + c x + d z + e)`` with distinct seeded coefficients per input, so that
-  its values sweep the range ``[lo, hi]`` that :data:`RANGES` gives for the category or the input
+* every other numeric, non-uniform input reads a smooth function of uv and position,
+  ``mid + half * sin(a u + b v + c x + d z + e)`` with seeded coefficients, one of :data:`POOL` per range
+  shared by the document's nodes (the inputs of one node read different ones), so that its values sweep
+  the range ``[lo, hi]`` that :data:`RANGES` gives for the category or the input
   (default [0.1, 0.9]: positive and away from 0 and 1, where divisions and logarithms are safe);
 * integer inputs floor such a value, boolean inputs compare one with 0.5;
 * uniform, string and filename inputs keep the nodedef's default.
@@ -29,8 +30,13 @@ from mtlx2neural.oracle.points import mtlx_node_eval
 NUMERIC = {"float": 1, "integer": 1, "boolean": 1, "vector2": 2, "vector3": 3, "vector4": 4, "color3": 3,
            "color4": 4}
 
+POOL = 8  # float drivers per range, shared by all inputs of a document
 # (category) or (category, input) -> the range the driven values sweep.
-RANGES: dict = {}
+_SIGNED = (-3.0, 3.0)  # rounding and sign functions: several integers, both signs
+RANGES: dict = {c: _SIGNED for c in ("absval", "ceil", "floor", "round", "sign", "fract", "modulo", "trianglewave")}
+RANGES[("range", "inhigh")] = (1.2, 2.0)  # away from inlow: (in - inlow) / (inhigh - inlow) stays moderate
+QUANTIZED = {"ifequal"}  # float inputs floored from [-1.5, 1.5]: -2, -1, 0 or 1
+INTEGER_RANGE = (-4.0, 4.0)  # integer inputs (floored): several values, both signs
 
 
 def nodedefs(category: str, skip: tuple[str, ...] = ()) -> list:
@@ -64,7 +70,10 @@ class Builder:
             '<input name="in4" type="float" nodename="ps" output="outz"/></combine4>',
         ]
         self.count = 0
+        self.pools: dict[tuple, list[str]] = {}
+        self.shared: dict[tuple, str] = {}
         self.targets: list[tuple[str, str | None, str]] = []  # (node, output or None, type)
+        self.categories: dict[str, str] = {}  # node under test -> its category
 
     def _name(self, stem: str) -> str:
         self.count += 1
@@ -89,26 +98,38 @@ class Builder:
         ]
         return o
 
-    def driver(self, mx_type: str, lo: float, hi: float) -> str:
-        """A node of ``mx_type`` whose channels each sweep [lo, hi] (integers: floored; booleans: > 0.5)."""
+    def pooled(self, lo: float, hi: float, slot: int) -> str:
+        """Float driver number ``slot`` (of :data:`POOL`) sweeping [lo, hi], made once per document and
+        shared by every input that asks for it (so the shader stays small)."""
+        pool = self.pools.setdefault((lo, hi), [])
+        while len(pool) <= slot % POOL:
+            pool.append(self.scalar(lo, hi))
+        return pool[slot % POOL]
+
+    def driver(self, mx_type: str, lo: float, hi: float, slot: int = 0) -> str:
+        """A node of ``mx_type`` whose channels each sweep [lo, hi] (integers: floored; booleans: > 0.5),
+        built from the pooled drivers ``slot``, ``slot + 1``... (cached)."""
+        key = (mx_type, lo, hi, slot % POOL)
+        if key in self.shared:
+            return self.shared[key]
         if mx_type == "float":
-            return self.scalar(lo, hi)
-        if mx_type == "integer":
+            name = self.pooled(lo, hi, slot)
+        elif mx_type == "integer":
             name = self._name("i")
             self.lines.append(f'  <floor name="{name}" type="integer"><input name="in" type="float" '
-                              f'nodename="{self.scalar(lo, hi)}"/></floor>')
-            return name
-        if mx_type == "boolean":
+                              f'nodename="{self.pooled(lo, hi, slot)}"/></floor>')
+        elif mx_type == "boolean":
             name = self._name("b")
             self.lines.append(f'  <ifgreater name="{name}" type="boolean"><input name="value1" type="float" '
-                              f'nodename="{self.scalar(0.0, 1.0)}"/><input name="value2" type="float" '
+                              f'nodename="{self.pooled(0.0, 1.0, slot)}"/><input name="value2" type="float" '
                               f'value="0.5"/></ifgreater>')
-            return name
-        n = NUMERIC[mx_type]
-        parts = [self.scalar(lo, hi) for _ in range(n)]
-        name = self._name("v")
-        ins = "".join(f'<input name="in{k + 1}" type="float" nodename="{p}"/>' for k, p in enumerate(parts))
-        self.lines.append(f'  <combine{n} name="{name}" type="{mx_type}">{ins}</combine{n}>')
+        else:
+            n = NUMERIC[mx_type]
+            parts = [self.pooled(lo, hi, slot + k) for k in range(n)]
+            name = self._name("v")
+            ins = "".join(f'<input name="in{k + 1}" type="float" nodename="{p}"/>' for k, p in enumerate(parts))
+            self.lines.append(f'  <combine{n} name="{name}" type="{mx_type}">{ins}</combine{n}>')
+        self.shared[key] = name
         return name
 
     def node(self, nd, name: str, values: dict | None = None, sources: dict | None = None) -> None:
@@ -117,6 +138,7 @@ class Builder:
         category = nd.getNodeString()
         outs = nd.getActiveOutputs()
         body = []
+        slot = int(self.rng.integers(POOL))
         for inp in nd.getActiveInputs():
             iname, itype = inp.getName(), inp.getType()
             if values and iname in values:
@@ -131,10 +153,18 @@ class Builder:
                 src = "t"
             elif iname == "position" and itype == "vector3":
                 src = "p"
+            elif category in QUANTIZED and itype == "float":  # whole numbers, so that equality happens
+                src = self._name("f")
+                self.lines.append(f'  <floor name="{src}" type="float"><input name="in" type="float" '
+                                  f'nodename="{self.pooled(-1.5, 1.5, slot)}"/></floor>')
+                slot += 5
             else:
-                lo, hi = RANGES.get((category, iname), RANGES.get(category, (0.1, 0.9)))
-                src = self.driver(itype, lo, hi)
+                lo, hi = RANGES.get((category, iname), RANGES.get(category, INTEGER_RANGE if itype == "integer"
+                                                                  else (0.1, 0.9)))
+                src = self.driver(itype, lo, hi, slot)
+                slot += 5  # the next input starts elsewhere in the pool
             body.append(f'<input name="{iname}" type="{itype}" nodename="{src}"/>')
+        self.categories[name] = category
         node_type = outs[0].getType() if len(outs) == 1 else "multioutput"
         self.lines.append(f'  <{category} name="{name}" type="{node_type}" nodedef="{nd.getName()}">'
                           f'{"".join(body)}</{category}>')

@@ -58,6 +58,7 @@ op("absval")(lambda a, n: a["in"].abs())
 op("sign")(lambda a, n: torch.sign(a["in"]))
 op("floor")(lambda a, n: a["in"].floor())
 op("ceil")(lambda a, n: a["in"].ceil())
+op("fract")(lambda a, n: a["in"] - a["in"].floor())
 op("round")(lambda a, n: a["in"].round())
 op("invert")(lambda a, n: a["amount"] - a["in"])
 op("min")(lambda a, n: torch.minimum(a["in1"], a["in2"]))
@@ -90,8 +91,11 @@ def _safepower(a, n):
 
 @op("smoothstep")
 def _smoothstep(a, n):
-    t = safe_div(a["in"] - a["low"], a["high"] - a["low"]).clamp(0, 1)
-    return t * t * (3 - 2 * t)
+    # MaterialX: 1 from `high` up, 0 from `low` down (the first test wins when low > high), else the cubic.
+    x, low, high = a["in"], a["low"], a["high"]
+    t = safe_div(x - low, high - low).clamp(0, 1)
+    smooth = t * t * (3 - 2 * t)
+    return torch.where(x >= high, torch.ones_like(smooth), torch.where(x <= low, torch.zeros_like(smooth), smooth))
 
 
 @op("remap")
@@ -130,8 +134,11 @@ def _rotate2d(a, n):
 
 
 # --- channels ---------------------------------------------------------------------
-op("combine2", "combine3", "combine4")(
-    lambda a, n: torch.cat(torch.broadcast_tensors(*[a[k] for k in ("in1", "in2", "in3", "in4") if k in a]), -1))
+@op("combine2", "combine3", "combine4")
+def _combine(a, n):
+    parts = [a[k] for k in ("in1", "in2", "in3", "in4") if k in a]
+    batch = max(p.shape[0] for p in parts)  # broadcast the batch only: channels differ (color3 + float)
+    return torch.cat([p.expand(batch, p.shape[1]) for p in parts], -1)
 op("convert")(lambda a, n: _convert(a["in"], n.type))
 op("constant", "dot")(lambda a, n: a["value"] if "value" in a else a["in"])
 
@@ -148,21 +155,39 @@ def _separate(a, n):
 
 
 def _convert(x, mx_type: str):
+    """MaterialX's convert: to boolean, x != 0; a scalar fills every channel; extra channels are dropped;
+    missing ones are 0 for z and 1 for w (vector2 -> vector4: (x, y, 0, 1))."""
     c = CHANNELS[mx_type]
+    if mx_type == "boolean":
+        return (x != 0).to(x.dtype)
     if x.shape[-1] == c:
         return x
     if x.shape[-1] == 1:
         return x.expand(x.shape[0], c)
     if x.shape[-1] > c:
         return x[:, :c]
-    pad = torch.ones(x.shape[0], c - x.shape[-1], dtype=x.dtype, device=x.device)
-    return torch.cat([x, pad], -1)
+    pad = [0.0, 0.0, 0.0, 1.0][x.shape[-1]:c]
+    return torch.cat([x, torch.tensor([pad], dtype=x.dtype, device=x.device).expand(x.shape[0], -1)], -1)
+
+
+# --- application state -----------------------------------------------------------------
+# A baked material is one instant: ``time`` (seconds) and ``frame`` fold to these constants.
+APPLICATION = {"time": 0.0, "frame": 1.0}
+op("time")(lambda a, n: torch.tensor([[APPLICATION["time"]]]))
+op("frame")(lambda a, n: torch.tensor([[APPLICATION["frame"]]]))
 
 
 # --- logic ------------------------------------------------------------------------
-op("ifgreater")(lambda a, n: torch.where(a["value1"] > a["value2"], a["in1"], a["in2"]))
-op("ifgreatereq")(lambda a, n: torch.where(a["value1"] >= a["value2"], a["in1"], a["in2"]))
-op("ifequal")(lambda a, n: torch.where(a["value1"] == a["value2"], a["in1"], a["in2"]))
+def _choose(test, a):
+    """in1 where ``test`` holds, else in2; the boolean nodedefs without in1/in2 return the test (1 or 0)."""
+    if "in1" not in a:
+        return test.float()
+    return torch.where(test, a["in1"], a["in2"])
+
+
+op("ifgreater")(lambda a, n: _choose(a["value1"] > a["value2"], a))
+op("ifgreatereq")(lambda a, n: _choose(a["value1"] >= a["value2"], a))
+op("ifequal")(lambda a, n: _choose(a["value1"] == a["value2"], a))
 op("and")(lambda a, n: ((a["in1"] != 0) & (a["in2"] != 0)).float())
 op("or")(lambda a, n: ((a["in1"] != 0) | (a["in2"] != 0)).float())
 op("not")(lambda a, n: (a["in"] == 0).float())

@@ -51,6 +51,8 @@ def eval_source(node, args: dict, uv: torch.Tensor, position: torch.Tensor | Non
     n = uv.shape[0]
     cat = node.category
     if cat == "texcoord":
+        if CHANNELS.get(node.type, 2) == 3:  # a vector3 texture coordinate: (u, v, 0), as MaterialX's vertex data
+            return torch.cat([uv, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
         return uv
     if cat == "position":
         if position is not None:
