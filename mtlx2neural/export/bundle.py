@@ -72,8 +72,8 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
     """Write ``model``'s latents, weights, shaders and MaterialX node into ``staged``; paths in the
     result point at ``final``. ``baseline``: the fitted analytic baseline
     (:func:`~mtlx2neural.baseline.analytic_model.save_analytic`), baked into ``preview/`` for the
-    UsdPreviewSurface fallback; without it (an export of an older training) there is none, and a note
-    says so. A failure raises naming the material."""
+    UsdPreviewSurface fallback; without it (an export of an older training, or one with
+    ``preview_iterations = 0``) there is none, and a note says so. A failure raises naming the material."""
     name = summary["material"]
     textures, notes = write_latent_textures(list(model.latents.levels), staged)
     manifest, wnotes = write_weights(model, staged)
@@ -90,6 +90,8 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
             raise Mtlx2NeuralError(f"material {name}: cannot bake its UsdPreviewSurface fallback: {exc}") from exc
         preview = {"textures": {k: final / PREVIEW_FOLDER / p.name for k, p in baked["textures"].items()},
                    "ior": baked["ior"]}
+    elif (summary.get("config") or {}).get("preview_iterations") == 0:
+        pnotes.append(f"{name}: preview_iterations = 0: the layer has no UsdPreviewSurface fallback for it")
     else:
         pnotes.append(f"{name}: no fitted analytic baseline ({baseline}); the layer has no UsdPreviewSurface "
                       f"fallback for it (trained by an older version: rerun with --force)")

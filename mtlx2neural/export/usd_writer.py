@@ -33,11 +33,18 @@ variant set ``neuralMaterial`` (selected by default):
   that read neither MaterialX nor custom shaders (Storm without UsdMtlx, Blender's importer,
   RealityKit / QuickLook).
 
-The ``original`` variant holds nothing else, so selecting it gives back exactly the input's
-Material (a variant cannot block an opinion authored outside it, so the neural opinions must
-not be authored outside). The converse also holds: an output that the input itself connects on
-the Material (for a USD input, in its own layer stack) is stronger than the variant's, so the
-variant's network for it is authored but not composed; the material's export notes say so.
+The ``original`` variant holds nothing else (a variant cannot block an opinion authored outside
+it, so the neural opinions must not be authored outside), with one exception. For a USD input,
+the input's opinions are local to the layer stack and stronger than any variant's: a terminal
+output that the input's Material connects itself (CarPaint's ``outputs:mtlx:surface``, Plastic's
+``outputs:surface`` in ``samples/layered_spheres.usda``) would shadow the variant's network. For
+each such output that the ``neural`` variant replaces, the layer connects the Material's output,
+outside the variants, to a ``NeuralSwitch`` NodeGraph that each variant defines: ``neural`` routes
+it to the neural network, ``original`` to exactly what the input connected
+(:mod:`.usd_switch`, which also cites why UsdShade and Hydra follow it). So selecting
+``original`` gives back the input's *resolved* networks (``ComputeSurfaceSource`` of every render
+context returns the input's shader and output) and the input's prims and attributes unchanged,
+although those switched Material outputs now name the switch rather than the shader.
 Asset paths are relative to the layer (``./...``).
 
 Viewing the MaterialX network (a USD build with UsdMtlx, e.g. usdview or a DCC on Hydra Storm):
@@ -68,6 +75,12 @@ from pathlib import Path
 from mtlx2neural import usd_schema
 from mtlx2neural.baseline.analytic_model import author_preview_surface
 from mtlx2neural.export.usd_mtlx_network import author_mtlx_network
+from mtlx2neural.export.usd_switch import (
+    author_switch,
+    connect_material_to_switch,
+    input_connections,
+    take_variant_connections,
+)
 from mtlx2neural.formats import FORMAT_VERSION
 
 VARIANT_SET = "neuralMaterial"
@@ -119,7 +132,7 @@ class ExportedMaterial:
     metrics: dict
     """flip (mean HDR FLIP), iterations, preset, device, train_seconds."""
     notes: list[str] = field(default_factory=list)
-    """FP16 range-check notes, and what the layer could not author (shadowed outputs)."""
+    """FP16 range-check notes, and what the layer could not control (a Material usd-core cannot compose)."""
     mtlx_document: Path | None = None
     """``NeuralMaterial_<ident>.mtlx`` (:mod:`mtlx2neural.codegen.materialx_node`): with it the
     ``neural`` variant holds the MaterialX network (:mod:`.usd_mtlx_network`)."""
@@ -205,26 +218,20 @@ def _neural_shader(stage, material, m: ExportedMaterial, rel) -> None:
     material.CreateSurfaceOutput("neural").ConnectToSource(out)
 
 
-def _shadowed(material, output: str) -> bool:
-    """Whether ``output`` of ``material`` already has connections composed from the input: local
-    opinions of the sublayered input are stronger than any variant's, so a variant cannot change it."""
-    attr = material.GetPrim().GetAttribute(output)
-    return bool(attr) and attr.HasAuthoredConnections()
+def _replaced(m: ExportedMaterial) -> list[str]:
+    """The Material's terminal outputs that the ``neural`` variant replaces: ``outputs:mtlx:surface``
+    when ``m`` has a MaterialX node, the universal ``outputs:surface`` when it has a preview."""
+    return [o for o, have in (("outputs:mtlx:surface", m.mtlx_document), ("outputs:surface", m.preview))
+            if have is not None]
 
 
-def _neural_extras(stage, material, m: ExportedMaterial, rel, shadowed: dict) -> None:
+def _neural_extras(stage, material, m: ExportedMaterial, rel) -> None:
     """The MaterialX network and the UsdPreviewSurface fallback of ``m``, where it has them."""
     if m.mtlx_document is not None:
         author_mtlx_network(stage, material, m.name, [rel(p) for p in m.latent_textures])
     if m.preview is not None:
         author_preview_surface(stage, material.GetPath(), {k: rel(p) for k, p in m.preview["textures"].items()},
                                m.preview["ior"], prefix=PREVIEW_PREFIX)
-    for output, what in (("outputs:mtlx:surface", "MaterialX network"),
-                         ("outputs:surface", "UsdPreviewSurface fallback")):
-        if shadowed.get(output) and (m.mtlx_document if "mtlx" in output else m.preview) is not None:
-            m.notes.append(f"{m.name}: the input connects {output} of this Material itself, and the input's "
-                           f"opinions are stronger than the '{NEURAL}' variant's, so the variant's {what} "
-                           f"is authored but not composed; viewers that read {output} show the original")
 
 
 def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> None:
@@ -338,19 +345,31 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
             # A Material that usd-core cannot compose (from a referenced .mtlx file, which needs the
             # usdMtlx plugin) is not on this stage: the over still applies where usdMtlx composes it.
             material = UsdShade.Material(prim if prim else stage.OverridePrim(path))
-        shadowed = {o: _shadowed(material, o) for o in ("outputs:mtlx:surface", "outputs:surface")}
+        # what the input itself connects, read before anything is authored on the Material (.usd_switch)
+        switched = {} if is_mtlx else input_connections(material, _replaced(m))
+        if not is_mtlx and not material.GetPrim().IsDefined() and _replaced(m):
+            m.notes.append(f"{m.name}: usd-core cannot compose this Material, so its own terminal outputs are "
+                           f"unknown; where a usdMtlx build composes outputs it connects, they shadow the "
+                           f"'{NEURAL}' variant's networks")
         vset = material.GetPrim().GetVariantSets().AddVariantSet(VARIANT_SET)
         vset.AddVariant(ORIGINAL)
         vset.AddVariant(NEURAL)
-        if is_mtlx:  # in the original variant: an opinion outside the variants would shadow the neural one
+        if is_mtlx or switched:
             vset.SetVariantSelection(ORIGINAL)
             with vset.GetVariantEditContext():
-                _mtlx_original(stage, material, m, asset, rel)
+                if is_mtlx:  # in the original variant: an opinion outside the variants would shadow the neural one
+                    _mtlx_original(stage, material, m, asset, rel)
+                if switched:  # the input's own connections, through the switch
+                    author_switch(stage, material, switched)
         vset.SetVariantSelection(NEURAL)
         with vset.GetVariantEditContext():
             _api_attributes(material.GetPrim(), m, rel)
             _neural_shader(stage, material, m, rel)
-            _neural_extras(stage, material, m, rel, shadowed)
+            _neural_extras(stage, material, m, rel)
+            if switched:
+                author_switch(stage, material, take_variant_connections(stage, material, list(switched)))
+        if switched:  # outside the variants: stronger than the sublayered input's opinion
+            connect_material_to_switch(material, list(switched))
     del stage  # a live stage would recompose (and warn) when the sublayer path becomes relative
     if kept:
         _copy_kept(keep.layer, layer, kept)

@@ -138,14 +138,18 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     ``resolution`` is the latent grid (default: :func:`mtlx2neural.pipeline.plan.latent_resolution`);
     ``extra`` is merged into the summary (its ``notes`` are put before the stack's). ``preview``:
     after training, also fit the analytic baseline of the layer's UsdPreviewSurface fallback
-    (:func:`fit_preview`, saved beside the checkpoint) and record its HDR FLIP (``preview_flip``,
-    measured on the same renders as the neural model's ``flip_mean``).
+    (:func:`fit_preview`, ``cfg.preview_iterations`` steps, saved beside the checkpoint) and record its
+    HDR FLIP (``preview_flip``, measured on the same renders as the neural model's ``flip_mean``);
+    with ``cfg.preview_iterations = 0`` there is none (and no baseline file is left in ``folder``).
     """
 
     t0 = time.time()
     folder.mkdir(parents=True, exist_ok=True)
     # An interrupted run must not leave an old summary (and its hash) beside a new checkpoint.
     (folder / "summary.json").unlink(missing_ok=True)
+    preview = preview and cfg.preview_iterations > 0
+    if not preview:  # a baseline of an earlier run would otherwise be exported as this run's fallback
+        (folder / BASELINE_FILE).unlink(missing_ok=True)
     compiled = compile_material(src.document, src.material, device=device,
                                 allow_missing_textures=allow_missing_textures)
     ref = ReferenceMaterial(compiled)
@@ -160,7 +164,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     model = trainer.run(progress=progress, listener=_LISTENER)
     train_seconds = time.time() - t0
     if preview:
-        analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed)
+        analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
         both = compare_many(ref, {"neural": model, "analytic": analytic}, texels=tuple(stack.resolution))
         errors, preview_errors = both["neural"], both["analytic"]
     else:  # the same renders as compare(..., label="neural")
@@ -185,51 +189,53 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                "relmse_mean": round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
                "notes": list(extra.pop("notes", [])) + list(stack.notes)}
     if preview:
-        summary.update(preview_record(preview_errors, fit_seconds))
+        summary.update(preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
     summary.update(extra)
     write_summary(folder, summary)
     return model, summary
 
 
-PREVIEW_ITERATIONS = 200
-"""Adam steps of the analytic baseline behind the UsdPreviewSurface fallback (batch
-:data:`PREVIEW_BATCH`). Measured on the samples (2 shared CPU cores, one torch thread): 200 steps
-reach the 300-step default's HDR FLIP within 0.002 (CarPaint 0.088 / 0.087, Plastic 0.028 / 0.027)
-in about a third of its time."""
+PREVIEW_ITERATIONS = TrainConfig.preview_iterations
+"""Default Adam steps of the analytic baseline behind the UsdPreviewSurface fallback (batch
+:data:`PREVIEW_BATCH`; a run takes ``TrainConfig.preview_iterations``, 100 in the fast preset).
+Measured on the samples (2 shared CPU cores, one torch thread): 200 steps reach the 300-step
+default's HDR FLIP within 0.002 (CarPaint 0.088 / 0.087, Plastic 0.028 / 0.027) in about a third of
+its time."""
 PREVIEW_BATCH = 2048
 
 
-def fit_preview(ref, stack, folder: Path, seed: int = 0):
+def fit_preview(ref, stack, folder: Path, seed: int = 0, iterations: int = PREVIEW_ITERATIONS):
     """Fit the analytic baseline (Lambert + GGX, :func:`~mtlx2neural.baseline.analytic_model.fit_analytic`,
-    :data:`PREVIEW_ITERATIONS` steps) to ``ref`` on ``stack``'s grid and save it as
+    ``iterations`` Adam steps) to ``ref`` on ``stack``'s grid and save it as
     ``folder/analytic_baseline.pt``; returns (model, seconds the fit took)."""
     t0 = time.time()
-    analytic = fit_analytic(ref, stack, iterations=PREVIEW_ITERATIONS, batch=PREVIEW_BATCH, seed=seed)
+    analytic = fit_analytic(ref, stack, iterations=iterations, batch=PREVIEW_BATCH, seed=seed)
     save_analytic(analytic, folder / BASELINE_FILE)
     return analytic, time.time() - t0
 
 
-def preview_record(errors: list[dict], fit_seconds: float) -> dict:
+def preview_record(errors: list[dict], fit_seconds: float, iterations: int = PREVIEW_ITERATIONS) -> dict:
     """The summary's ``preview_flip`` (mean HDR FLIP of the analytic baseline against the reference
     over the views, as ``flip_mean`` for the neural model) and ``preview`` (per view, fit seconds)."""
     flips = [e["flip"] for e in errors]
     return {"preview_flip": round(float(sum(flips) / len(flips)), 4),
             "preview": {"model": "analytic Lambert + GGX (UsdPreviewSurface fallback)", "file": BASELINE_FILE,
-                        "iterations": PREVIEW_ITERATIONS, "flip_per_view": [round(f, 4) for f in flips],
+                        "iterations": iterations, "flip_per_view": [round(f, 4) for f in flips],
                         "fit_seconds": round(fit_seconds, 2)}}
 
 
 def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, resolution, seed: int,
-                summary: dict) -> dict:
-    """Fit, save and measure the preview baseline for a material trained without it (the chosen
-    decoder of an error budget, :func:`train_within_budget`); returns ``summary`` with its record."""
+                summary: dict, iterations: int = PREVIEW_ITERATIONS) -> dict:
+    """Fit (``iterations`` steps), save and measure the preview baseline for a material trained without
+    it (the chosen decoder of an error budget, :func:`train_within_budget`); returns ``summary`` with
+    its record."""
     compiled = compile_material(src.document, src.material, device=device,
                                 allow_missing_textures=allow_missing_textures)
     ref = ReferenceMaterial(compiled)
     stack = build_parameter_stack(compiled, resolution=tuple(resolution))
-    analytic, seconds = fit_preview(ref, stack, folder, seed)
+    analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
     errors = compare_many(ref, {"analytic": analytic}, texels=tuple(stack.resolution))["analytic"]
-    return {**summary, **preview_record(errors, seconds)}
+    return {**summary, **preview_record(errors, seconds, iterations)}
 
 
 BUDGET_FOLDER = "budget"
@@ -265,8 +271,12 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     for p in (folder / BUDGET_FOLDER / decoder).iterdir():
         os.replace(p, folder / p.name)
     shutil.rmtree(folder / BUDGET_FOLDER, ignore_errors=True)
-    summary = add_preview(src, folder, device, allow_missing_textures, runs[decoder]["resolution"], cfg.seed,
-                          dict(runs[decoder]))
+    summary = dict(runs[decoder])
+    if cfg.preview_iterations > 0:
+        summary = add_preview(src, folder, device, allow_missing_textures, runs[decoder]["resolution"], cfg.seed,
+                              summary, cfg.preview_iterations)
+    else:
+        (folder / BASELINE_FILE).unlink(missing_ok=True)
     summary["budget"] = {"max_error": max_error, "flip_by_decoder": flips,
                          "seconds_by_decoder": {k: v["seconds"] for k, v in runs.items()}, "met": met}
     summary["budget_met"] = met

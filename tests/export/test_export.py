@@ -331,8 +331,9 @@ def test_neural_layer_composes_binds_and_switches(converted):
     src = mat.ComputeSurfaceSource("neural")[0]
     assert src.GetPath() == "/World/Looks/CarPaint/NeuralBSDF" and src.GetShaderId() == "NeuralBSDF"
     assert src.GetInput("weights").Get().path.endswith("World.Looks.CarPaint/neural/weights.bin")
-    assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == "/World/Looks/CarPaint/Surface"
-    vset.SetVariantSelection("original")  # the input's Material, unchanged
+    # the input connects CarPaint's outputs:mtlx:surface itself; the neural variant still wins (NeuralSwitch)
+    assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == "/World/Looks/CarPaint/SR_neural_CarPaint"
+    vset.SetVariantSelection("original")  # the input's networks, resolved exactly as on the input
     assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == "/World/Looks/CarPaint/Surface"
     assert not stage.GetPrimAtPath("/World/Looks/CarPaint/NeuralBSDF")
     assert not mat.GetSurfaceOutput("neural") and "NeuralMaterialAPI" not in applied_schemas(prim)
@@ -340,6 +341,66 @@ def test_neural_layer_composes_binds_and_switches(converted):
     plastic = UsdShade.Material(stage.GetPrimAtPath("/World/Looks/Plastic"))
     assert plastic.ComputeSurfaceSource("neural")[0].GetPath() == "/World/Looks/Plastic/NeuralBSDF"
     assert sha(converted["asset"]) == converted["before"]
+
+
+def surface_contexts(*materials) -> set[str]:
+    """The render contexts to compare: the universal one (""), "mtlx", and every context whose
+    ``outputs:<context>:surface`` one of ``materials`` has."""
+    found = {"", "mtlx"}
+    for mat in materials:
+        for out in mat.GetOutputs():
+            name = out.GetBaseName()
+            if name == "surface" or name.endswith(":surface"):
+                found.add(name[:-len(":surface")] if ":" in name else "")
+    return found
+
+
+def resolved(mat, context: str):
+    """``ComputeSurfaceSource(context)`` as comparable values: (shader prim path, output name, type)."""
+    shader, name, kind = mat.ComputeSurfaceSource(context)
+    return (str(shader.GetPath()) if shader else None, name if shader else None, kind if shader else None)
+
+
+def test_original_variant_resolves_every_render_context_as_the_input(converted):
+    """With ``original`` selected, every converted Material resolves, in every render context, to the
+    same shader and output as on the input stage, and every prim and attribute of the input composes
+    unchanged.
+
+    Structural identity of the Material's terminal outputs is no longer possible: an output the input
+    connects itself (CarPaint's ``outputs:mtlx:surface``, Plastic's ``outputs:surface``) can only be
+    taken over by an opinion outside the variants, which connects it to ``NeuralSwitch`` in both
+    variants (:mod:`mtlx2neural.export.usd_switch`). What renderers read, the resolved network
+    (``ComputeSurfaceSource``, which Hydra uses too), is identical; the switch NodeGraph is the only
+    extra prim of the ``original`` variant, and those outputs the only attributes that differ."""
+    from pxr import Usd, UsdShade
+
+    source = Usd.Stage.Open(str(converted["asset"]))
+    stage = Usd.Stage.Open(str(converted["usda"]))
+    names = [s["material"] for s in converted["summaries"]]
+    switched = set()
+    for name in names:
+        prim = stage.GetPrimAtPath(name)
+        prim.GetVariantSets().GetVariantSet("neuralMaterial").SetVariantSelection("original")
+        mat, before = UsdShade.Material(prim), UsdShade.Material(source.GetPrimAtPath(name))
+        for context in sorted(surface_contexts(mat, before)):
+            assert resolved(mat, context) == resolved(before, context), (name, context)
+        for out in mat.GetOutputs():
+            if any(str(c.GetPrimPath()).endswith("/NeuralSwitch") for c in out.GetAttr().GetConnections()):
+                switched.add(out.GetAttr().GetPath())
+    # the input connects these two itself (samples/layered_spheres.usda), so only they are switched
+    assert {str(p) for p in switched} == {"/World/Looks/CarPaint.outputs:mtlx:surface",
+                                          "/World/Looks/Plastic.outputs:surface"}
+    extra = {str(p.GetPath()) for p in stage.TraverseAll()} - {str(p.GetPath()) for p in source.TraverseAll()}
+    assert extra == {f"{n}/NeuralSwitch" for n in names}
+    for before in source.TraverseAll():
+        after = stage.GetPrimAtPath(before.GetPath())
+        assert after.GetTypeName() == before.GetTypeName()
+        assert sorted(after.GetPropertyNames()) == sorted(before.GetPropertyNames()), before.GetPath()
+        for attr in before.GetAttributes():
+            other = after.GetAttribute(attr.GetName())
+            assert other.Get() == attr.Get(), attr.GetPath()
+            if attr.GetPath() not in switched:
+                assert other.GetConnections() == attr.GetConnections(), attr.GetPath()
 
 
 VALIDATE = textwrap.dedent("""

@@ -2,7 +2,8 @@
 
 A one-material ``.mtlx`` input (nothing in the input shadows the variant's outputs) and the
 sample USD scene (whose Materials connect ``outputs:mtlx:surface`` / ``outputs:surface``
-themselves, which a variant cannot override). Trainings are tiny (30 steps): these tests
+themselves: the layer takes them over through the ``NeuralSwitch`` NodeGraph,
+:mod:`mtlx2neural.export.usd_switch`). Trainings are tiny (30 steps): these tests
 check files, prims and connections, not fidelity.
 """
 
@@ -131,22 +132,58 @@ def test_preview_surface_and_its_flip(red):
     assert red["summary"]["preview"]["iterations"] > 0
 
 
-def test_preview_flip_for_every_sample_material_and_shadowed_outputs_noted(sample):
+def test_preview_flip_for_every_sample_material(sample):
     for s in sample["summaries"]:
         assert math.isfinite(s["preview_flip"]) and s["preview_flip"] > 0
         stage, mat = _material(sample["usda"], s["material"])
         attr = mat.GetPrim().GetAttribute("neural:metrics:previewFlip").Get()
         assert attr == pytest.approx(s["preview_flip"], abs=1e-6)
-    notes = {s["material"]: " ".join(s["export_notes"]) for s in sample["summaries"]}
-    # CarPaint connects outputs:mtlx:surface itself, Plastic outputs:surface: the variant cannot win there
-    assert "outputs:mtlx:surface" in notes["/World/Looks/CarPaint"] and "outputs:surface" not in notes[
-        "/World/Looks/CarPaint"].replace("outputs:mtlx:surface", "")
-    assert "outputs:surface" in notes["/World/Looks/Plastic"] and "mtlx" not in notes["/World/Looks/Plastic"]
-    stage, carpaint = _material(sample["usda"], "/World/Looks/CarPaint")
-    assert carpaint.ComputeSurfaceSource()[0].GetPath() == "/World/Looks/CarPaint/NeuralPreview"
-    stage, plastic = _material(sample["usda"], "/World/Looks/Plastic")
-    n = node_names("/World/Looks/Plastic")
-    assert plastic.ComputeSurfaceSource("mtlx")[0].GetPath() == f"/World/Looks/Plastic/{n.surface}"
+
+
+def test_neural_variant_wins_over_the_inputs_own_outputs(sample):
+    """CarPaint connects ``outputs:mtlx:surface`` itself and Plastic ``outputs:surface``: with ``neural``
+    selected, both render contexts still resolve to the neural networks, through the switch that the
+    layer connects outside the variants; in both variants every switch connection is one UsdShade
+    allows (encapsulation)."""
+    from pxr import Sdf, UsdShade
+
+    for name, own in (("/World/Looks/CarPaint", "outputs:mtlx:surface"), ("/World/Looks/Plastic", "outputs:surface")):
+        n = node_names(name)
+        stage, mat = _material(sample["usda"], name)
+        assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == f"{name}/{n.surface}"
+        assert mat.ComputeSurfaceSource("mtlx")[0].GetShaderId() == "ND_surface"
+        preview = mat.ComputeSurfaceSource("")[0]
+        assert preview.GetPath() == f"{name}/NeuralPreview" and preview.GetShaderId() == "UsdPreviewSurface"
+        # the Material's own output, in the layer outside the variants, names the switch
+        spec = stage.GetRootLayer().GetAttributeAtPath(Sdf.Path(name).AppendProperty(own))
+        port = own[len("outputs:"):].replace(":", "_")
+        assert list(spec.connectionPathList.explicitItems) == [Sdf.Path(f"{name}/NeuralSwitch.outputs:{port}")]
+        for variant in ("neural", "original"):
+            stage, mat = _material(sample["usda"], name, variant)
+            switch = UsdShade.NodeGraph(stage.GetPrimAtPath(f"{name}/NeuralSwitch"))
+            assert switch and [o.GetBaseName() for o in switch.GetOutputs()] == [port]
+            for attr in (switch.GetInput(port).GetAttr(), switch.GetOutput(port).GetAttr()):
+                (target,) = attr.GetConnections()
+                wrap = UsdShade.Input(attr) if UsdShade.Input.IsInput(attr) else UsdShade.Output(attr)
+                assert UsdShade.ConnectableAPI.CanConnect(wrap, stage.GetAttributeAtPath(target)), (variant, attr)
+    notes = " ".join(n for s in sample["summaries"] for n in s["export_notes"])
+    assert "outputs:" not in notes  # nothing shadowed, nothing to note
+
+
+def test_no_preview_fallback_at_zero_preview_iterations(tmp_path):
+    """``preview_iterations = 0``: no analytic fit, no NeuralPreview shader, no previewFlip; the note says why."""
+    asset = tmp_path / "red.mtlx"
+    asset.write_text(SIMPLE_MTLX)
+    cfg = preset("fast", iterations=30, batch=256, seed=0, preview_iterations=0)
+    (summary,) = convert_asset(asset, ConvertOptions(train=cfg, progress=False, device="cpu"))
+    assert "preview_flip" not in summary and "preview" not in summary
+    assert not (tmp_path / "red_neural" / "Red" / "analytic_baseline.pt").exists()
+    assert not (tmp_path / "red_neural" / "Red" / "neural" / "preview").exists()
+    stage, mat = _material(Path(summary["usd"]), "/Materials/Red")
+    assert not stage.GetPrimAtPath("/Materials/Red/NeuralPreview") and not mat.ComputeSurfaceSource("")[0]
+    assert not mat.GetPrim().GetAttribute("neural:metrics:previewFlip")
+    assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == f"/Materials/Red/{node_names('Red').surface}"
+    assert any("preview_iterations = 0" in n for n in summary["export_notes"])
 
 
 VALIDATE = textwrap.dedent("""

@@ -159,7 +159,8 @@ def test_budget_missed_trains_every_size_and_says_so(tmp_path, capsys, monkeypat
     out = capsys.readouterr().out
     assert code == 0
     assert runs == ["2x16", "2x32", "3x64"]
-    assert len(fits) == 1  # the preview baseline does not depend on the decoder: fitted once
+    # the preview baseline does not depend on the decoder: fitted once, for the fast preset's 100 steps
+    assert fits == [100]
     assert "budget HDR FLIP <= 1e-09: NOT met" in out
     assert "warning: HDR FLIP budget 1e-09 not met: even the largest decoder, 3x64" in out
     folder = tmp_path / "two_neural" / "Red"
@@ -196,6 +197,38 @@ def test_budget_met_by_the_smallest_decoder(tmp_path, monkeypatch):
                                           max_error=10.0, workers=1))[0]
     assert runs == ["2x16"] and s["decoder"] == "2x16" and s["budget_met"] is True
     assert s["budget"]["flip_by_decoder"] == {"2x16": s["flip_mean"]} and not s.get("warnings")
+
+
+def test_preview_iterations_zero_fits_no_preview_and_drops_an_old_one(tmp_path, monkeypatch):
+    """``preview_iterations = 0`` fits no analytic baseline (plain and error-budget runs) and removes the
+    baseline of an earlier run, which would otherwise be exported as this run's fallback."""
+    import dataclasses
+
+    asset = tmp_path / "two.mtlx"
+    asset.write_text(TWO_MTLX)
+    fits = count_fits(monkeypatch)
+    folder, usda = tmp_path / "two_neural" / "Red", tmp_path / "two_neural.usda"
+    convert_asset(asset, ConvertOptions(train=TINY, material="Red", progress=False, device="cpu", workers=1))
+    assert fits == [100] and (folder / "analytic_baseline.pt").is_file()
+    off = dataclasses.replace(TINY, preview_iterations=0)
+    for max_error in (None, 10.0):  # train_material, then train_within_budget
+        fits.clear()
+        s = convert_asset(asset, ConvertOptions(train=off, material="Red", progress=False, device="cpu", workers=1,
+                                                max_error=max_error))[0]
+        assert fits == [] and "preview_flip" not in s and not (folder / "analytic_baseline.pt").exists()
+        assert preview_flip_in_layer(usda, "/Materials/Red") is None
+        assert any("preview_iterations = 0" in n for n in s["export_notes"])
+
+
+def test_preview_iterations_per_preset():
+    from mtlx2neural.errors import InputError
+    from mtlx2neural.train.config import TrainConfig, validate_config
+
+    assert TrainConfig().preview_iterations == 200 and preset("fast").preview_iterations == 100
+    assert preset("standard").preview_iterations == 200 and preset("balanced").preview_iterations == 200
+    validate_config(preset("fast", preview_iterations=0))  # 0: no fallback, allowed
+    with pytest.raises(InputError, match="--preview-iterations"):
+        validate_config(preset("fast", preview_iterations=-1))
 
 
 def test_decoder_and_max_error_conflict(tmp_path, capsys):
