@@ -321,8 +321,11 @@ def test_every_preset_is_a_choice_and_overrides_apply(capsys):
         assert options_of(parse("--preset", name)).train_config() == cfg
     args = parse("--preset", "standard", "--iterations", "20", "--seed", "3")
     assert options_of(args).train_config() == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
-    # standard is fast for longer: the same sampling and schedule shapes, 8x the steps.
-    assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations) == PRESETS["fast"]
+    # standard is fast for longer: the same sampling and schedule shapes, 8x the steps (and the
+    # preview fallback's fit at its full 200 steps instead of fast's 100).
+    assert PRESETS["standard"].preview_iterations == 2 * PRESETS["fast"].preview_iterations
+    assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations,
+                               preview_iterations=PRESETS["fast"].preview_iterations) == PRESETS["fast"]
     with pytest.raises(SystemExit) as exc:
         parse("--preset", "nope")
     assert exc.value.code == 2 and "standard" in capsys.readouterr().err
