@@ -21,11 +21,13 @@ for the whole document, :func:`mtlx2neural.oracle.points.mtlx_node_eval`) and wi
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from mtlx2neural.graph.library import standard_library
 from mtlx2neural.graph.node_eval import compile_output
 from mtlx2neural.oracle.points import mtlx_node_eval
+from mtlx2neural.oracle.runner import oracle_available
 
 NUMERIC = {"float": 1, "integer": 1, "boolean": 1, "vector2": 2, "vector3": 3, "vector4": 4, "color3": 3,
            "color4": 4}
@@ -227,3 +229,16 @@ def max_errors(results, atol: float, rtol: float) -> dict:
         assert got.shape == want.shape, (key, got.shape, want.shape)
         out[key] = float((np.abs(got - want) / (atol + rtol * np.abs(want))).max())
     return out
+
+
+def require_oracle() -> None:
+    """Skip the calling test, with the reason, when MaterialX's Slang oracle cannot run here."""
+    ok, reason = oracle_available()
+    if not ok:
+        pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
+
+
+def assert_within(results, atol: float, rtol: float) -> None:
+    """Fail naming every target whose max |torch - MaterialX| exceeds ``atol + rtol |MaterialX|``."""
+    bad = {k: v for k, v in max_errors(results, atol, rtol).items() if v > 1.0}
+    assert not bad, f"|torch - MaterialX| above {atol} + {rtol} |MaterialX| (ratio): {bad}"

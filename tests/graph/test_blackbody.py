@@ -15,11 +15,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from node_oracle import Builder, compare, max_errors, points
+from node_oracle import (
+    Builder,
+    compare,
+    max_errors,
+    points,
+    require_oracle,
+)
 
 from mtlx2neural.graph.blackbody import blackbody
 from mtlx2neural.graph.library import standard_library
-from mtlx2neural.oracle.runner import oracle_available
 
 ORACLE_CATEGORIES = ("blackbody",)
 ATOL = RTOL = 1e-6  # see the module docstring
@@ -27,9 +32,7 @@ ATOL = RTOL = 1e-6  # see the module docstring
 
 @pytest.mark.slow
 def test_blackbody_matches_materialx_oracle():
-    ok, reason = oracle_available()
-    if not ok:
-        pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
+    require_oracle()
     builder = Builder(seed=70)
     kelvin = builder.scalar(400.0, 26000.0)
     builder.target(kelvin, "float")

@@ -16,11 +16,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from node_oracle import RANGES, Builder, compare, max_errors, points
+from node_oracle import (
+    RANGES,
+    Builder,
+    assert_within,
+    compare,
+    points,
+    require_oracle,
+)
 
 from mtlx2neural.graph.library import standard_library
 from mtlx2neural.graph.transforms import space_matrix, transform
-from mtlx2neural.oracle.runner import oracle_available
 
 ORACLE_CATEGORIES = ("transformpoint", "transformvector", "transformnormal")
 SPACES = ("", "model", "object", "world")
@@ -29,9 +35,7 @@ ATOL = RTOL = 1e-6  # see the module docstring
 
 @pytest.mark.slow
 def test_transforms_match_materialx_oracle(monkeypatch):
-    ok, reason = oracle_available()
-    if not ok:
-        pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
+    require_oracle()
     for c in ORACLE_CATEGORIES:
         monkeypatch.setitem(RANGES, c, (-2.0, 2.0))
     lib = standard_library()
@@ -47,9 +51,7 @@ def test_transforms_match_materialx_oracle(monkeypatch):
         assert float(np.ptp(want)) > 0.5, f"{name}: the oracle's values hardly vary (vacuous test)"
         if name.startswith("transformnormal"):
             np.testing.assert_allclose(np.linalg.norm(want, axis=1), 1.0, atol=1e-6)
-    errors = max_errors(results, ATOL, RTOL)
-    bad = {k: v for k, v in errors.items() if v > 1.0}
-    assert not bad, f"|torch - MaterialX| above {ATOL} + {RTOL} |MaterialX| (ratio): {bad}"
+    assert_within(results, ATOL, RTOL)
 
 
 def test_space_matrices_with_a_real_object_to_world():
