@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 import torch
 from conftest import shared_path
+from node_oracle import require_oracle
 
 from mtlx2neural.graph.node_eval import compile_output
 from mtlx2neural.graph.noise import cell_noise, hash_ints, perlin, worley
 from mtlx2neural.oracle.points import mtlx_node_eval
-from mtlx2neural.oracle.runner import oracle_available
 
 mx = pytest.importorskip("MaterialX")
 
@@ -125,9 +125,7 @@ def _points(seed: int):
 
 @pytest.mark.parametrize("family", ["2d", "3d", "unified_random"])
 def test_noise_matches_materialx_oracle(family):
-    ok, reason = oracle_available()
-    if not ok:
-        pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
+    require_oracle()
     nodes = _unified_and_random() if family == "unified_random" else _perlin_family(family)
     doc = mx.createDocument()
     mx.readFromXmlString(doc, _document(nodes))
@@ -186,9 +184,7 @@ def test_marble_graph_matches_oracle_at_many_points():
     """Marble_3D's colour graph (position -> fractal3d -> sin -> power -> mix) at 128 points; the
     whole-material oracle test sees one point, (0.5, 0.5, 0), where the scaled position is a lattice point
     and the fractal term vanishes."""
-    ok, reason = oracle_available()
-    if not ok:
-        pytest.skip(f"MaterialX Slang oracle unavailable: {reason}")
+    require_oracle()
     path = shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
                        "standard_surface_marble_solid.mtlx")
     doc = mx.createDocument()
