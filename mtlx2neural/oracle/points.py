@@ -31,13 +31,12 @@ import numpy as np
 from mtlx2neural.oracle.errors import OracleError
 from mtlx2neural.oracle.runner import _compile, oracle_available
 from mtlx2neural.oracle.source import (
-    _ENTRY,
-    _GROUP,
     _generate_pixel_shader,
     _lock,
     _OracleSource,
     _patch_source,
     _standard_libraries,
+    kernel_frame,
 )
 
 __all__ = ["mtlx_node_eval"]
@@ -177,33 +176,15 @@ def _points_kernel(selectors: list[str], n_chunks: int):
             calls.append(f"    mxo_c = {frag}(v);")
             calls += [f"    mxo_out[{3 * n_chunks} * i + {3 * c + k}] = mxo_c.{'xyz'[k]};" for k in range(3)]
         body = "\n".join(calls)
-        return f"""
-// ---- mtlx2neural per-point node oracle kernel ----
-StructuredBuffer<float> mxo_uv;
-StructuredBuffer<float> mxo_pos;
-StructuredBuffer<float> mxo_nrm;
-RWStructuredBuffer<float> mxo_out;
-uniform uint mxo_count;
-
-[shader("compute")]
-[numthreads({_GROUP}, 1, 1)]
-void {_ENTRY}(uint3 tid : SV_DispatchThreadID)
-{{
-    uint i = tid.x;
-    if (i >= mxo_count)
-        return;
-    float2 mxo_t = float2(mxo_uv[2 * i], mxo_uv[2 * i + 1]);
-    float3 mxo_p = float3(mxo_pos[3 * i], mxo_pos[3 * i + 1], mxo_pos[3 * i + 2]);
-    float3 mxo_n = float3(mxo_nrm[3 * i], mxo_nrm[3 * i + 1], mxo_nrm[3 * i + 2]);
-    VertexData v = {{}};
+        main = f"""    VertexData v = {{}};
 {init_src}
 {assigns}
     u_viewPosition = mxo_p + mxo_n;
     mxo_lightIntensity = 0.0;
     float4 mxo_c;
-{body}
-}}
-"""
+{body}"""
+        return kernel_frame("mtlx2neural per-point node oracle kernel",
+                            [("mxo_uv", "mxo_t", 2), ("mxo_pos", "mxo_p", 3), ("mxo_nrm", "mxo_n", 3)], main)
 
     return write
 

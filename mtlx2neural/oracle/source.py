@@ -423,13 +423,17 @@ def _vertex_value(typ: str, name: str) -> str | None:
     return f"{typ}({', '.join(_fmt(c) for c in v)})"
 
 
-def _direction_kernel(frag: str, init_src: str, fields=()) -> str:
-    """The direction-pair kernel: one flat surface point, the light at _LIGHT_SCALE and at zero."""
+def kernel_frame(title: str, inputs, body: str) -> str:
+    """The Slang text of an oracle compute kernel: one float StructuredBuffer per ``(buffer, variable,
+    channels)`` of ``inputs``, read into ``float<channels> variable`` for thread ``i``; the output
+    buffer ``mxo_out`` and the thread count ``mxo_count``; then ``body`` (indented Slang lines)."""
+    buffers = "".join(f"StructuredBuffer<float> {buf};\n" for buf, _, _ in inputs)
+    loads = "".join(
+        f"    float{c} {var} = float{c}({', '.join(f'{buf}[{c} * i + {k}]' if k else f'{buf}[{c} * i]' for k in range(c))});\n"
+        for buf, var, c in inputs)
     return f"""
-// ---- mtlx2neural oracle kernel ----
-StructuredBuffer<float> mxo_wi;
-StructuredBuffer<float> mxo_wo;
-RWStructuredBuffer<float> mxo_out;
+// ---- {title} ----
+{buffers}RWStructuredBuffer<float> mxo_out;
 uniform uint mxo_count;
 
 [shader("compute")]
@@ -439,9 +443,14 @@ void {_ENTRY}(uint3 tid : SV_DispatchThreadID)
     uint i = tid.x;
     if (i >= mxo_count)
         return;
-    float3 wi = float3(mxo_wi[3 * i], mxo_wi[3 * i + 1], mxo_wi[3 * i + 2]);
-    float3 wo = float3(mxo_wo[3 * i], mxo_wo[3 * i + 1], mxo_wo[3 * i + 2]);
-    VertexData v = {{}};
+{loads}{body}
+}}
+"""
+
+
+def _direction_kernel(frag: str, init_src: str, fields=()) -> str:
+    """The direction-pair kernel: one flat surface point, the light at _LIGHT_SCALE and at zero."""
+    body = f"""    VertexData v = {{}};
 {init_src}
     u_viewPosition = wi;  // positionWorld is the origin, so V = wi
     mxo_lightDirection = wo;
@@ -454,9 +463,8 @@ void {_ENTRY}(uint3 tid : SV_DispatchThreadID)
     mxo_out[6 * i + 2] = lit.z;
     mxo_out[6 * i + 3] = unlit.x;
     mxo_out[6 * i + 4] = unlit.y;
-    mxo_out[6 * i + 5] = unlit.z;
-}}
-"""
+    mxo_out[6 * i + 5] = unlit.z;"""
+    return kernel_frame("mtlx2neural oracle kernel", [("mxo_wi", "wi", 3), ("mxo_wo", "wo", 3)], body)
 
 
 def _patch_source(src: str, uniforms: dict, base_dir: Path, kernel=None) -> tuple[str, list[_Texture]]:
