@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mtlx2neural.imaging.resolve import on_disk
 from mtlx2neural.oracle.errors import OracleError, OracleUnsupported
 from mtlx2neural.oracle.textures import (
     _ADDRESS_PERIODIC,
@@ -192,6 +193,9 @@ def _make_texture(uniform: str, uniforms: dict, base_dir: Path) -> _Texture:
         p = Path(name)
         candidates = [p] if p.is_absolute() else [base_dir / p, Path.cwd() / p]
         for cand in candidates:
+            # A library authored on a case-insensitive file system may name the file with
+            # another case; read the one file that matches (as the graph compiler does).
+            cand = Path(on_disk(str(cand)))
             size = _image_size(cand) if cand.is_file() else None
             if size is not None:
                 return _Texture(uniform, str(cand.resolve()), size[0], size[1], umode, vmode, filt, default)
