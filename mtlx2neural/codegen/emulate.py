@@ -13,6 +13,12 @@ A float16 product is exact in float32 (11 + 11 significant bits), so each emulat
 operations in float and rounds each result). GPUs fuse the FMA (one rounding), which differs
 from this by at most one FP16 ulp per FMA in rare double-rounding cases.
 
+:func:`mlp_coopmat` / :func:`decode_coopmat` follow the cooperative-matrix path (``NM_<name>_CoopMat``):
+inputs and weights in half, padded to the tile with zeros (:func:`~.generate.padded_layers`), one
+``coopMatMulAdd`` per K tile whose products are summed exactly and rounded once to the accumulator
+type (float32 or float16; hardware sums in an implementation-defined order and precision, the
+spirv-run interpreter exactly like this), then bias and ReLU per element in the accumulator type.
+
 ``coopvec=True`` follows Slang's CPU emulation of cooperative vectors instead (measured:
 products rounded to half, summed in half in input order, bias added last); GPUs accumulate in
 an implementation-defined order and precision.
@@ -22,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mtlx2neural.codegen.generate import COOPMAT_TILE, padded_layers
 from mtlx2neural.codegen.spec import Layer, NetworkSpec
 
 F16_MAX = np.float32(65504.0)
@@ -120,3 +127,37 @@ def eval16(spec16: NetworkSpec, lat, wi, wo, coopvec: bool = False) -> np.ndarra
     f = decode16(spec16, lat, wi, wo, coopvec)
     ok = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
     return np.where(ok, f, np.float32(0))
+
+
+def mlp_coopmat(padded: list[tuple[np.ndarray, np.ndarray]], x: np.ndarray, acc=np.float32,
+                tile: int = COOPMAT_TILE) -> np.ndarray:
+    """The MLP on the cooperative-matrix path: ``padded`` layers from :func:`padded_layers`
+    (W [NP, KP], bias [NP], FP16 values), float32 inputs [N, K]; ``acc`` the accumulator type
+    (np.float32 or np.float16). Returns the [N, NP] outputs as float32 (clamped, NaN -> 0)."""
+    h = np.zeros((x.shape[0], padded[0][0].shape[1]), np.float32)
+    h[:, :x.shape[1]] = to_half(x)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i, (w, b) in enumerate(padded):
+            a = np.zeros((x.shape[0], w.shape[0]), acc)
+            for k0 in range(0, w.shape[1], tile):
+                part = h[:, k0:k0 + tile].astype(np.float64) @ w[:, k0:k0 + tile].T.astype(np.float64)
+                a = (a.astype(np.float64) + part).astype(acc)
+            v = (a + b.astype(acc)).astype(acc).astype(np.float32)
+            if i < len(padded) - 1:
+                h = np.where(v > 0, np.minimum(v, F16_MAX), np.float32(0)).astype(np.float16).astype(np.float32)
+            else:
+                return _finite16(v)
+    raise ValueError("no layers")
+
+
+def decode_coopmat(spec16: NetworkSpec, lat, wi, wo, acc=np.float32) -> np.ndarray:
+    """f * cos [N, 3] of the cooperative-matrix path (as :func:`decode16`, without the horizon test)."""
+    padded = padded_layers(spec16, COOPMAT_TILE, COOPMAT_TILE)["decoder"]
+    y = output_activation(mlp_coopmat(padded, decoder_inputs(spec16, lat, wi, wo), acc)[:, :3])
+    return (y * np.maximum(wo[:, 2:3], 0).astype(np.float32)).astype(np.float32) if spec16.analytic_cosine else y
+
+
+def sampler_raw_coopmat(spec16: NetworkSpec, lat, wi, acc=np.float32) -> np.ndarray:
+    """The sampler network's 9 raw outputs [N, 9] on the cooperative-matrix path."""
+    padded = padded_layers(spec16, COOPMAT_TILE, COOPMAT_TILE)["sampler"]
+    return mlp_coopmat(padded, np.concatenate([wi, lat], 1).astype(np.float32), acc)[:, :9]

@@ -39,6 +39,7 @@ from mtlx2neural.codegen.spec import Layer, NetworkSpec, as_spec
 
 MATRIX_ALIGN = 64  # bytes: cooperative-vector matrix offsets
 BIAS_ALIGN = 16    # bytes: bias offsets and row strides
+COOPMAT_TILE = 16  # M = N = K of the cooperative-matrix tiles (16x16x16 FP16)
 
 
 def identifier(name: str) -> str:
@@ -107,30 +108,69 @@ def fp16_blob(spec: NetworkSpec) -> tuple[bytes, dict[str, int]]:
     return bytes(blob), offsets
 
 
+def _round_up(n: int, m: int) -> int:
+    return (n + m - 1) // m * m
+
+
+def padded_layers(spec: NetworkSpec, row_multiple: int, col_multiple: int) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """Every layer's FP16-rounded weight matrix and bias, zero-padded: the one definition of the
+    padding of the matrix paths (:func:`coopvec_blob`, :func:`coopmat_blob`, the emulation).
+
+    Returns {network: [(W [round_up(out, row_multiple), round_up(in, col_multiple)], bias
+    [round_up(out, row_multiple)]), ...]} as float32 arrays holding FP16 values; W is indexed
+    [output, input] as torch's ``Linear.weight``."""
+    out = {}
+    for name, layers in spec.fp16().networks():
+        entries = []
+        for l in layers:
+            m, k = l.shape
+            w = np.zeros((_round_up(m, row_multiple), _round_up(k, col_multiple)), np.float32)
+            b = np.zeros(w.shape[0], np.float32)
+            w[:m, :k], b[:m] = l.weight, l.bias
+            entries.append((w, b))
+        out[name] = entries
+    return out
+
+
+def _matrix_blob(spec: NetworkSpec, row_multiple: int, col_multiple: int) -> tuple[bytes, dict]:
+    """Row-major FP16 matrices (padded by :func:`padded_layers`; matrices 64-byte aligned,
+    biases 16-byte aligned) and the per-layer layout (see :func:`coopvec_blob`)."""
+    blob, layout = bytearray(), {}
+    shapes = {name: [l.shape for l in layers] for name, layers in spec.networks()}
+    for name, entries in padded_layers(spec, row_multiple, col_multiple).items():
+        out = []
+        for (w, b), (m, k) in zip(entries, shapes[name]):
+            blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
+            entry = {"matrix": len(blob), "shape": [m, k], "padded": list(w.shape), "row_stride": 2 * w.shape[1]}
+            blob += w.astype("<f2").tobytes()
+            blob += b"\0" * (-len(blob) % BIAS_ALIGN)
+            entry["bias"] = len(blob)
+            blob += b.astype("<f2").tobytes() if row_multiple > 1 else b[:m].astype("<f2").tobytes()
+            out.append(entry)
+        layout[name] = out
+    blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
+    return bytes(blob), layout
+
+
 def coopvec_blob(spec: NetworkSpec) -> tuple[bytes, dict]:
     """Row-major FP16 matrices and biases of every layer for the coherent path.
 
     Returns (bytes, layout) where layout[network] is a list of per-layer dicts with the byte
-    ``matrix`` and ``bias`` offsets, ``shape`` [out, in] and ``row_stride`` in bytes."""
-    spec = spec.fp16()
-    blob, layout = bytearray(), {}
-    for name, layers in spec.networks():
-        entries = []
-        for l in layers:
-            m, k = l.shape
-            stride = (2 * k + BIAS_ALIGN - 1) // BIAS_ALIGN * BIAS_ALIGN
-            blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
-            mat = np.zeros((m, stride // 2), "<f2")
-            mat[:, :k] = l.weight
-            entry = {"matrix": len(blob), "shape": [m, k], "row_stride": stride}
-            blob += mat.tobytes()
-            blob += b"\0" * (-len(blob) % BIAS_ALIGN)
-            entry["bias"] = len(blob)
-            blob += l.bias.astype("<f2").tobytes()
-            entries.append(entry)
-        layout[name] = entries
-    blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
-    return bytes(blob), layout
+    ``matrix`` and ``bias`` offsets, ``shape`` [out, in], ``padded`` [out, in rounded up to 8]
+    and ``row_stride`` in bytes (rows padded to 16 bytes, biases unpadded)."""
+    return _matrix_blob(spec, 1, BIAS_ALIGN // 2)
+
+
+def coopmat_blob(spec: NetworkSpec, tile: int = COOPMAT_TILE) -> tuple[bytes, dict]:
+    """FP16 weights of every layer for the cooperative-matrix path (``NM_<name>_CoopMat``).
+
+    Each layer's matrix W [out, in] is zero-padded to [round_up(out, tile), round_up(in,
+    tile)] and stored **row-major** (one row per output neuron; row stride = padded inputs),
+    which is the K x N operand B = W^T stored **column-major** with stride = padded inputs, as
+    the shader loads it; matrices are 64-byte aligned. The bias follows, zero-padded to the
+    padded output count, 16-byte aligned. Returns (bytes, layout) as :func:`coopvec_blob`
+    (``row_stride`` in bytes = 2 x padded inputs)."""
+    return _matrix_blob(spec, tile, tile)
 
 
 # ------------------------------------------------------------------------------------------
@@ -261,6 +301,35 @@ def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layo
     return "\n".join(out)
 
 
+def _coopmat_functions(ctx: _Ctx, spec32: NetworkSpec, layout: dict) -> str:
+    """``<p>_decodeCM`` / ``_proxyCM`` / ``_albedoCM``: the networks on cooperative matrices
+    (templates/coopmat.slang.in), weights from the .coopmat.bin ``layout``."""
+    p, c = ctx.p, ctx.c
+    lat, tile = f"NMLatent<{c}> lat", "NMCoopMatTile t"
+    kinds = {"decoder": ("decode", "float3", "float3 wi, float3 wo", f"{p}_decoderInputs({p}_Frame16(), lat, wi, wo, x)",
+                         _RGB_COS if spec32.analytic_cosine else _RGB),
+             "albedo": ("albedo", "float3", "float3 wi", f"{p}_albedoInputs({p}_Frame16(), lat, wi, x)", _RGB),
+             "sampler": ("proxy", "NMProxy", "float3 wi", f"{p}_samplerInputs(lat, wi, x)", "return nmProxyFromRaw(y);")}
+    out = []
+    for net, (fn, rtype, args, inputs, ret) in kinds.items():
+        head = f"public {rtype} {p}_{fn}CM(ByteAddressBuffer wb, uint base, {tile}, {lat}, {args})"
+        if net not in layout:
+            out.append(head + " { return float3(0.0); }")
+            continue
+        entries = layout[net]
+        k, kp = entries[0]["shape"][1], entries[0]["padded"][1]
+        body = [f"    float x[{k}]; {inputs};", f"    {p}_cmStoreInputs<{k}, {kp}>(t, x);"]
+        for i, e in enumerate(entries):
+            (m, _), (mp, kp) = e["shape"], e["padded"]
+            body.append(f"    {p}_cmLayer<{kp}, {mp}>(t, wb, base + {e['matrix']}u);")
+            if i < len(entries) - 1:
+                body.append(f"    {p}_cmHidden<{mp}>(t, wb, base + {e['bias']}u);")
+            else:
+                body.append(f"    float y[{m}]; {p}_cmOutput<{m}>(t, wb, base + {e['bias']}u, y);")
+        out += [head, "{", *body, f"    {ret}", "}", ""]
+    return "\n".join(out)
+
+
 def _weights(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec) -> tuple[str, str]:
     p, arrays, structs = ctx.p, [], []
     frames32 = spec32.frame.ravel() if spec32.frame is not None else np.zeros(1, np.float32)
@@ -331,14 +400,18 @@ def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bo
         "dec16_offset": f"{offsets16['decoder']}u", "smp16_offset": f"{offsets16['sampler']}u",
         "alb16_offset": f"{offsets16.get('albedo', 0)}u", "coherent_doc": coherent_doc,
         "fp16_notes": "".join(f"// FP16 note: {n}\n" for n in spec16.notes),
-        "coopvec_layout": _layout_comment(layout, offsets16),
+        "coopvec_layout": _layout_comment(layout, offsets16, coopmat_blob(spec32)[1]),
     }
-    subs["coherent_structs"] = Template(template("coherent.slang.in" if coherent else "fallback.slang.in")
-                                        ).substitute(subs)
+    cm_layout = coopmat_blob(spec32)[1]
+    subs["tile"] = COOPMAT_TILE
+    subs["cm_width"] = max(max(e["padded"]) for entries in cm_layout.values() for e in entries)
+    subs["coopmat_functions"] = _coopmat_functions(ctx, spec32, cm_layout)
+    subs["coherent_structs"] = (Template(template("coherent.slang.in" if coherent else "fallback.slang.in")).substitute(subs)
+                                + Template(template("coopmat.slang.in")).substitute(subs))
     return Template(template("material.slang.in")).substitute(subs)
 
 
-def _layout_comment(layout: dict | None, offsets16: dict) -> str:
+def _layout_comment(layout: dict | None, offsets16: dict, cm_layout: dict) -> str:
     lines = ["// Weight binaries: .fp16.bin holds the FP16 access-order arrays of the networks at byte offsets "
              + ", ".join(f"{k} {v}" for k, v in offsets16.items()) + "."]
     if layout is not None:
@@ -347,6 +420,12 @@ def _layout_comment(layout: dict | None, offsets16: dict) -> str:
         for net, entries in layout.items():
             lines.append(f"//   {net}: " + "; ".join(f"[{e['shape'][0]}, {e['shape'][1]}] @{e['matrix']} "
                                                   f"stride {e['row_stride']} bias @{e['bias']}" for e in entries))
+    lines.append(f"// .coopmat.bin (cooperative matrices), FP16; per layer W [out, in] zero-padded to multiples of "
+                 f"{COOPMAT_TILE}, row-major\n// (= B = W^T column-major, stride = padded in), then the bias zero-padded "
+                 "to the padded out; [out, in] -> [padded], matrix offset, bias offset (bytes):")
+    for net, entries in cm_layout.items():
+        lines.append(f"//   {net}: " + "; ".join(f"[{e['shape'][0]}, {e['shape'][1]}] -> [{e['padded'][0]}, {e['padded'][1]}] "
+                                              f"@{e['matrix']} bias @{e['bias']}" for e in entries))
     return "\n".join(lines)
 
 

@@ -6,10 +6,13 @@ Files written into ``folder`` (the export's ``<material>/neural/``)::
     NeuralMaterial_<name>.fp16.bin       FP16 weights in access order (``*_FP16Buffer`` variant)
     NeuralMaterial_<name>.coopvec.bin    row-major FP16 matrices and biases (coherent path; the
                                          module's header lists their offsets, shapes and strides)
+    NeuralMaterial_<name>.coopmat.bin    FP16 matrices padded to the 16x16 tiles and biases
+                                         (cooperative-matrix path, ``coopmat_blob``)
     NeuralMaterial.slang, NeuralLayers.slang   copies of the runtime modules
 
-so that the folder compiles on its own (``slangc -I <folder>`` or Slang's default search of
-the importing file's folder).
+each written atomically, so that the folder compiles on its own (``slangc -I <folder>`` or
+Slang's default search of the importing file's folder). :func:`~.engine.write_engine_files` adds the HLSL and
+SPIR-V that engines without Slang include.
 """
 
 from __future__ import annotations
@@ -17,7 +20,9 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from mtlx2neural.atomic import atomic_path
 from mtlx2neural.codegen.generate import (
+    coopmat_blob,
     coopvec_blob,
     fp16_blob,
     generate_slang,
@@ -37,12 +42,14 @@ def write_material_shader(model_or_export, folder, name: str, *, coherent: bool 
 
     def put(fname: str, data) -> None:
         path = folder / fname
-        path.write_bytes(data if isinstance(data, bytes) else data.encode())
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
         written.append(path)
 
     put(f"{stem}.slang", generate_slang(spec, name, coherent=coherent, source=f"material {name}"))
     put(f"{stem}.fp16.bin", fp16_blob(spec)[0])
     put(f"{stem}.coopvec.bin", coopvec_blob(spec)[0])
+    put(f"{stem}.coopmat.bin", coopmat_blob(spec)[0])
     for f in RUNTIME_FILES:
         shutil.copyfile(runtime_path() / f, folder / f)
         written.append(folder / f)

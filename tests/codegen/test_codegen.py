@@ -428,7 +428,8 @@ def test_write_material_shader(model_a, tmp_path):
     m, _, _ = model_a
     files = write_material_shader(m, tmp_path, "/World/Looks/Car Paint")
     names = sorted(p.name for p in files)
-    assert names == ["NeuralLayers.slang", "NeuralMaterial.slang", "NeuralMaterial_Car_Paint.coopvec.bin",
+    assert names == ["NeuralLayers.slang", "NeuralMaterial.slang", "NeuralMaterial_Car_Paint.coopmat.bin",
+                     "NeuralMaterial_Car_Paint.coopvec.bin",
                      "NeuralMaterial_Car_Paint.fp16.bin", "NeuralMaterial_Car_Paint.slang"]
     assert "typealias NeuralMaterial_Car_Paint " in (tmp_path / "NeuralMaterial_Car_Paint.slang").read_text()
 
