@@ -16,8 +16,8 @@ also runs it about 100x faster than slangc's ``-O0`` output.
 from __future__ import annotations
 
 import json
+import math
 import os
-import re
 import shutil
 import site
 import struct
@@ -183,19 +183,36 @@ def optimise_and_validate(spv: bytes, target_env: str = TARGET_ENV) -> bytes:
 # ------------------------------------------------------------------------------------------
 
 def runtime_array(values) -> dict[str, list]:
-    """The spirv-run input value of a ``StructuredBuffer<float>`` / ``RWStructuredBuffer<float>``
-    as slangc emits it (a block whose one member is a runtime array): ``values`` flattened to floats."""
-    flat = values.ravel().tolist() if hasattr(values, "ravel") else [float(v) for v in values]
+    """The spirv-run input value of a ``StructuredBuffer`` / ``RWStructuredBuffer`` of floats (or
+    of halves: a ``ByteAddressBuffer`` that slangc types as half) as slangc emits it, a block whose
+    one member is a runtime array: ``values`` flattened to floats."""
+    flat = values.ravel().tolist() if hasattr(values, "ravel") else list(values)
     return {"__member0": [float(v) for v in flat]}
 
 
-_NONFINITE = re.compile(r"(?<![\w\"])(-?)(inf|nan)(?![\w\"])", re.IGNORECASE)
+_NONFINITE = {"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}
 
 
-def _parse_output(text: str) -> dict[str, Any]:
-    def repl(m: re.Match) -> str:
-        return ("-" if m.group(1) else "") + ("Infinity" if m.group(2).lower() == "inf" else "NaN")
-    return json.loads(_NONFINITE.sub(repl, text))
+def _encode(value: Any) -> Any:
+    """JSON-ready input: spirv-run reads and writes non-finite floats as the strings "Infinity",
+    "-Infinity" and "NaN"."""
+    if isinstance(value, dict):
+        return {k: _encode(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_encode(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    return value
+
+
+def _decode(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _decode(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_decode(v) for v in value]
+    if isinstance(value, str) and value in _NONFINITE:
+        return _NONFINITE[value]
+    return value
 
 
 def run_compute(spv: bytes, inputs: dict[str, Any], *, timeout: float = 600, exe: Path | None = None) -> dict[str, Any]:
@@ -204,8 +221,9 @@ def run_compute(spv: bytes, inputs: dict[str, Any], *, timeout: float = 600, exe
     ``inputs`` maps each interface variable spirv-run asks for (``spirv-run -t`` lists them;
     slangc names them after the Slang globals, cbuffers by their block name) to its JSON value;
     use :func:`runtime_array` for structured buffers, and give writable buffers at their full size.
-    Returns the parsed output JSON (the writable variables after the run). spirv-run prints 6
-    significant digits, so values carry a relative rounding error up to 5e-6."""
+    Returns the parsed output JSON (the writable variables after the run), non-finite floats as
+    float('inf') / float('nan'). spirv-run prints 6 significant digits, so values carry a
+    relative rounding error up to 5e-6."""
     exe = exe or find_spirv_run()
     if exe is None:
         raise SpirvToolError("spirv-run not found (set M2N_SPIRV_RUN, or build it with "
@@ -213,9 +231,9 @@ def run_compute(spv: bytes, inputs: dict[str, Any], *, timeout: float = 600, exe
     with tempfile.TemporaryDirectory(prefix="m2n_spirv_run_") as tmp:
         kernel, inp, out = Path(tmp) / "kernel.spv", Path(tmp) / "in.json", Path(tmp) / "out.json"
         kernel.write_bytes(spv)
-        inp.write_text(json.dumps(inputs))
+        inp.write_text(json.dumps(_encode(inputs), allow_nan=False))
         r = subprocess.run([str(exe), "-q", "-i", str(inp), "-o", str(out), str(kernel)], capture_output=True, text=True,
                            timeout=timeout, check=False)
         if r.returncode != 0 or not out.is_file():
             raise SpirvToolError(f"spirv-run failed ({r.returncode}): {(r.stdout + r.stderr).strip()[:2000]}")
-        return _parse_output(out.read_text())
+        return _decode(json.loads(out.read_text()))
