@@ -12,6 +12,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.graph.bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
 from mtlx2neural.graph.evaluator import GraphEvaluator
 from mtlx2neural.graph.expand import expand_material
+from mtlx2neural.graph.geometry import geometry_reads
 from mtlx2neural.graph.ir import Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS
 from mtlx2neural.graph.spatial import (
@@ -68,7 +69,8 @@ class CompiledMaterial:
         return [(k, i, t) for k, i, t in self.parameters() if isinstance(i, Ref) and self.evaluator.spatial[i.node]]
 
     def describe(self) -> dict:
-        """Lobes kept/pruned, approximations, spatial inputs and textures (JSON-friendly)."""
+        """Lobes kept/pruned, approximations, spatial inputs, textures and the geometric inputs the graph
+        reads with their source (``geometry_inputs``: node, kind, space or primvar, source) (JSON-friendly)."""
         g = self.graph
         textures, spatial_inputs, notes = [], [], []
         for i in self.spatial_nodes:
@@ -88,10 +90,14 @@ class CompiledMaterial:
                     notes.append(f"'{n.path}' reads UV set {int(idx.value[0])}: the material is baked over one "
                                  f"UV set, so every set reads the same coordinates")
                 gp = n.inputs.get("geomprop")
-                if n.category == "geompropvalue" and isinstance(gp, Const) and gp.value not in UV_PRIMVARS:
+                if (n.category == "geompropvalue" and isinstance(gp, Const) and gp.value not in UV_PRIMVARS
+                        and self.evaluator.geometry is None):
                     notes.append(f"'{n.path}' reads primvar '{gp.value}', which a baked material cannot vary: "
                                  f"its default value is used")
         varying = [k for k, _, _ in self.varying_parameters()]
+        geo = self.evaluator.geometry
+        where = geo.describe() if geo is not None else "not bound: position (u, v, 0), the frame's axes, defaults"
+        geometry_inputs = [{**r, "source": where} for r in geometry_reads(g, self.spatial_nodes, self.evaluator.frame_bound)]
         return {
             "material": self.name,
             "source": self.source,
@@ -101,6 +107,7 @@ class CompiledMaterial:
             "spatial_inputs": spatial_inputs,
             "textures": textures,
             "varying_parameters": varying,
+            "geometry_inputs": geometry_inputs,
             "ir_nodes": len(g.nodes),
         }
 

@@ -4,6 +4,11 @@ A node is *spatial* when it is a spatial source (:mod:`.sources`) or depends on
 one; everything else that is not a closure is folded once into a ``[1, C]``
 constant. At run time only the spatial nodes that the live BSDF program needs
 are evaluated, in topological order, for a batch of texture coordinates.
+
+Geometry (:mod:`mtlx2neural.graph.geometry`): a node that reads ``normal``/``tangent``/``bitangent``
+for anything but building a closure's shading frame is spatial too. When the evaluator has a
+``geometry`` source (:func:`~mtlx2neural.graph.geometry.bind_geometry`), ``run`` samples its maps
+(bilinear, at the source's current grid) at the uv of the batch, only when the nodes run read geometry.
 """
 
 from __future__ import annotations
@@ -12,6 +17,13 @@ import torch
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph import blackbody, compositing, noise, ramps, transforms  # noqa: F401  (register operators)
+from mtlx2neural.graph.geometry import (
+    GEOMETRIC,
+    frame_bound,
+    frame_read,
+    node_space,
+    primvar_of,
+)
 from mtlx2neural.graph.ir import CHANNELS, Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS
 from mtlx2neural.graph.spatial import FRAME_AXES, SPATIAL, eval_source
@@ -38,6 +50,11 @@ class GraphEvaluator:
         self.dtype = dtype
         self.spatial = [False] * len(graph.nodes)
         self.const: dict[tuple[int, str], object] = {}
+        self.geometry = None
+        """A :class:`~mtlx2neural.scene.uv_raster.GeometrySource` the geometric nodes read, or None
+        (then position is (u, v, 0), the frame its axes, primvars their defaults)."""
+        self._geo_keys: dict[tuple, list[str]] = {}
+        self.frame_bound = frame_bound(graph)
         self._classify()
         self._fold()
 
@@ -45,7 +62,12 @@ class GraphEvaluator:
     def _classify(self):
         for i, node in enumerate(self.graph.nodes):
             self.spatial[i] = node.category in SPATIAL or any(
-                isinstance(v, Ref) and self.spatial[v.node] for v in node.inputs.values())
+                isinstance(v, Ref) and (self.spatial[v.node] or self._geo_frame(i, k, v))
+                for k, v in node.inputs.items())
+
+    def _geo_frame(self, consumer: int, name: str, inp) -> bool:
+        """Whether input ``name`` of node ``consumer`` is a frame node read as geometry (not the shading frame)."""
+        return frame_read(self.graph, self.frame_bound, consumer, name, inp)
 
     def _fold(self):
         for i, node in enumerate(self.graph.nodes):
@@ -99,15 +121,54 @@ class GraphEvaluator:
                          if isinstance(v, Ref) and self.spatial[v.node])
         return sorted(needed)
 
-    def run(self, nodes: list[int], uv: torch.Tensor, position: torch.Tensor | None = None) -> dict:
-        """Evaluate spatial ``nodes`` (from :meth:`spatial_closure`) at ``uv`` [N,2]; ``position``
-        [N,3] (optional) is the surface point that ``position`` nodes read (default (u, v, 0))."""
+    def geometry_keys(self, nodes: list[int]) -> list[str]:
+        """The geometry map keys (``position:object``, ``primvar:displayColor``...) ``nodes`` read."""
+        key = tuple(nodes)
+        if key not in self._geo_keys:
+            keys = []
+            for i in nodes:
+                node = self.graph[i]
+                reads = [node] if node.category in GEOMETRIC else []
+                reads += [self.graph[v.node] for k, v in node.inputs.items() if self._geo_frame(i, k, v)]
+                for n in reads:
+                    pv = primvar_of(n) if n.category in ("geomcolor", "geompropvalue") else None
+                    if pv:
+                        keys += [f"primvar:{pv}"] + (["primvar:displayOpacity"] if pv == "displayColor" else [])
+                    elif n.category not in ("geomcolor", "geompropvalue"):
+                        keys.append(f"{n.category}:{node_space(n)}")
+            self._geo_keys[key] = sorted(set(keys))
+        return self._geo_keys[key]
+
+    def run(self, nodes: list[int], uv: torch.Tensor, position: torch.Tensor | None = None,
+            geometry: dict | None = None) -> dict:
+        """Evaluate spatial ``nodes`` (from :meth:`spatial_closure`) at ``uv`` [N,2].
+
+        ``geometry``: ``{key: [N, C]}`` per-sample geometry (keys of
+        :class:`~mtlx2neural.scene.uv_raster.GeometryMaps`); default: the evaluator's ``geometry``
+        source sampled at ``uv`` when ``nodes`` read any, else none. ``position`` [N,3] (optional, the
+        per-point oracle's): the surface point every ``position`` node reads (default (u, v, 0))."""
+        if position is not None:
+            geometry = {**(geometry or {}), "position:object": position, "position:world": position}
+        elif geometry is None and self.geometry is not None:
+            keys = self.geometry_keys(nodes)
+            if keys:
+                geometry = self.geometry.current().sample(uv, keys)
         env: dict = {}
+        n_rows = uv.shape[0]
         for i in nodes:
             node = self.graph[i]
-            args = {k: self.value(v, env) for k, v in node.inputs.items()}
+            args = {k: self._frame_value(v, n_rows, geometry) if self._geo_frame(i, k, v) else self.value(v, env)
+                    for k, v in node.inputs.items()}
             if node.category in SPATIAL:
-                env[(i, "out")] = eval_source(node, args, uv, position)
+                env[(i, "out")] = eval_source(node, args, uv, geometry)
             else:
                 self._store(i, self._run_op(i, args), env)
         return env
+
+    def _frame_value(self, inp: Ref, n: int, geometry: dict | None) -> torch.Tensor:
+        """A frame node read as geometry: its map's value per row, or its axis without geometry."""
+        node = self.graph[inp.node]
+        got = (geometry or {}).get(f"{node.category}:{node_space(node)}")
+        if got is not None:
+            return got
+        return torch.tensor([FRAME_AXES[node.category]], dtype=self.dtype, device=self.device).expand(n, 3)

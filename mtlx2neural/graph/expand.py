@@ -131,14 +131,15 @@ class Expander:
             raise InputError(f"{self.source}: unknown default geometric property '{name}'.")
         category = gdef.getGeomProp()
         index = gdef.getIndex() if category == "texcoord" else 0
-        key = (category, index, mx_type)
+        space = gdef.getSpace() or ""
+        key = (category, index, mx_type, space)
         if key not in self._geom:
             if category not in _GEOMPROPS:
                 raise UnsupportedNodeError(
                     f"{self.source}: geometric property '{name}' ({category}) is not supported.")
             self._geom[key] = self.graph.add(IRNode(
                 category, f"geomprop:{name}", {"index": Const((float(index),), "integer")},
-                {"out": mx_type}, f"<geomprop {name}>"))
+                {"out": mx_type}, f"<geomprop {name}>", attrs={"space": space} if space else {}))
         return Ref(self._geom[key])
 
     def resolve_input(self, scope: _Scope, inst, ndin) -> Input:

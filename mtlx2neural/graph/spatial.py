@@ -2,9 +2,11 @@
 
 They are evaluated per shading point from ``uv``. In the local shading frame
 the geometric normal, tangent and bitangent are the constant axes z, x and y,
-so those are folded as constants; position, texture coordinates, vertex colours
-and primvars are spatial. Any node that depends on one of these is part of the
-spatial sub-graph.
+so where a closure (or ``normalmap``) reads them they are folded as constants;
+elsewhere they read the geometry (:mod:`mtlx2neural.graph.geometry`). Position,
+texture coordinates, vertex colours and primvars are spatial, read from the
+per-sample geometry when the material has one. Any node that depends on one of
+these is part of the spatial sub-graph.
 """
 
 from __future__ import annotations
@@ -36,33 +38,55 @@ def texture_colorspaces(node) -> tuple[str, str]:
     return node.attrs.get("colorspace", ""), node.attrs.get("working_space", "") or "lin_rec709"
 
 
+def _fit(v: torch.Tensor, c: int) -> torch.Tensor:
+    """``v`` [N, K] with ``c`` channels: truncated, or padded with its last channel (a scalar widens)."""
+    if v.shape[-1] >= c:
+        return v[:, :c]
+    return torch.cat([v, v[:, -1:].expand(-1, c - v.shape[-1])], -1)
+
+
 def needs_conversion(src: str, dst: str) -> bool:
 
     return bool(src) and not is_data(src) and canonical_colorspace(src) != canonical_colorspace(dst)
 
 
-def eval_source(node, args: dict, uv: torch.Tensor, position: torch.Tensor | None = None):
+def eval_source(node, args: dict, uv: torch.Tensor, geometry: dict | None = None):
     """Value of spatial source ``node`` for texture coordinates ``uv`` [N,2].
 
-    ``position`` [N,3] (or None): the surface point, in the document's units; every ``position`` node
-    (object, world or model space alike) reads it. Without it, position is (u, v, 0), a flat unit
-    square standing in for the surface.
+    ``geometry`` (or None): ``{key: [N, C]}`` per-sample geometry
+    (:class:`mtlx2neural.scene.uv_raster.GeometryMaps` keys: ``position:object``/``position:world`` in
+    the scene's units, ``primvar:NAME``). Without it, or without the key a node asks for, position is
+    (u, v, 0) (a flat unit square standing in for the surface), ``geomcolor`` is 1 and
+    ``geompropvalue`` its default.
     """
     n = uv.shape[0]
     cat = node.category
+    geo = geometry or {}
     if cat == "texcoord":
         if CHANNELS.get(node.type, 2) == 3:  # a vector3 texture coordinate: (u, v, 0), as MaterialX's vertex data
             return torch.cat([uv, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
         return uv
     if cat == "position":
-        if position is not None:
-            return position
+        space = args.get("space") if isinstance(args.get("space"), str) else node.attrs.get("space", "")
+        got = geo.get("position:world" if space == "world" else "position:object")
+        if got is not None:
+            return got
         return torch.cat([uv, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
     if cat == "geomcolor":
-        return torch.ones(n, CHANNELS[node.type], dtype=uv.dtype, device=uv.device)
+        c = geo.get("primvar:displayColor")
+        if c is None:
+            return torch.ones(n, CHANNELS[node.type], dtype=uv.dtype, device=uv.device)
+        alpha = geo.get("primvar:displayOpacity")
+        if alpha is None:
+            alpha = torch.ones(n, 1, dtype=uv.dtype, device=uv.device)
+        return _fit(torch.cat([_fit(c, 3), alpha[:, :1]], -1) if CHANNELS[node.type] == 4 else c,
+                    CHANNELS[node.type])
     if cat == "geompropvalue":
         if node.type == "vector2" and args.get("geomprop") in UV_PRIMVARS:
             return uv
+        got = geo.get(f"primvar:{args.get('geomprop')}")
+        if got is not None:
+            return _fit(got, CHANNELS[node.type])
         return args["default"].expand(n, -1)
     if cat == "image":
         path = args["file"]

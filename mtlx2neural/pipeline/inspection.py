@@ -7,7 +7,9 @@ textures, and what a conversion with the given settings would decide
 down to what the scene's UV texel density needs with ``--texel-density``, or capped by
 ``--max-texels``) with the metres of surface per UV unit measured on the bound meshes,
 the source hash (``summary.json``'s cache key) and the name-free content hash, and "identical to X: trained once" for a material that would
-share an earlier one's result. Materials the scene skips are listed with the reason.
+share an earlier one's result. The geometric inputs a graph reads (position, normal, tangent,
+bitangent, geomcolor, geompropvalue) are listed with where they come from: the bound mesh prims,
+rasterised into their UV layout, or the unit sphere default for ``.mtlx`` input. Materials the scene skips are listed with the reason.
 """
 
 from __future__ import annotations
@@ -91,6 +93,10 @@ def format_report(report: dict) -> str:
             lines += [f"    parameter    {p}" for p in m["varying_parameters"]]
         else:
             lines.append("  spatially uniform: a single latent code suffices")
+        if m.get("geometry_inputs"):
+            lines.append("  geometric inputs:")
+            lines += [f"    {g['kind']:<12} {g.get('space') or 'primvar ' + g.get('primvar', '')}  ({g['node']})"
+                      f"  from {g['source']}" for g in m["geometry_inputs"]]
         if "latent" in m:
             lines.append(f"  latent grid: {m['latent']['text']}")
             lines += _density_lines(m["latent"])

@@ -36,6 +36,7 @@ from mtlx2neural.baseline.analytic_model import (
 )
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
+from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.renderer import compare_many, save_png
@@ -152,6 +153,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         (folder / BASELINE_FILE).unlink(missing_ok=True)
     compiled = compile_material(src.document, src.material, device=device,
                                 allow_missing_textures=allow_missing_textures)
+    geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
     ref = ReferenceMaterial(compiled)
     stack = build_parameter_stack(compiled, resolution=resolution or latent_resolution(compiled, cfg))
     trainer = Trainer(ref, stack, cfg, folder, device=device)
@@ -187,7 +189,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                "flip_per_view": [round(e["flip"], 4) for e in errors],
                "flip_mean": round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
                "relmse_mean": round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
-               "notes": list(extra.pop("notes", [])) + list(stack.notes)}
+               "notes": list(extra.pop("notes", [])) + list(stack.notes) + ([geometry_note] if geometry_note else [])}
     if preview:
         summary.update(preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
     summary.update(extra)
@@ -231,6 +233,7 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
     its record."""
     compiled = compile_material(src.document, src.material, device=device,
                                 allow_missing_textures=allow_missing_textures)
+    bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
     ref = ReferenceMaterial(compiled)
     stack = build_parameter_stack(compiled, resolution=tuple(resolution))
     analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
@@ -333,6 +336,8 @@ class MaterialJob:
     index: int = 0
     options: dict | None = None
     """The conversion's options (:func:`mtlx2neural.pipeline.options.options_record`): the summary's ``options``."""
+    stage_file: str | None = None
+    """The USD stage whose bound meshes provide the geometry the graph reads (``MaterialSource.stage_file``)."""
 
     def source(self):
         """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML."""
@@ -341,7 +346,8 @@ class MaterialJob:
 
         doc = mx.createDocument()
         mx.readFromXmlString(doc, self.document_xml)
-        return MaterialSource(self.name, doc, self.material, self.source_file, list(self.bound_prims))
+        return MaterialSource(self.name, doc, self.material, self.source_file, list(self.bound_prims),
+                              stage_file=self.stage_file)
 
 
 def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
@@ -351,7 +357,8 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
     src = plan.source
     return MaterialJob(src.name, src.material, src.source_file, list(src.bound_prims),
                        mx.writeToXmlString(src.document), str(folder), cfg, plan.digest, plan.content,
-                       tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(), **options)
+                       tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
+                       stage_file=getattr(src, "stage_file", None), **options)
 
 
 def run_job(job: MaterialJob) -> dict:

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
+from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.pipeline.source_hash import content_hash, source_hash
 from mtlx2neural.scene.texel_density import (
     open_stage_for,
@@ -93,6 +94,14 @@ def cache_key(source, cfg: TrainConfig, allow_missing_textures: bool, max_error:
         return source_hash(source, cfg, allow_missing_textures)
     base = source_hash(source, dataclasses.replace(cfg, decoder="budget"), allow_missing_textures)
     return hashlib.sha256(f"{base}\0{budget_tag(max_error)}".encode()).hexdigest()
+
+
+def geometry_tag(compiled) -> str:
+    """What the hashes add for a graph that reads geometry (:func:`~mtlx2neural.graph.geometry.bind_geometry`):
+    the stage file and the bound prims it is rasterised from (or the sphere default); "" when it reads none.
+    The meshes' contents are not hashed: editing a mesh in place keeps the cache key."""
+    geo = compiled.evaluator.geometry
+    return "" if geo is None else f"\0geometry={geo.stage_file or ''}|{geo.describe()}"
 
 
 def budget_tag(max_error: float | None) -> str:
@@ -239,6 +248,8 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
             continue
         surface = implied = None
         notes = []
+        bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
+        geo = geometry_tag(compiled)
         if texel_density and compiled.varying_parameters():
             if stage is None:
                 notes.append(f"--texel-density has no effect: {no_stage}")
@@ -252,8 +263,11 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         grid, native, kind = grid_decision(compiled, cfg, implied)
         eff = dataclasses.replace(cfg, max_resolution=implied) if kind == "density" else cfg
         content = content_hash(compiled, eff, allow_missing_textures,
-                               f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}")
-        plan = MaterialPlan(src, compiled, cache_key(src, eff, allow_missing_textures, max_error), content,
+                               f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}{geo}")
+        key = cache_key(src, eff, allow_missing_textures, max_error)
+        if geo:
+            key = hashlib.sha256(f"{key}{geo}".encode()).hexdigest()
+        plan = MaterialPlan(src, compiled, key, content,
                             grid, native, kind, shared_with=first.get(content), cfg=eff,
                             max_texels=cfg.max_resolution, texel_density=texel_density, surface=surface,
                             density_texels=implied, notes=notes)

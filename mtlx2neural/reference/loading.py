@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from mtlx2neural.graph import compile_material
+from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.reference.material import ReferenceMaterial
 from mtlx2neural.scene import find_material
 
@@ -14,10 +15,13 @@ def load_reference(path, material: str | None = None, device: str = "cpu",
     ``material`` is a USD material prim path (or prim name) or a MaterialX
     surfacematerial name; it may be omitted when the asset selects exactly one.
     ``allow_missing_textures`` substitutes an image node's declared ``default`` for a
-    missing file instead of failing. Tensors live on ``device``.
+    missing file instead of failing. Tensors live on ``device``. A graph that reads geometry (position,
+    normal, primvars) reads the bound meshes rasterised into their UV layout, or the unit sphere for
+    ``.mtlx`` input (:func:`mtlx2neural.graph.geometry.bind_geometry`).
     """
     src = find_material(path, material)
     compiled = compile_material(src.document, src.material, device=device,
                                 allow_missing_textures=allow_missing_textures)
     compiled.name = src.name
+    bind_geometry(compiled, src.stage_file, src.bound_prims)  # position/normal/primvars the graph reads
     return ReferenceMaterial(compiled)

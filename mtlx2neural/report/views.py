@@ -29,6 +29,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.export.load import load_neural
 from mtlx2neural.export.usd_writer import LEGACY_DOC_PREFIX, RECORD_KEY, register_schema
 from mtlx2neural.graph import compile_material
+from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.model.checkpoint import load_checkpoint
 from mtlx2neural.pipeline.layout import (
     FOLDER_MARKER,
@@ -254,6 +255,7 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     else:
         src = src or find_material(asset, material)
         compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
+        bind_geometry(compiled, src.stage_file, src.bound_prims)  # as the conversion bakes it
         shading, texels, name = ReferenceMaterial(compiled), (1, 1), src.name
     t0 = time.time()
     # mis="own": the material samples its own directions (the reference's lobe mixture, the neural

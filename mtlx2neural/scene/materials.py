@@ -31,6 +31,9 @@ class MaterialSource:
     network: bool = False
     """True when converted from a UsdShade network of the stage (``source_file`` is then the layer that
     defines the Material); False for a ``.mtlx`` file or a ``.mtlx`` file the stage references."""
+    stage_file: str | None = None
+    """Absolute path of the USD stage (its root layer) whose meshes ``bound_prims`` names, for geometry a
+    graph reads (:mod:`mtlx2neural.scene.uv_raster`); None for ``.mtlx`` input or an in-memory stage."""
 
 
 @dataclass

@@ -138,9 +138,10 @@ def candidates(path) -> list[Candidate]:
 
 def _loader(stage: Usd.Stage, mat_path: str, ref: MtlxReference | None, bound: list[str]):
     def load() -> MaterialSource:
-        if ref is not None:
-            return _from_mtlx_reference(ref, bound)
-        return _from_network(stage, mat_path, bound)
+        src = _from_mtlx_reference(ref, bound) if ref is not None else _from_network(stage, mat_path, bound)
+        root = stage.GetRootLayer()
+        src.stage_file = None if root.anonymous or not root.realPath else os.path.abspath(root.realPath)
+        return src
 
     return load
 

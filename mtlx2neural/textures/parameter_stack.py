@@ -3,7 +3,10 @@
 ``build_parameter_stack(compiled)`` evaluates the material's spatial sub-graph at
 the texel centres of a grid as fine as its finest texture (taking UV tiling
 into account), producing one channel group per *varying* parameter; constant
-parameters stay constants. Levels are then built by filtering each group by
+parameters stay constants. A graph that reads geometry (position, normal,
+primvars: :func:`mtlx2neural.graph.geometry.bind_geometry`) reads the bound
+meshes rasterised at that same grid (:mod:`mtlx2neural.scene.uv_raster`), so each
+sample sits on a texel centre of the geometry maps. Levels are then built by filtering each group by
 its meaning (see ``FILTERS``):
 
 - colours, weights, scalars, IOR ...: box (2x2 average) - they act linearly on
@@ -237,6 +240,8 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
     hi = torch.full((total,), float("-inf"))
     nodes = ev.spatial_closure([inp for inp, _ in varying.values()])
     sy, sx = ss
+    if ev.geometry is not None:  # geometry drawn at the sample grid: every sample reads a texel centre
+        ev.geometry.resolution = (h * sy, w * sx)
     # Sub-texel sample positions: an sy x sx grid of cell centres inside each texel.
     xs = ((torch.arange(w * sx, dtype=torch.float32) + 0.5) / (w * sx)).view(w, sx)
     rows = chunk_rows or max(1, (1 << 16) // (w * sx * sy))
@@ -273,6 +278,8 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
         hi = torch.maximum(hi, block.max(0).values)
         level0[:, r0:r1, :] = block.T.reshape(total, r1 - r0, w).to(storage_dtype)
 
+    if ev.geometry is not None:  # later per-uv evaluations (training targets) read level 0's grid
+        ev.geometry.resolution = (h, w)
     channels, o = [], 0
     for name, width, mx_type in plan:
         if mx_type == "lean":

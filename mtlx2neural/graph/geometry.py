@@ -1,0 +1,131 @@
+"""Which geometric inputs a material's graph reads, and binding them to their source.
+
+Geometric inputs are ``position``, ``normal``, ``tangent``, ``bitangent`` (each in object or
+world space; ``model`` is object), ``geomcolor`` (the ``displayColor`` primvar, ``displayOpacity``
+as alpha) and ``geompropvalue`` (a named primvar; the UV primvars ``st``, ``uv``... read the
+texture coordinates). :func:`geometry_reads` finds them on the compiled IR (a walk over the live
+spatial nodes, no evaluation); :func:`bind_geometry` hands the evaluator a
+:class:`~mtlx2neural.scene.uv_raster.GeometrySource` (the bound meshes of a USD stage, or the
+unit sphere for ``.mtlx`` input) only when there is one, so a material that reads no geometry is
+unchanged and pays nothing.
+
+The frame nodes (``normal``, ``tangent``, ``bitangent``) have two readings. Where their value
+only goes to build a closure's shading frame (a BSDF's ``normal``/``tangent``, a ``normalmap``'s
+frame, through any maths on the way: standard_surface rotates ``Tworld`` about ``Nworld``), they
+are the axes of the local shading frame, z, x and y, since the BSDF is evaluated in that frame.
+Where their value goes anywhere else (a ``dotproduct`` masking up-facing surfaces, a triplanar
+blend), they are the surface's vectors from the geometry, in the space the node asks for.
+"""
+
+from __future__ import annotations
+
+from mtlx2neural.graph.ir import Const, IRGraph, IRNode, Ref
+from mtlx2neural.graph.spatial import FRAME_AXES, UV_PRIMVARS
+from mtlx2neural.scene.uv_raster import GeometrySource
+
+GEOMETRIC = {"position", "geomcolor", "geompropvalue"} | set(FRAME_AXES)
+FRAME_INPUTS = {"normalmap": ("normal", "tangent", "bitangent")}
+"""Non-closure nodes whose listed inputs are a shading frame (they output a shading normal)."""
+CLOSURE_FRAME_INPUTS = ("normal", "tangent")
+
+
+def frame_bound(graph: IRGraph) -> list[bool]:
+    """Per IR node: whether every use of its value builds a closure's shading frame (a closure's
+    ``normal``/``tangent``, a ``normalmap``'s frame, or another such node), so that a frame node
+    wired into it is the local frame's axis. Nodes nobody uses are not frame-bound."""
+    uses: list[list[tuple[int, str]]] = [[] for _ in graph.nodes]
+    for c, node in enumerate(graph.nodes):
+        for name, v in node.inputs.items():
+            if isinstance(v, Ref):
+                uses[v.node].append((c, name))
+    bound = [False] * len(graph.nodes)
+    for i in reversed(range(len(graph.nodes))):  # consumers come later in topological order
+        bound[i] = bool(uses[i]) and all(frame_use(graph, bound, c, name) for c, name in uses[i])
+    return bound
+
+
+def frame_use(graph: IRGraph, bound: list[bool], consumer: int, name: str) -> bool:
+    """Whether input ``name`` of node ``consumer`` takes a shading-frame vector (see :func:`frame_bound`)."""
+    node = graph[consumer]
+    if node.is_closure():
+        return name in CLOSURE_FRAME_INPUTS
+    return name in FRAME_INPUTS.get(node.category, ()) or bound[consumer]
+
+
+def frame_read(graph: IRGraph, bound: list[bool], consumer: int, name: str, inp) -> bool:
+    """Whether input ``name`` (``inp``) of node ``consumer`` is a frame node read as geometry."""
+    return (isinstance(inp, Ref) and graph[inp.node].category in FRAME_AXES
+            and not frame_use(graph, bound, consumer, name))
+
+
+def node_space(node: IRNode) -> str:
+    """``object`` or ``world``: the space a geometric node reads (its ``space`` input, or the space of
+    the default geometric property it stands for; ``model`` and unknown names are object space)."""
+    inp = node.inputs.get("space")
+    space = inp.value if isinstance(inp, Const) and isinstance(inp.value, str) else node.attrs.get("space", "")
+    return "world" if space == "world" else "object"
+
+
+def primvar_of(node: IRNode) -> str | None:
+    """The primvar a ``geomcolor``/``geompropvalue`` node reads (None: a UV primvar or not constant)."""
+    if node.category == "geomcolor":
+        return "displayColor"
+    gp = node.inputs.get("geomprop")
+    if node.category == "geompropvalue" and isinstance(gp, Const) and isinstance(gp.value, str):
+        return None if (node.type == "vector2" and gp.value in UV_PRIMVARS) else gp.value
+    return None
+
+
+def geometry_reads(graph: IRGraph, nodes, bound: list[bool] | None = None) -> list[dict]:
+    """The geometric inputs spatial ``nodes`` (indices, e.g. ``CompiledMaterial.spatial_nodes``) read:
+    ``[{"node", "kind", "space" (frame and position nodes) or "primvar"}]``, one per IR node.
+    ``bound``: :func:`frame_bound` of ``graph`` (computed when None)."""
+    bound = frame_bound(graph) if bound is None else bound
+    seen, out = set(), []
+
+    def add(i):
+        if i in seen:
+            return
+        seen.add(i)
+        n = graph[i]
+        entry = {"node": n.path, "kind": n.category}
+        if n.category in ("position",) + tuple(FRAME_AXES):
+            entry["space"] = node_space(n)
+        else:
+            pv = primvar_of(n)
+            if pv is None:
+                return
+            entry["primvar"] = pv
+        out.append(entry)
+
+    for i in nodes:
+        n = graph[i]
+        if n.category in ("position", "geomcolor", "geompropvalue"):
+            add(i)
+        for name, v in n.inputs.items():
+            if frame_read(graph, bound, i, name, v):
+                add(v.node)
+    return out
+
+
+def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | None:
+    """Give ``compiled``'s evaluator the geometry its graph reads: the meshes ``prims`` of the USD stage
+    ``stage_file``, or the unit sphere when there are none (``.mtlx`` input). Returns a one-line note
+    (also added to the program's notes), or None when the graph reads no geometry (nothing is bound)."""
+    reads = geometry_reads(compiled.graph, compiled.spatial_nodes, compiled.evaluator.frame_bound)
+    if not reads:
+        return None
+    primvars = sorted({r["primvar"] for r in reads if "primvar" in r})
+    if "displayColor" in primvars:
+        primvars.append("displayOpacity")
+    source = GeometrySource(stage_file, prims, primvars)
+    compiled.evaluator.geometry = source
+    kinds = ", ".join(sorted({r["kind"] for r in reads}))
+    if source.is_sphere:
+        note = (f"the graph reads {kinds}; no USD mesh is bound, so the documented default mesh, the unit "
+                f"sphere with its spherical UV layout, provides them (give a USD stage to use the real meshes)")
+    else:
+        note = f"the graph reads {kinds}, rasterised from the bound meshes' UV layout ({', '.join(source.prims)})"
+    if note not in compiled.program.notes:
+        compiled.program.notes.append(note)
+    return note

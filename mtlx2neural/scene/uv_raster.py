@@ -1,0 +1,383 @@
+"""Geometry in UV space: the bound meshes rasterised into their UV layout, per texel.
+
+A material's graph may read the surface it lies on (``position``, ``normal``, ``tangent``,
+``bitangent``, ``geomcolor``, ``geompropvalue``). Its neural form is a function of uv only, so
+these inputs are baked from the geometry the material is bound to: every bound mesh is drawn
+into the material's UV layout at the latent/parameter grid's resolution, and the graph reads the
+maps at each uv sample (:meth:`GeometryMaps.sample`, bilinear).
+
+Maps (``GeometryMaps.maps``, each ``[C, H, W]`` float32, row 0 at the *top* of UV space (v = 1),
+texel (r, c) centred at uv ((c + 0.5) / W, 1 - (r + 0.5) / H), as the parameter stack's):
+
+- ``position:object`` (3): the mesh's ``points`` as authored, in stage units (``metersPerUnit``
+  not applied; MaterialX positions are in scene units);
+- ``position:world`` (3): the same through the prim's local-to-world transform at the default
+  time, stage units;
+- ``normal:object`` / ``normal:world`` (3, unit): the authored ``normals`` when the mesh has them
+  (vertex, varying or faceVarying), else the triangle's geometric normal (right-handed winding,
+  flipped for ``orientation = leftHanded``); world normals through the inverse transpose;
+- ``tangent:object`` / ``tangent:world`` (3, unit): dP/du of the triangle (from its UV
+  derivatives) made orthogonal to the normal; ``bitangent:*`` = normal x tangent, signed so that
+  it points along dP/dv (mirrored UVs flip it);
+- ``primvar:NAME`` (1-4): each requested primvar, interpolated like the UVs (constant, uniform,
+  vertex/varying, faceVarying); ``geomcolor`` reads ``primvar:displayColor`` (and
+  ``displayOpacity`` as alpha).
+
+Coverage and fill: a texel belongs to a triangle when its centre lies inside it (a top-left rule
+on shared edges, so an edge texel is drawn once). Several meshes bound to one material share the
+layout: where they overlap (instanced assets) the first prim in binding order wins. Two triangles
+of *one* mesh covering the same texel are overlapping UVs: a warning names the prim. Texels no
+triangle covers take the value of the nearest covered texel (Euclidean distance in texels, not
+wrapped), so bilinear lookups and MIP levels near UV-shell borders never mix in empty texels.
+UVs outside [0, 1] wrap (the layout is periodic, as the latents are). A prim without usable UVs
+is left out with a warning naming it; when no bound prim can be drawn, the unit sphere
+(:func:`sphere_maps`) stands in, with a warning.
+
+The sphere default (``.mtlx`` input, no mesh): the unit sphere at the origin, object space =
+world space, with the renderer's spherical layout (:class:`mtlx2neural.render.geometry.Sphere`):
+u = 0.5 + atan2(x, z) / 2pi, v = acos(-y) / pi, tangent along dP/du, bitangent = normal x tangent.
+It has no primvars: ``geompropvalue`` gives its default and ``geomcolor`` 1.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from mtlx2neural.imaging.grid_lookup import bilinear_periodic
+
+FRAME_KEYS = tuple(f"{kind}:{space}" for kind in ("position", "normal", "tangent", "bitangent")
+                   for space in ("object", "world"))
+SPHERE = "unit sphere (default mesh)"
+
+
+@dataclass
+class GeometryMaps:
+    """Per-texel geometry of a material's UV layout (module docstring for keys, spaces, units)."""
+
+    resolution: tuple[int, int]
+    """(H, W) texels over UV [0, 1]^2."""
+    maps: dict[str, torch.Tensor]
+    """key -> [C, H, W] float32, row 0 at v = 1."""
+    covered: torch.Tensor
+    """[H, W] bool: texels some triangle covers (the others are filled from the nearest one)."""
+    prims: list[str] = field(default_factory=list)
+    """The prims drawn, or [:data:`SPHERE`]."""
+    warnings: list[str] = field(default_factory=list)
+
+    def sample(self, uv: torch.Tensor, keys: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
+        """Bilinear (periodic) lookup of ``keys`` (default all) at ``uv`` [N,2]: ``{key: [N, C]}``
+        in ``uv``'s dtype and device. Exact at texel centres."""
+        out = {}
+        for k in (self.maps if keys is None else keys):
+            if k in self.maps:
+                out[k] = bilinear_periodic(self.maps[k].to(uv.device), uv).to(uv.dtype)
+        return out
+
+
+# ----------------------------------------------------------------------------- the sphere default
+
+
+def sphere_maps(resolution: tuple[int, int]) -> GeometryMaps:
+    """The unit sphere's geometry at the texel centres of an (H, W) grid (module docstring)."""
+    h, w = resolution
+    u = (np.arange(w) + 0.5) / w
+    v = 1.0 - (np.arange(h) + 0.5) / h
+    uu, vv = np.meshgrid(u, v)  # [H, W], row 0 at v = 1
+    phi = (uu - 0.5) * 2 * math.pi
+    theta = vv * math.pi
+    r = np.sin(theta)
+    p = np.stack([r * np.sin(phi), -np.cos(theta), r * np.cos(phi)], 0)
+    t = np.stack([np.cos(phi), np.zeros_like(phi), -np.sin(phi)], 0)
+    b = np.cross(p, t, axis=0)
+    maps = {}
+    for kind, value in (("position", p), ("normal", p), ("tangent", t), ("bitangent", b)):
+        for space in ("object", "world"):
+            maps[f"{kind}:{space}"] = torch.from_numpy(value.astype(np.float32))
+    return GeometryMaps((h, w), maps, torch.ones(h, w, dtype=torch.bool), [SPHERE])
+
+
+# ----------------------------------------------------------------------------- meshes
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0)
+
+
+def _primvar(api, name: str, n_points: int, n_faces: int, n_fv: int):
+    """(values [K, C] float64, interpolation) of primvar ``name``, or None when absent/unusable."""
+    from pxr import Usd
+
+    pv = api.GetPrimvar(name)
+    if not (pv and pv.HasValue()):
+        return None
+    values = pv.ComputeFlattened(Usd.TimeCode.Default())
+    if values is None:
+        values = pv.ComputeFlattened(Usd.TimeCode.EarliestTime())
+    if values is None or len(values) == 0:
+        return None
+    arr = np.asarray(values, dtype=np.float64)
+    arr = arr.reshape(len(arr), -1)
+    how = str(pv.GetInterpolation())
+    expected = {"constant": 1, "uniform": n_faces, "vertex": n_points, "varying": n_points, "faceVarying": n_fv}
+    if how == "constant":
+        arr = arr[:1]
+    if len(arr) != expected.get(how, -1):
+        return None
+    return arr, how
+
+
+def _corner_values(arr, how, tris, indices, face_of_tri):
+    """[T, 3, C] per-corner values of a primvar for fan triangles ``tris`` (face-vertex positions)."""
+    if how == "constant":
+        return np.broadcast_to(arr[0], (len(tris), 3, arr.shape[1]))
+    if how == "uniform":
+        return np.repeat(arr[face_of_tri][:, None, :], 3, axis=1)
+    if how == "faceVarying":
+        return arr[tris]
+    return arr[indices[tris]]
+
+
+class _Canvas:
+    """The shared UV layout the bound meshes are drawn into."""
+
+    def __init__(self, resolution):
+        self.h, self.w = resolution
+        self.values: dict[str, np.ndarray] = {}
+        self.covered = np.zeros((self.h, self.w), dtype=bool)
+
+    def draw(self, uv: np.ndarray, corners: dict[str, np.ndarray]) -> int:
+        """Draw triangles (``uv`` [T, 3, 2]; ``corners`` key -> [T, 3, C]) where nothing was drawn yet;
+        returns the number of texels two of these triangles both cover (overlapping UVs)."""
+        h, w = self.h, self.w
+        mine = np.zeros((h, w), dtype=np.int32)
+        px = uv[..., 0] * w - 0.5  # texel-centre coordinates: centre (c, r') at (c + 0.5) / W
+        py = uv[..., 1] * h - 0.5  # rows counted from v = 0 here, flipped on write
+        for t in range(len(uv)):
+            xs, ys = px[t], py[t]
+            x0, x1 = math.ceil(xs.min()), math.floor(xs.max())
+            y0, y1 = math.ceil(ys.min()), math.floor(ys.max())
+            if x1 < x0 or y1 < y0:
+                continue
+            gx, gy = np.meshgrid(np.arange(x0, x1 + 1, dtype=np.float64), np.arange(y0, y1 + 1, dtype=np.float64))
+            bary = _barycentric(xs, ys, gx, gy)
+            if bary is None:
+                continue
+            inside = (bary[0] >= 0) & (bary[1] >= 0) & (bary[2] >= 0)
+            if not inside.any():
+                continue
+            col = np.mod(gx[inside].astype(np.int64), w)
+            row = h - 1 - np.mod(gy[inside].astype(np.int64), h)
+            np.add.at(mine, (row, col), 1)
+            fresh = ~self.covered[row, col]
+            if not fresh.any():
+                continue
+            wts = np.stack([b[inside][fresh] for b in bary], 1)  # [K, 3]
+            for key, c in corners.items():
+                vals = wts @ c[t]  # [K, C]
+                buf = self.values.get(key)
+                if buf is None:
+                    buf = self.values[key] = np.zeros((h, w, c.shape[-1]))
+                buf[row[fresh], col[fresh]] = vals
+            self.covered[row[fresh], col[fresh]] = True  # the first triangle drawn keeps a texel
+        return int((mine > 1).sum())
+
+    def maps(self, prims, notes) -> GeometryMaps:
+        """The drawn values with every uncovered texel filled from its nearest covered one."""
+        from scipy import ndimage
+
+        if self.covered.any() and not self.covered.all():
+            _, (ri, ci) = ndimage.distance_transform_edt(~self.covered, return_indices=True)
+            for key, buf in self.values.items():
+                self.values[key] = buf[ri, ci]
+        maps = {}
+        for key, buf in self.values.items():
+            if key.split(":")[0] in ("normal", "tangent", "bitangent"):
+                buf = _normalise(buf)
+            maps[key] = torch.from_numpy(np.ascontiguousarray(buf.transpose(2, 0, 1)).astype(np.float32))
+        return GeometryMaps((self.h, self.w), maps, torch.from_numpy(self.covered.copy()), list(prims), notes)
+
+
+def _barycentric(xs, ys, gx, gy):
+    """Barycentric weights (3 arrays like ``gx``) of points (gx, gy) in the triangle (xs, ys), with a
+    top-left rule: a point exactly on an edge belongs to one of the two triangles sharing it (each
+    edge's function is computed from its endpoints in a canonical order, so both sides see the same
+    number with opposite signs). None for a degenerate triangle."""
+    area = (xs[1] - xs[0]) * (ys[2] - ys[0]) - (xs[2] - xs[0]) * (ys[1] - ys[0])
+    if area == 0 or not math.isfinite(area):
+        return None
+    sign = 1.0 if area > 0 else -1.0
+    out = []
+    for i in range(3):  # weight of corner i: the edge opposite it, (j, k)
+        j, k = (i + 1) % 3, (i + 2) % 3
+        a, b, flip = (j, k, 1.0) if (xs[j], ys[j]) <= (xs[k], ys[k]) else (k, j, -1.0)
+        e = ((xs[b] - xs[a]) * (gy - ys[a]) - (ys[b] - ys[a]) * (gx - xs[a])) * flip * sign
+        dx, dy = (xs[k] - xs[j]) * sign, (ys[k] - ys[j]) * sign  # the edge as the winding walks it
+        owned = dy < 0 or (dy == 0 and dx > 0)
+        if not owned:
+            e = np.where(e == 0, -1.0, e)
+        out.append(np.where(e == 0, 0.0, e) / abs(area))
+    return out
+
+
+def _mesh_triangles(stage, path: str, primvars: Iterable[str]):
+    """(uv [T,3,2], corners {key: [T,3,C]}) of the mesh or GeomSubset at ``path``, or a reason why not."""
+    from pxr import Usd, UsdGeom
+
+    # Local: the mesh readers live beside the texel-density measure, which shares them.
+    from mtlx2neural.scene.texel_density import _fan_triangles, _get, _texcoords
+
+    prim = stage.GetPrimAtPath(str(path))
+    if not prim or not prim.IsValid():
+        return "no such prim"
+    faces = None
+    if prim.IsA(UsdGeom.Subset):
+        faces = np.asarray(UsdGeom.Subset(prim).GetIndicesAttr().Get(Usd.TimeCode.Default()) or [], dtype=np.int64)
+        prim = prim.GetParent()
+    if not prim.IsA(UsdGeom.Mesh):
+        return f"not a mesh ({prim.GetTypeName() or 'untyped'})"
+    mesh = UsdGeom.Mesh(prim)
+    points, counts, indices = (_get(a) for a in (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(),
+                                                 mesh.GetFaceVertexIndicesAttr()))
+    if points is None or counts is None or indices is None or len(points) == 0:
+        return "mesh has no points or faces"
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    if counts.sum() != len(indices) or indices.min() < 0 or indices.max() >= len(points):
+        return "malformed topology (faceVertexCounts/faceVertexIndices do not match the points)"
+    uv, how = _texcoords(mesh)
+    if uv is None:
+        return f"no UVs ({how})"
+    if len(uv) != (len(indices) if how == "faceVarying" else len(points)):
+        return f"texture coordinates: {len(uv)} {how} values do not match the mesh"
+    keep = np.ones(len(counts), dtype=bool)
+    if faces is not None:
+        keep[:] = False
+        keep[faces[(faces >= 0) & (faces < len(counts))]] = True
+    tris = _fan_triangles(counts, keep)
+    if len(tris) == 0:
+        return "no polygons"
+    face_of_fv = np.repeat(np.arange(len(counts)), counts)
+    face_of_tri = face_of_fv[tris[:, 0]]
+    xf = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+    world_pts = np.hstack([points, np.ones((len(points), 1))]) @ xf
+    world_pts = world_pts[:, :3] / world_pts[:, 3:4]
+    tuv = uv[tris] if how == "faceVarying" else uv[indices[tris]]
+    p_obj = points[indices[tris]]  # [T, 3, 3]
+    left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
+    e1, e2 = p_obj[:, 1] - p_obj[:, 0], p_obj[:, 2] - p_obj[:, 0]
+    face_n = _normalise(np.cross(e1, e2)) * (-1.0 if left else 1.0)
+    api = UsdGeom.PrimvarsAPI(mesh)
+    n_fv = len(indices)
+    normals = _primvar(api, "normals", len(points), len(counts), n_fv)  # primvars:normals wins over normals
+    raw = _get(mesh.GetNormalsAttr()) if normals is None else None
+    if raw is not None:
+        how_n = str(mesh.GetNormalsInterpolation())
+        if len(raw) == {"faceVarying": n_fv, "uniform": len(counts)}.get(how_n, len(points)):
+            normals = (np.asarray(raw, dtype=np.float64).reshape(-1, 3), how_n)
+    n_obj = (_normalise(_corner_values(*normals, tris, indices, face_of_tri)) if normals is not None
+             else np.repeat(face_n[:, None], 3, axis=1))
+    # dP/du, dP/dv of each triangle from its UV derivatives.
+    d1, d2 = tuv[:, 1] - tuv[:, 0], tuv[:, 2] - tuv[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    det = np.where(det == 0, 1e-30, det)[:, None]
+    dpdu = (d2[:, 1:2] * e1 - d1[:, 1:2] * e2) / det
+    dpdv = (d1[:, 0:1] * e2 - d2[:, 0:1] * e1) / det
+    t_obj = dpdu[:, None, :] - (n_obj * dpdu[:, None, :]).sum(-1, keepdims=True) * n_obj
+    t_obj = _normalise(t_obj)
+    b_obj = np.cross(n_obj, t_obj)
+    hand = np.sign((b_obj * dpdv[:, None, :]).sum(-1, keepdims=True))
+    b_obj = b_obj * np.where(hand == 0, 1.0, hand)
+    lin = xf[:3, :3]  # row-vector convention: world = p @ lin (+ translation)
+    inv_t = np.linalg.inv(lin).T
+    corners = {"position:object": p_obj, "position:world": world_pts[indices[tris]],
+               "normal:object": n_obj, "normal:world": _normalise(n_obj @ inv_t),
+               "tangent:object": t_obj, "tangent:world": _normalise(t_obj @ lin),
+               "bitangent:object": b_obj, "bitangent:world": _normalise(b_obj @ lin)}
+    for name in primvars:
+        found = _primvar(api, name, len(points), len(counts), n_fv)
+        if found is not None:
+            corners[f"primvar:{name}"] = _corner_values(*found, tris, indices, face_of_tri).astype(np.float64)
+    return tuv, corners
+
+
+def rasterise_meshes(stage, prim_paths: Iterable[str], resolution: tuple[int, int],
+                     primvars: Iterable[str] = ()) -> GeometryMaps:
+    """Draw every mesh (or GeomSubset) of ``prim_paths`` on ``stage`` into one (H, W) UV layout
+    (module docstring: keys, spaces, units, overlaps, fill). ``primvars``: the primvar names the
+    material reads (``displayColor`` for ``geomcolor``). Warnings (also issued with
+    :func:`warnings.warn`) name the prims with overlapping or missing UVs; when none can be drawn
+    the unit sphere's maps are returned with a warning saying so."""
+    canvas = _Canvas(resolution)
+    drawn, notes = [], []
+    primvars = list(dict.fromkeys(primvars))
+    for path in prim_paths:
+        found = _mesh_triangles(stage, path, primvars)
+        if isinstance(found, str):
+            notes.append(f"{path}: {found}: left out of the geometry maps")
+            continue
+        tuv, corners = found
+        overlap = canvas.draw(tuv, corners)
+        drawn.append(str(path))
+        if overlap:
+            notes.append(f"{path}: overlapping UVs ({overlap} texels covered more than once at "
+                         f"{resolution[1]}x{resolution[0]}): the first triangle's geometry is used there")
+        missing = [p for p in primvars if f"primvar:{p}" not in corners and p != "displayOpacity"]  # alpha: optional
+        if missing:
+            notes.append(f"{path}: no primvar {', '.join(missing)}: the node's default is used")
+    if not drawn or not canvas.covered.any():
+        notes.append(f"no bound mesh could be drawn into the UV layout ({', '.join(map(str, prim_paths)) or 'none'})"
+                     f": the unit sphere (the default mesh) stands in")
+        out = sphere_maps(resolution)
+        out.warnings = notes
+    else:
+        out = canvas.maps(drawn, notes)
+    for n in notes:
+        warnings.warn(n, stacklevel=2)
+    return out
+
+
+class GeometrySource:
+    """Where a material's geometric inputs come from: bound meshes of a USD stage, or the sphere.
+
+    :meth:`maps` rasterises (and caches, per resolution) lazily, so a graph that never asks
+    costs nothing."""
+
+    def __init__(self, stage_file: str | None = None, prims: Iterable[str] = (), primvars: Iterable[str] = ()):
+        self.stage_file = stage_file
+        self.prims = [str(p) for p in prims]
+        self.primvars = list(primvars)
+        self._cache: dict[tuple[int, int], GeometryMaps] = {}
+        self.resolution: tuple[int, int] = (256, 256)
+        """The grid :meth:`current` draws at: the parameter grid's, set by whoever builds it."""
+
+    @property
+    def is_sphere(self) -> bool:
+        return not (self.stage_file and self.prims)
+
+    def describe(self) -> str:
+        """``mesh prims A, B`` or the sphere default, in a phrase."""
+        return SPHERE if self.is_sphere else f"mesh prims {', '.join(self.prims)}"
+
+    def maps(self, resolution: tuple[int, int]) -> GeometryMaps:
+        """The maps at (H, W) (cached)."""
+        key = (int(resolution[0]), int(resolution[1]))
+        if key not in self._cache:
+            if self.is_sphere:
+                self._cache[key] = sphere_maps(key)
+            else:
+                # Local: opening a stage pulls in pxr's file format plugins; a sphere never needs them.
+                from mtlx2neural.scene.usd_stage import open_stage
+
+                self._cache[key] = rasterise_meshes(open_stage(self.stage_file), self.prims, key, self.primvars)
+        return self._cache[key]
+
+    def current(self) -> GeometryMaps:
+        return self.maps(self.resolution)
