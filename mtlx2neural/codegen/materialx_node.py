@@ -23,16 +23,18 @@ each atomically (a temporary sibling renamed into place). The document holds
 The latent textures are the export's OpenEXR MIP chains (``latents_<k>.exr``, RGBA, level 0 the
 finest, row 0 the top). They are checked when the node is written: a missing, unreadable or
 malformed file, or one that does not fit the networks, raises :class:`~mtlx2neural.errors.InputError`
-naming it. Viewers that build their own MIP maps from level 0 (MaterialX's GLTextureHandler does)
-read box-filtered coarse levels instead of the learned ones; level 0, and uniform materials (one
-1x1 level), are exact.
+naming it. The node does not read them directly: viewers build their own MIP maps from level 0
+(MaterialX's GLTextureHandler does), which would replace the learned coarse levels with box-filtered
+ones. So each chain is also written, beside the document, as one single-level atlas
+(``latent_atlas_<k>.exr``: every level a rectangle, :func:`.materialx_shader.atlas_layout`), and the
+node's latent inputs name the atlases; the shader reads each level's rectangle itself. Every level
+is then exact in any viewer.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,6 +48,7 @@ from mtlx2neural.atomic import atomic_path
 from mtlx2neural.codegen.generate import _describe_source, _version
 from mtlx2neural.codegen.materialx_shader import (
     LatentLayout,
+    atlas_layout,
     function_name,
     node_source,
     prefix,
@@ -90,17 +93,53 @@ def latent_file_names(channels: int) -> list[str]:
     return [f"latents_{k}.exr" for k in range(math.ceil(channels / 4))]
 
 
+def atlas_file_names(groups: int) -> list[str]:
+    """The node's latent atlas names for ``groups`` RGBA groups (``latent_atlas_0.exr``, ...)."""
+    return [f"latent_atlas_{k}.exr" for k in range(groups)]
+
+
 # ------------------------------------------------------------------------------ latent textures
 
 
-def _latent_levels(path: Path) -> list[tuple[int, int]]:
-    """(height, width) of every MIP level of the latent texture at ``path``, after decoding each
-    level (:func:`mtlx2neural.imaging.mip_chain.read_mip_chain`); raises InputError naming the file."""
+def _latent_chain(path: Path) -> list[np.ndarray]:
+    """Every MIP level of the latent texture at ``path`` ([H_j, W_j, 4] float16, finest first), each
+    decoded and checked (:func:`mtlx2neural.imaging.mip_chain.read_mip_chain`); raises InputError
+    naming the file."""
     chain = read_mip_chain(path)
     for j, level in enumerate(chain):
         if not np.isfinite(level).all():
             raise InputError(f"latent texture {path}: MIP level {j} holds non-finite values")
-    return [tuple(level.shape[:2]) for level in chain]
+    return chain
+
+
+def latent_atlas(chain: list[np.ndarray]) -> np.ndarray:
+    """One [H, W, 4] float16 image holding every level of ``chain`` at its
+    :func:`.materialx_shader.atlas_layout` rectangle (rows from the top; unused texels 0)."""
+    rects, (height, width) = atlas_layout([level.shape[:2] for level in chain])
+    atlas = np.zeros((height, width, 4), np.float16)
+    for (x, y, w, h), level in zip(rects, chain):
+        atlas[y:y + h, x:x + w] = level
+    return atlas
+
+
+def write_latent_atlas(chain: list[np.ndarray], path: Path) -> Path:
+    """Write :func:`latent_atlas` of ``chain`` as a half-float RGBA OpenEXR at ``path`` (atomically;
+    one level, no MIP maps: the viewer's own would mix the levels' rectangles)."""
+    import OpenImageIO as oiio  # Local: OpenImageIO only where the atlases are written
+
+    atlas = latent_atlas(chain)
+    spec = oiio.ImageSpec(atlas.shape[1], atlas.shape[0], 4, "half")
+    spec.attribute("compression", "zip")
+    spec.attribute("oiio:ColorSpace", "raw")
+    spec.attribute("mtlx2neural:atlasLevels", json.dumps(atlas_layout([lv.shape[:2] for lv in chain])[0]))
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(path))
+        if out is None or not out.open(str(tmp), spec):
+            raise OSError(f"{path}: OpenImageIO cannot write OpenEXR ({oiio.geterror()})")
+        ok = out.write_image(np.ascontiguousarray(atlas))
+        if not out.close() or not ok:
+            raise OSError(f"{path}: cannot write the latent atlas ({out.geterror()})")
+    return path
 
 
 def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None = None,
@@ -113,7 +152,7 @@ def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None 
     if len(paths) != groups:
         raise InputError(f"{channels} latent channels are stored in {groups} latent texture(s), got {len(paths)}: "
                          f"{', '.join(map(str, paths)) or 'none'}")
-    chains = [_latent_levels(p) for p in paths]
+    chains = [[tuple(level.shape[:2]) for level in chain] for chain in map(_latent_chain, paths)]
     for p, chain in zip(paths, chains):
         if resolution is not None and chain[0] != tuple(resolution):
             raise InputError(f"latent texture {p} is {chain[0][1]} x {chain[0][0]} texels; the networks were "
@@ -123,7 +162,7 @@ def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None 
         if chain != chains[0]:
             raise InputError(f"latent texture {p}: MIP levels {chain} differ from {paths[0]}'s {chains[0]}")
     (h, w) = chains[0][0]
-    return LatentLayout(channels, groups, w, h, len(chains[0]))
+    return LatentLayout(channels, groups, w, h, len(chains[0]), tuple(chains[0]))
 
 
 def _expected_latents(model_or_export) -> tuple[tuple[int, int] | None, int | None]:
@@ -187,13 +226,6 @@ def validate_document(doc, where: str = "the neural material document") -> None:
         raise Mtlx2NeuralError(f"{where} does not validate: {message.strip()}")
 
 
-def _relative(path: Path, folder: Path) -> str:
-    try:
-        return Path(os.path.relpath(path.resolve(), folder.resolve())).as_posix()
-    except ValueError:  # another drive
-        return path.resolve().as_posix()
-
-
 def write_materialx_node(model_or_export, name: str, folder, *, latent_files=None,
                          env_samples: int = DEFAULT_ENV_SAMPLES) -> Path:
     """Write ``NeuralMaterial_<ident>.mtlx`` and its ``.glsl`` / ``.slang`` implementations for
@@ -203,7 +235,8 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     ``weights.json`` (the FP16 weights as stored), or a NetworkSpec. ``latent_files``: the latent
     textures in channel order; by default ``latents_<k>.exr`` in the export folder, or in ``folder``
     for a model. They are checked (InputError naming the file when missing or malformed) and
-    referenced relative to ``folder``. ``env_samples``: learned-sampler directions per pixel
+    copied, level by level, into the atlases ``latent_atlas_<k>.exr`` in ``folder``, which the
+    document names (module docstring). ``env_samples``: learned-sampler directions per pixel
     under environment light. Directions and units as :mod:`.materialx_shader`: local frame z =
     normal, x = tangent; the BSDF's response to a light is f * cos(wo) (cosine included)."""
     folder = Path(folder)
@@ -219,7 +252,8 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     layout = check_latent_files(latent_files, spec.latent_channels, resolution, levels)
     names = node_names(name)
     folder.mkdir(parents=True, exist_ok=True)
-    doc = build_document(name, layout, [_relative(Path(p), folder) for p in latent_files], env_samples)
+    atlases = atlas_file_names(layout.groups)
+    doc = build_document(name, layout, atlases, env_samples)
     validate_document(doc, f"the MaterialX document of material {name}")
     version, source = _version(), _describe_source(model_or_export)
     texts = {names.glsl: node_source(spec, name, layout, "genglsl", file=names.glsl, nodedef=names.nodedef,
@@ -227,7 +261,9 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
              names.slang: node_source(spec, name, layout, "genslang", file=names.slang, nodedef=names.nodedef,
                                       version=version, source=source),
              names.mtlx: mx.writeToXmlString(doc)}
-    for file, text in texts.items():  # the document last: it names the other two
+    for source_file, atlas in zip(latent_files, atlases):
+        write_latent_atlas(read_mip_chain(source_file), folder / atlas)
+    for file, text in texts.items():  # the document last: it names the other files
         with atomic_path(folder / file) as tmp:
             tmp.write_text(text)
     return folder / names.mtlx

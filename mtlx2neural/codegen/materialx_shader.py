@@ -45,13 +45,42 @@ LANGUAGES = {
 @dataclass(frozen=True)
 class LatentLayout:
     """The latent textures as the node reads them: ``groups`` RGBA files holding ``channels``
-    channels, ``width`` x ``height`` texels at level 0 and ``levels`` MIP levels."""
+    channels, ``width`` x ``height`` texels at level 0 and ``levels`` MIP levels; ``shapes``: each
+    level's (height, width), finest first (empty: halved and rounded up from level 0, as the
+    export's EXRs and :func:`mtlx2neural.model.latent.level_shapes` size them)."""
 
     channels: int
     groups: int
     width: int
     height: int
     levels: int
+    shapes: tuple = ()
+
+    def level_shapes(self) -> list[tuple[int, int]]:
+        if self.shapes:
+            return [tuple(s) for s in self.shapes]
+        out = [(self.height, self.width)]
+        for _ in range(self.levels - 1):
+            h, w = out[-1]
+            out.append((max(1, math.ceil(h / 2)), max(1, math.ceil(w / 2))))
+        return out
+
+
+def atlas_layout(shapes) -> tuple[list[tuple[int, int, int, int]], tuple[int, int]]:
+    """Where each MIP level sits in the node's atlas texture: (rectangles (x, y, width, height) in
+    texels, y counted from the atlas's top row, finest level first; the atlas's (height, width)).
+
+    Level 0 fills the left, the coarser levels are stacked top-down in a column to its right, each
+    at its own size, so that every texel of every level is stored once and bilinear taps wrap within
+    their level's rectangle (the shader wraps; nothing bleeds between levels)."""
+    shapes = [tuple(int(v) for v in s) for s in shapes]
+    h0, w0 = shapes[0]
+    rects, y = [(0, 0, w0, h0)], 0
+    for h, w in shapes[1:]:
+        rects.append((w0, y, w, h))
+        y += h
+    width = w0 + max((w for _, w in shapes[1:]), default=0)
+    return rects, (max(h0, y), width)
 
 
 def prefix(name: str) -> str:
@@ -158,6 +187,21 @@ def _fetch_function(layout: LatentLayout, lang: str, p: str) -> str:
     return "\n".join(lines)
 
 
+def _level_rect_function(layout: LatentLayout, lang: str, p: str) -> str:
+    ivec4 = "ivec4" if lang == "genglsl" else "int4"
+    vec2 = LANGUAGES[lang][1]["vec2"]
+    rects, (height, _) = atlas_layout(layout.level_shapes())
+    lines = ["// The atlas rectangle (x, y, width, height) of MIP level `level`, in the texture's rows: counted",
+             "// from the file's top row when the generator flips V (fileTextureVerticalFlip: texture row 0",
+             "// holds the file's top row), else from its bottom row.",
+             f"{ivec4} {p}_levelRect(int level)", "{", f"    {ivec4} r = {ivec4}({', '.join(map(str, rects[0]))});"]
+    for j, rect in enumerate(rects[1:], 1):
+        lines.append(f"    if (level == {j}) r = {ivec4}({', '.join(map(str, rect))});")
+    lines += [f"    if (mx_transform_uv({vec2}(0.0, 0.0), {vec2}(1.0, 1.0), {vec2}(0.0, 0.0)).y < 0.5)",
+              f"        r.y = {height} - r.y - r.w;", "    return r;", "}"]
+    return "\n".join(lines)
+
+
 def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str, *, file: str, nodedef: str,
                 version: str = "", source: str = "") -> str:
     """The text of the ``target`` (``genglsl`` or ``genslang``) implementation of ``nodedef`` for
@@ -184,6 +228,8 @@ def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str,
         "sampler_arch": "x".join(map(str, spec.sampler_hidden)) or "linear", "output_activation": activation,
         "network_shapes": "\n".join(nets), "network_functions": _network_functions(spec, target, p, P),
         "fetch_function": _fetch_function(layout, target, p),
+        "level_rect_function": _level_rect_function(layout, target, p),
+        "level_rects": "atlas " + " x ".join(map(str, reversed(atlas_layout(layout.level_shapes())[1]))) + " texels",
         "latent_params": ", ".join(f"{LANGUAGES[target][2]} latent{g}" for g in range(layout.groups)),
         "latent_args": ", ".join(f"latent{g}" for g in range(layout.groups)),
     }

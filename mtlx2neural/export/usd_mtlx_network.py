@@ -7,7 +7,7 @@ In the ``neural`` variant of each converted Material (:mod:`.usd_writer`), for t
       Shader SR_neural_<ident>        info:id = "ND_surface"
                                       token inputs:bsdf.connect -> N_neural_<ident>.outputs:out
       Shader N_neural_<ident>         info:id = "ND_neural_<ident>_bsdf" (the material's nodedef)
-                                      asset inputs:latent<k> = @./.../latents_<k>.exr@  (relative to the layer)
+                                      asset inputs:latent<k> = @./.../latent_atlas_<k>.exr@  (relative to the layer)
                                       float2 inputs:texcoord.connect -> N_neural_<ident>_texcoord.outputs:out
       Shader N_neural_<ident>_texcoord info:id = "ND_geompropvalue_vector2", inputs:geomprop = "st"
 

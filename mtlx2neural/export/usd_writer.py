@@ -74,6 +74,7 @@ from pathlib import Path
 
 from mtlx2neural import usd_schema
 from mtlx2neural.baseline.analytic_model import author_preview_surface
+from mtlx2neural.codegen.materialx_node import atlas_file_names
 from mtlx2neural.export.usd_mtlx_network import author_mtlx_network
 from mtlx2neural.export.usd_switch import (
     author_switch,
@@ -228,7 +229,9 @@ def _replaced(m: ExportedMaterial) -> list[str]:
 def _neural_extras(stage, material, m: ExportedMaterial, rel) -> None:
     """The MaterialX network and the UsdPreviewSurface fallback of ``m``, where it has them."""
     if m.mtlx_document is not None:
-        author_mtlx_network(stage, material, m.name, [rel(p) for p in m.latent_textures])
+        # The node reads its latent atlases beside its document (codegen.materialx_node), one per texture.
+        atlases = [m.mtlx_document.parent / f for f in atlas_file_names(len(m.latent_textures))]
+        author_mtlx_network(stage, material, m.name, [rel(p) for p in atlases])
     if m.preview is not None:
         author_preview_surface(stage, material.GetPath(), {k: rel(p) for k, p in m.preview["textures"].items()},
                                m.preview["ior"], prefix=PREVIEW_PREFIX)

@@ -295,7 +295,8 @@ def test_output_layout(converted):
                                 f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin", f"{shader}.coopmat.bin",
                                 "NeuralLayers.slang", "NeuralMaterial.slang", "materialx", "preview", *engine_files(name)])
         assert sorted(p.name for p in (converted["out"] / name / "neural" / "materialx").iterdir()) == [
-            f"{shader}.glsl", f"{shader}.mtlx", f"{shader}.slang"]  # the MaterialX node (test_usd_mtlx_network)
+            f"{shader}.glsl", f"{shader}.mtlx", f"{shader}.slang", "latent_atlas_0.exr",
+            "latent_atlas_1.exr"]  # the MaterialX node and its latent atlases (test_usd_mtlx_network)
     assert not [p for p in converted["asset"].parent.rglob("*") if "staging" in p.name or ".tmp" in p.name]
     assert sha(converted["asset"]) == converted["before"]  # the input is never touched
 

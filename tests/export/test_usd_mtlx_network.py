@@ -18,11 +18,17 @@ import textwrap
 from pathlib import Path
 
 import MaterialX as mx
+import numpy as np
 import pytest
 from conftest import SIMPLE_MTLX
 
-from mtlx2neural.codegen.materialx_node import generate_node_shader, node_names
+from mtlx2neural.codegen.materialx_node import (
+    generate_node_shader,
+    latent_atlas,
+    node_names,
+)
 from mtlx2neural.graph.library import with_libraries
+from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
@@ -77,9 +83,12 @@ def test_every_converted_material_has_a_valid_node_that_generates(red, sample):
         ok, message = with_libraries(doc).validate()
         assert ok, message
         node = doc.getNode(n.node)
-        for k in range(2):  # 8 latent channels: latents_0.exr, latents_1.exr beside the module
+        for k in range(2):  # 8 latent channels: two atlases beside the document, from latents_0/1.exr
             value = node.getInputValue(f"latent{k}")
-            assert value == f"../latents_{k}.exr" and (mtlx.parent / value).resolve() == export / f"latents_{k}.exr"
+            assert value == f"latent_atlas_{k}.exr"
+            atlas = read_mip_chain(mtlx.parent / value)
+            assert len(atlas) == 1  # one level: a viewer's own MIP maps are never read by the node
+            np.testing.assert_array_equal(atlas[0], latent_atlas(read_mip_chain(export / f"latents_{k}.exr")))
         assert (export / f"NeuralMaterial_{n.ident}.slang").is_file()  # the Slang module is not overwritten
         shader = generate_node_shader(mtlx, "genglsl")
         assert n.function in shader.getSourceCode("pixel")
@@ -98,7 +107,7 @@ def test_mtlx_network_in_the_neural_variant(red):
     assert bsdf.GetShaderId() == n.nodedef == _document(mtlx).getNodeDefs()[0].getName()
     for k in range(2):
         asset = bsdf.GetInput(f"latent{k}").Get()
-        assert asset.path.startswith("./") and Path(asset.resolvedPath) == red["export"] / f"latents_{k}.exr"
+        assert asset.path.startswith("./") and Path(asset.resolvedPath) == mtlx.parent / f"latent_atlas_{k}.exr"
     (tc,) = bsdf.GetInput("texcoord").GetConnectedSources()[0]
     reader = UsdShade.Shader(tc.source.GetPrim())
     assert reader.GetShaderId() == "ND_geompropvalue_vector2" and reader.GetInput("geomprop").Get() == "st"
