@@ -8,7 +8,8 @@ optimiser library), optimised by spirv-opt and validated by spirv-val (cmeel-spi
   weights as constants in the module), 8 invocations each looping over a batch of 32;
 - ``kernels/eval_coopmat.slang``: the cooperative-matrix path (``NM_Example_CoopMat``,
   SPV_KHR_cooperative_matrix, weights from the shipped ``.coopmat.bin``), one 32-lane subgroup
-  looping over batches of 32 in uniform control flow.
+  looping over batches of 32 in uniform control flow; with the default float accumulator and
+  with ``-DNM_COOPMAT_ACC=half`` (FP16 accumulation).
 
 The cooperative-vector path cannot be interpreted (spirv-run has no NV cooperative vectors); it
 keeps its NumPy emulation and validation (test_codegen). The model and inputs are test_codegen's
@@ -24,7 +25,8 @@ rule: 99% within 2e-5 (floor 1e-3; test_codegen uses 1e-5 at 99.9% on 65536 valu
 6-digit printing adds up to 5e-6, and 256 values make 99% the 3rd-largest), all within 2^-7 (rare
 one-ulp differences flip a half rounding: float32 frame inputs, and the order of the float32
 sums in a 16-wide tile, which the emulation adds in float64). Measured: FP16 6.2e-3 vs torch,
-4.7e-6 vs the emulation; CoopMat 2.4e-3 vs torch, q99 4.3e-6 and max 2.5e-4 vs the emulation.
+4.7e-6 vs the emulation; CoopMat 2.4e-3 vs torch, q99 4.3e-6 and max 2.5e-4 vs the emulation;
+CoopMat with FP16 accumulation 4.8e-3 vs torch, 4.7e-6 vs its emulation.
 
 A model with one output-layer weight moved by 0.05 (torch: up to 11% change) must fail both
 comparisons.
@@ -133,6 +135,10 @@ PATHS = {
     "CoopMat": (KERNEL_COOPMAT, "evalCoopMat", {"NM_LANES": str(BATCH)},
                 lambda s, lat, wi, wo: np.where((wi[:, 2:3] > 0) & (wo[:, 2:3] > 0),
                                                 emulate.decode_coopmat(s, lat, wi, wo), np.float32(0))),
+    "CoopMatHalfAcc": (KERNEL_COOPMAT, "evalCoopMat", {"NM_LANES": str(BATCH), "NM_COOPMAT_ACC": "half"},
+                       lambda s, lat, wi, wo: np.where((wi[:, 2:3] > 0) & (wo[:, 2:3] > 0),
+                                                       emulate.decode_coopmat(s, lat, wi, wo, acc=np.float16),
+                                                       np.float32(0))),
 }
 _built: dict = {}
 
@@ -149,7 +155,7 @@ def built(path: str, tmp_path_factory) -> tuple[bytes, Path, float]:
 
 
 def extra_inputs(path: str, folder: Path) -> dict:
-    return coopmat_weights(folder) if path == "CoopMat" else {}
+    return coopmat_weights(folder) if path.startswith("CoopMat") else {}
 
 
 @pytest.mark.parametrize("path", list(PATHS))
@@ -184,7 +190,7 @@ def test_perturbed_weight_fails(path, inputs, reference, tmp_path_factory):
     with torch.no_grad():
         bad.decoder.net[4].weight[0, 0] += 0.05
     folder = tmp_path_factory.mktemp(f"bad{path}")
-    if path == "CoopMat":
+    if path.startswith("CoopMat"):
         spv = built(path, tmp_path_factory)[0]
         write_material_shader(bad, folder, "Example", coherent=True)
     else:
