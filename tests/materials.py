@@ -83,3 +83,30 @@ def usd_painted_ball(shader_inputs: str, extra_shaders: str = "", metadata: str 
             '                uniform token info:id = "ND_standard_surface_surfaceshader"\n'
             f"{inputs}                token outputs:surface\n            }}\n"
             f"{extra_shaders}        }}\n    }}\n}}\n")
+
+
+def usd_quad_reading_position(space: str = "object") -> str:
+    """A USD layer: a 2 x 3 quad ``/World/Quad`` (uv (0,0)-(1,1) onto x in [0, 2], y in [0, 3], translated
+    by (10, 0, 0)) bound to ``/World/Looks/M``, a standard_surface whose base_color is the ``position``
+    node ``P`` in ``space`` (converted to a colour)."""
+    return ('#usda 1.0\n(\n    metersPerUnit = 1\n)\ndef Xform "World"\n{\n'
+            '    def Mesh "Quad" (prepend apiSchemas = ["MaterialBindingAPI"])\n    {\n'
+            '        double3 xformOp:translate = (10, 0, 0)\n'
+            '        uniform token[] xformOpOrder = ["xformOp:translate"]\n'
+            '        point3f[] points = [(0, 0, 0), (2, 0, 0), (2, 3, 0), (0, 3, 0)]\n'
+            '        int[] faceVertexCounts = [4]\n        int[] faceVertexIndices = [0, 1, 2, 3]\n'
+            '        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")\n'
+            '        rel material:binding = </World/Looks/M>\n    }\n'
+            '    def Scope "Looks"\n    {\n        def Material "M"\n        {\n'
+            '            token outputs:mtlx:surface.connect = </World/Looks/M/SR.outputs:surface>\n'
+            '            def Shader "P"\n            {\n'
+            '                uniform token info:id = "ND_position_vector3"\n'
+            f'                string inputs:space = "{space}"\n                float3 outputs:out\n            }}\n'
+            '            def Shader "C"\n            {\n'
+            '                uniform token info:id = "ND_convert_vector3_color3"\n'
+            '                float3 inputs:in.connect = </World/Looks/M/P.outputs:out>\n'
+            '                color3f outputs:out\n            }\n'
+            '            def Shader "SR"\n            {\n'
+            '                uniform token info:id = "ND_standard_surface_surfaceshader"\n'
+            '                color3f inputs:base_color.connect = </World/Looks/M/C.outputs:out>\n'
+            '                token outputs:surface\n            }\n        }\n    }\n}\n')
