@@ -69,6 +69,7 @@ class GeometryMaps:
     prims: list[str] = field(default_factory=list)
     """The prims drawn, or [:data:`SPHERE`]."""
     warnings: list[str] = field(default_factory=list)
+    _moved: dict = field(default_factory=dict, repr=False, compare=False)
 
     def sample(self, uv: torch.Tensor, keys: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
         """Bilinear (periodic) lookup of ``keys`` (default all) at ``uv`` [N,2]: ``{key: [N, C]}``
@@ -76,7 +77,10 @@ class GeometryMaps:
         out = {}
         for k in (self.maps if keys is None else keys):
             if k in self.maps:
-                out[k] = bilinear_periodic(self.maps[k].to(uv.device), uv).to(uv.dtype)
+                grid = self._moved.get((k, uv.device))
+                if grid is None:  # one copy per device, not one transfer per batch
+                    grid = self._moved[(k, uv.device)] = self.maps[k].to(uv.device)
+                out[k] = bilinear_periodic(grid, uv).to(uv.dtype)
         return out
 
 
@@ -153,40 +157,37 @@ class _Canvas:
         self.covered = np.zeros((self.h, self.w), dtype=bool)
 
     def draw(self, uv: np.ndarray, corners: dict[str, np.ndarray]) -> int:
-        """Draw triangles (``uv`` [T, 3, 2]; ``corners`` key -> [T, 3, C]) where nothing was drawn yet;
-        returns the number of texels two of these triangles both cover (overlapping UVs)."""
+        """Draw triangles (``uv`` [T, 3, 2]; ``corners`` key -> [T, 3, C]) where nothing was drawn yet
+        (the lowest-numbered triangle keeps a texel); returns the number of texels two of these
+        triangles both cover (overlapping UVs). Vectorised over batches of triangles of similar size."""
         h, w = self.h, self.w
-        mine = np.zeros((h, w), dtype=np.int32)
-        px = uv[..., 0] * w - 0.5  # texel-centre coordinates: centre (c, r') at (c + 0.5) / W
-        py = uv[..., 1] * h - 0.5  # rows counted from v = 0 here, flipped on write
-        for t in range(len(uv)):
-            xs, ys = px[t], py[t]
-            x0, x1 = math.ceil(xs.min()), math.floor(xs.max())
-            y0, y1 = math.ceil(ys.min()), math.floor(ys.max())
-            if x1 < x0 or y1 < y0:
-                continue
-            gx, gy = np.meshgrid(np.arange(x0, x1 + 1, dtype=np.float64), np.arange(y0, y1 + 1, dtype=np.float64))
-            bary = _barycentric(xs, ys, gx, gy)
-            if bary is None:
-                continue
-            inside = (bary[0] >= 0) & (bary[1] >= 0) & (bary[2] >= 0)
-            if not inside.any():
-                continue
-            col = np.mod(gx[inside].astype(np.int64), w)
-            row = h - 1 - np.mod(gy[inside].astype(np.int64), h)
-            np.add.at(mine, (row, col), 1)
-            fresh = ~self.covered[row, col]
-            if not fresh.any():
-                continue
-            wts = np.stack([b[inside][fresh] for b in bary], 1)  # [K, 3]
-            for key, c in corners.items():
-                vals = wts @ c[t]  # [K, C]
-                buf = self.values.get(key)
-                if buf is None:
-                    buf = self.values[key] = np.zeros((h, w, c.shape[-1]))
-                buf[row[fresh], col[fresh]] = vals
-            self.covered[row[fresh], col[fresh]] = True  # the first triangle drawn keeps a texel
-        return int((mine > 1).sum())
+        tri, row, col, wts = _hits(uv[..., 0] * w - 0.5, uv[..., 1] * h - 0.5)  # texel-centre coordinates
+        if len(tri) == 0:
+            return 0
+        texel = (h - 1 - np.mod(row, h)) * w + np.mod(col, w)  # the maps' row 0 is v = 1
+        count = np.bincount(texel, minlength=h * w)
+        overlap = int((count > 1).sum())
+        best = np.full(h * w, len(uv), dtype=np.int64)
+        np.minimum.at(best, texel, tri)  # the first triangle wins a texel
+        keep = (best[texel] == tri) & ~self.covered.ravel()[texel]
+        tri, texel, wts = tri[keep], texel[keep], wts[keep]
+        keys = list(corners)
+        widths = [corners[k].shape[-1] for k in keys]
+        table = np.concatenate([np.broadcast_to(corners[k], (len(uv), 3, c)) for k, c in zip(keys, widths)],
+                               axis=2).astype(np.float32)  # [T, 3, all channels]: one gather per hit
+        vals = np.empty((len(tri), table.shape[-1]), dtype=np.float32)
+        for a in range(0, len(tri), 1 << 18):  # chunks bound the [hits, 3, channels] temporary
+            b = a + (1 << 18)
+            vals[a:b] = np.einsum("nk,nkc->nc", wts[a:b].astype(np.float32), table[tri[a:b]])
+        o = 0
+        for key, c in zip(keys, widths):
+            buf = self.values.get(key)
+            if buf is None:
+                buf = self.values[key] = np.zeros((h, w, c), dtype=np.float32)
+            buf.reshape(h * w, c)[texel] = vals[:, o:o + c]
+            o += c
+        self.covered.ravel()[texel] = True
+        return overlap
 
     def maps(self, prims, notes) -> GeometryMaps:
         """The drawn values with every uncovered texel filled from its nearest covered one."""
@@ -204,26 +205,69 @@ class _Canvas:
         return GeometryMaps((self.h, self.w), maps, torch.from_numpy(self.covered.copy()), list(prims), notes)
 
 
-def _barycentric(xs, ys, gx, gy):
-    """Barycentric weights (3 arrays like ``gx``) of points (gx, gy) in the triangle (xs, ys), with a
-    top-left rule: a point exactly on an edge belongs to one of the two triangles sharing it (each
-    edge's function is computed from its endpoints in a canonical order, so both sides see the same
-    number with opposite signs). None for a degenerate triangle."""
-    area = (xs[1] - xs[0]) * (ys[2] - ys[0]) - (xs[2] - xs[0]) * (ys[1] - ys[0])
-    if area == 0 or not math.isfinite(area):
-        return None
-    sign = 1.0 if area > 0 else -1.0
-    out = []
-    for i in range(3):  # weight of corner i: the edge opposite it, (j, k)
-        j, k = (i + 1) % 3, (i + 2) % 3
-        a, b, flip = (j, k, 1.0) if (xs[j], ys[j]) <= (xs[k], ys[k]) else (k, j, -1.0)
-        e = ((xs[b] - xs[a]) * (gy - ys[a]) - (ys[b] - ys[a]) * (gx - xs[a])) * flip * sign
-        dx, dy = (xs[k] - xs[j]) * sign, (ys[k] - ys[j]) * sign  # the edge as the winding walks it
-        owned = dy < 0 or (dy == 0 and dx > 0)
-        if not owned:
-            e = np.where(e == 0, -1.0, e)
-        out.append(np.where(e == 0, 0.0, e) / abs(area))
-    return out
+BATCH_TEXELS = 1 << 21  # candidate texel centres tested per batch (bounds memory to ~100 MB)
+
+
+def _hits(px: np.ndarray, py: np.ndarray):
+    """Every (triangle, row, column, barycentric weights [3]) with the texel centre (column, row)
+    inside the triangle (``px``, ``py`` [T, 3]: corners in texel-centre units, rows from v = 0;
+    rows and columns unwrapped). On a shared edge a top-left rule keeps the centre in one triangle:
+    each edge's function is computed from its endpoints in a canonical order, so both triangles
+    see the same number with opposite signs, and exactly one of them owns the zero."""
+    area = (px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0])
+    x0, x1 = np.ceil(px.min(1)), np.floor(px.max(1))
+    y0, y1 = np.ceil(py.min(1)), np.floor(py.max(1))
+    ok = np.isfinite(area) & (area != 0) & (x1 >= x0) & (y1 >= y0)
+    t = np.nonzero(ok)[0]
+    nx, ny = (x1 - x0 + 1)[t].astype(np.int64), (y1 - y0 + 1)[t].astype(np.int64)
+    # Jobs: (triangle, first row, rows); a triangle larger than a batch is cut into bands of rows.
+    band = np.maximum(1, BATCH_TEXELS // np.maximum(nx, 1))
+    parts = (ny + band - 1) // band
+    jt = np.repeat(t, parts)
+    k = np.arange(len(jt)) - np.repeat(np.cumsum(parts) - parts, parts)
+    jy0 = y0[jt] + k * np.repeat(band, parts)
+    jny = np.minimum(np.repeat(band, parts), y1[jt] - jy0 + 1).astype(np.int64)
+    jnx = np.repeat(nx, parts)
+    order = np.argsort(jnx * jny, kind="stable")
+    out = [], [], [], []
+    i = 0
+    snx, sny = jnx[order].tolist(), jny[order].tolist()
+    while i < len(order):
+        j, bx, by = i + 1, snx[i], sny[i]
+        while j < len(order) and (j - i + 1) * max(bx, snx[j]) * max(by, sny[j]) <= BATCH_TEXELS:
+            bx, by = max(bx, snx[j]), max(by, sny[j])  # the batch's padded box stays within budget
+            j += 1
+        sel = order[i:j]
+        i = j
+        tri = jt[sel]
+        gx = x0[tri][:, None, None] + np.arange(bx)[None, None, :]
+        gy = jy0[sel][:, None, None] + np.arange(by)[None, :, None]
+        valid = (np.arange(bx)[None, None, :] < jnx[sel][:, None, None]) & (
+            np.arange(by)[None, :, None] < jny[sel][:, None, None])
+        sign = np.sign(area[tri])[:, None, None]
+        bary = []
+        for c in range(3):  # the weight of corner c: the edge (d, e) opposite it
+            d, e = (c + 1) % 3, (c + 2) % 3
+            xd, yd, xe, ye = px[tri, d], py[tri, d], px[tri, e], py[tri, e]
+            swap = (xd > xe) | ((xd == xe) & (yd > ye))
+            ax, ay = np.where(swap, xe, xd)[:, None, None], np.where(swap, ye, yd)[:, None, None]
+            bx_, by_ = np.where(swap, xd, xe)[:, None, None], np.where(swap, yd, ye)[:, None, None]
+            f = ((bx_ - ax) * (gy - ay) - (by_ - ay) * (gx - ax)) * np.where(swap, -1.0, 1.0)[:, None, None] * sign
+            dx, dy = (xe - xd) * sign[:, 0, 0], (ye - yd) * sign[:, 0, 0]
+            owned = ((dy < 0) | ((dy == 0) & (dx > 0)))[:, None, None]
+            f = np.where((f == 0) & ~owned, -1.0, f)
+            bary.append(f / np.abs(area[tri])[:, None, None])
+        inside = valid & (bary[0] >= 0) & (bary[1] >= 0) & (bary[2] >= 0)
+        if not inside.any():
+            continue
+        n_idx, r_idx, c_idx = np.nonzero(inside)
+        out[0].append(tri[n_idx])
+        out[1].append(gy[n_idx, r_idx, 0].astype(np.int64))
+        out[2].append(gx[n_idx, 0, c_idx].astype(np.int64))
+        out[3].append(np.stack([b[inside] for b in bary], 1))
+    if not out[0]:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    return tuple(np.concatenate(o) for o in out)
 
 
 def _mesh_triangles(stage, path: str, primvars: Iterable[str]):
