@@ -23,22 +23,30 @@ __all__ = ["CompiledOutput", "compile_output"]
 
 @dataclass
 class CompiledOutput:
-    """A compiled node output: call it with ``uv`` [N,2] (and optionally ``position`` [N,3])."""
+    """A compiled node output: call it with ``uv`` [N,2] (optionally ``position`` and ``normal`` [N,3])."""
 
     graph: IRGraph
     evaluator: GraphEvaluator
     input: Input
     type: str
 
-    def __call__(self, uv: torch.Tensor, position: torch.Tensor | None = None) -> torch.Tensor:
+    def __call__(self, uv: torch.Tensor, position: torch.Tensor | None = None,
+                 normal: torch.Tensor | None = None) -> torch.Tensor:
         """Value [N, C] (C the type's channel count) at texture coordinates ``uv`` [N,2] (MaterialX's
-        convention) and surface points ``position`` [N,3] (default (u, v, 0); units of the document)."""
+        convention), surface points ``position`` [N,3] (default (u, v, 0); units of the document) and
+        unit surface normals ``normal`` [N,3] (default +z), each used in object and world space alike,
+        as the oracle's probe (no transform). ``normal`` reaches the ``normal`` nodes read as geometry
+        (:mod:`mtlx2neural.graph.geometry`), not a closure's shading frame."""
         ev = self.evaluator
         uv = uv.to(ev.device, ev.dtype)
         if position is not None:
             position = position.to(ev.device, ev.dtype)
+        geometry = None
+        if normal is not None:
+            normal = normal.to(ev.device, ev.dtype)
+            geometry = {"normal:object": normal, "normal:world": normal}
         nodes = ev.spatial_closure([self.input])
-        env = ev.run(nodes, uv, position)
+        env = ev.run(nodes, uv, position, geometry)
         value = ev.value(self.input, env)
         return value.expand(uv.shape[0], CHANNELS[self.type])
 

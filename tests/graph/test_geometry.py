@@ -238,3 +238,21 @@ def test_normal_read_by_maths_is_spatial_and_the_frame_stays_local(tmp_path):
     assert torch.allclose(value, -torch.cos(math.pi * uv[:, 1]), atol=1e-3)
     lobe_normals = [i for k, i, _ in compiled.parameters() if k.endswith(".normal")]
     assert lobe_normals and all(ev.is_constant(i) for i in lobe_normals)  # the BSDF frame stays local
+
+
+def test_compiled_output_reads_a_given_normal():
+    """The per-point oracle's torch side: ``normal=`` reaches a normal node read by maths."""
+    # Local: only this test compiles a bare node output.
+    from mtlx2neural.graph.node_eval import compile_output
+
+    doc = mx.createDocument()
+    mx.readFromXmlString(doc, document(
+        '  <normal name="N" type="vector3" />\n'
+        '  <dotproduct name="D" type="float">\n    <input name="in1" type="vector3" nodename="N" />\n'
+        '    <input name="in2" type="vector3" value="0, 1, 0" />\n  </dotproduct>\n'))
+    out = compile_output(doc, "D")
+    g = torch.Generator().manual_seed(5)
+    n = torch.nn.functional.normalize(torch.randn(16, 3, generator=g), dim=-1)
+    uv = torch.rand(16, 2, generator=g)
+    assert torch.allclose(out(uv, normal=n)[:, 0], n[:, 1], atol=1e-6)  # a float32 dot product
+    assert torch.allclose(out(uv)[:, 0], torch.zeros(16))  # default +z: no y component
