@@ -406,3 +406,27 @@ def test_ray_local_cluster_runs_the_same_jobs(tmp_path, capsys):
     assert all(not s["cached"] and s["steps"] == 20 and s["threads"] == 1 for s in summaries)
     assert not any(s["worker"].endswith(f":{os.getpid()}") for s in summaries)
     assert "[3/3]" in out
+
+
+@pytest.mark.slow  # trains and renders: ~1 min of CPU
+def test_a_job_carries_the_stage_and_trains_on_the_rasterised_mesh(tmp_path):
+    """A position-driven material: the job rebuilds its source with the stage file, and training reads
+    the bound quad's geometry (the summary says so)."""
+    pytest.importorskip("pxr", reason="usd-core is needed for a USD stage")
+    # Local: the helpers this test alone uses.
+    from materials import usd_quad_reading_position
+
+    from mtlx2neural.pipeline.jobs import make_job, train_material
+    from mtlx2neural.pipeline.plan import plan_materials
+    from mtlx2neural.scene import load_asset
+
+    path = tmp_path / "quad.usda"
+    path.write_text(usd_quad_reading_position("object"))
+    cfg = preset("fast", iterations=2, batch=64, preview_iterations=0)
+    (plan,) = plan_materials(load_asset(str(path)).materials, cfg, asset=str(path))
+    job = make_job(plan, tmp_path / "M", cfg)
+    src = job.source()
+    assert src.stage_file == str(path) and src.bound_prims == ["/World/Quad"]
+    _, summary = train_material(src, cfg, tmp_path / "M", "cpu", False, False, False, plan.digest,
+                                resolution=(4, 4), preview=False)
+    assert any("rasterised from the bound meshes' UV layout (/World/Quad)" in n for n in summary["notes"])
