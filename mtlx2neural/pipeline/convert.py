@@ -351,7 +351,8 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
         if flat is not None:
             write_snapshot(flat, source)
         layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
-                                       tool_version=__version__, skipped={f.material: f.reason for f in failures})
+                                       tool_version=__version__, skipped={f.material: f.reason for f in failures},
+                                       engine_shaders=options.engine_shaders)
         if flat is None and not (keep and keep.entries):
             # An earlier conversion's snapshot of an in-memory or edited stage: the new layer sublayers
             # the file instead, so it is stale (kept materials' summaries may still name it: kept then).

