@@ -16,7 +16,14 @@ from __future__ import annotations
 import torch
 
 from mtlx2neural.errors import InputError
-from mtlx2neural.graph import blackbody, compositing, noise, ramps, transforms  # noqa: F401  (register operators)
+from mtlx2neural.graph import (  # noqa: F401  (register operators)
+    blackbody,
+    compositing,
+    heightfield,
+    noise,
+    ramps,
+    transforms,
+)
 from mtlx2neural.graph.geometry import (
     GEOMETRIC,
     frame_bound,
@@ -147,6 +154,8 @@ class GraphEvaluator:
         :class:`~mtlx2neural.scene.uv_raster.GeometryMaps`); default: the evaluator's ``geometry``
         source sampled at ``uv`` when ``nodes`` read any, else none. ``position`` [N,3] (optional, the
         per-point oracle's): the surface point every ``position`` node reads (default (u, v, 0))."""
+        if heightfield.wants_uv_grad(self.graph, nodes):  # heighttonormal: derivatives with respect to uv
+            return heightfield.run_differentiable(self.run, nodes, uv, position, geometry)
         if position is not None:
             geometry = {**(geometry or {}), "position:object": position, "position:world": position}
         elif geometry is None and self.geometry is not None:
