@@ -399,6 +399,7 @@ class GeometrySource:
         self.prims = [str(p) for p in prims]
         self.primvars = list(primvars)
         self._cache: dict[tuple[int, int], GeometryMaps] = {}
+        self._stage = None
         self.resolution: tuple[int, int] = (256, 256)
         """The grid :meth:`current` draws at: the parameter grid's, set by whoever builds it."""
 
@@ -420,7 +421,9 @@ class GeometrySource:
                 # Local: opening a stage pulls in pxr's file format plugins; a sphere never needs them.
                 from mtlx2neural.scene.usd_stage import open_stage
 
-                self._cache[key] = rasterise_meshes(open_stage(self.stage_file), self.prims, key, self.primvars)
+                if self._stage is None:  # opened once, for every resolution asked
+                    self._stage = open_stage(self.stage_file)
+                self._cache[key] = rasterise_meshes(self._stage, self.prims, key, self.primvars)
         return self._cache[key]
 
     def current(self) -> GeometryMaps:
