@@ -122,8 +122,10 @@ def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | No
     compiled.evaluator.geometry = source
     kinds = ", ".join(sorted({r["kind"] for r in reads}))
     if source.is_sphere:
-        note = (f"the graph reads {kinds}; no USD mesh is bound, so the documented default mesh, the unit "
-                f"sphere with its spherical UV layout, provides them (give a USD stage to use the real meshes)")
+        why = ("the stage has no file to read its meshes from (in memory)" if list(prims)
+               else "no USD mesh is bound")
+        note = (f"the graph reads {kinds}; {why}, so the documented default mesh, the unit sphere with its "
+                f"spherical UV layout, provides them (give a USD stage file to use the real meshes)")
     else:
         note = f"the graph reads {kinds}, rasterised from the bound meshes' UV layout ({', '.join(source.prims)})"
     if note not in compiled.program.notes:
