@@ -20,6 +20,7 @@ from mtlx2neural.graph import (  # noqa: F401  (register operators)
     blackbody,
     compositing,
     heightfield,
+    hextile,
     noise,
     ramps,
     transforms,
