@@ -36,7 +36,7 @@ class TrainConfig:
     lr_end: float = 1e-4
     """Adam learning rate at the end of the cosine decay from ``lr_start``."""
     mollify_degrees: float = 10.0
-    """Initial half-angle of the mollification cone; decays linearly to 0."""
+    """Initial half-angle of the mollification cone; decays to 0 with the paper's cosine schedule."""
     mollify_min_degrees: float = 0.0
     """Floor of the cone's half-angle once it has narrowed: the decoder then learns the BRDF
     mollified at that scale, which keeps a near-specular lobe's energy (0: the paper's exact BRDF)."""

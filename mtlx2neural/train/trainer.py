@@ -7,9 +7,10 @@ Three phases over ``cfg.iterations`` steps:
 
 Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes and,
 with ``grazing_fraction``, extra rows with wi near the horizon), a footprint-filtered
-and mollified reference target (the cone narrows, then stays at a floor;
-``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
-against the current neural BRDF (latents detached).
+and mollified reference target (the cone narrows with the paper's cosine decay, then stays
+at a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
+against the current neural BRDF, scored on the sampler's own samples mixed with cosine ones
+(latents detached; docs/history/paper-choices-2026-12-02.md).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
 """
@@ -25,9 +26,16 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.atomic import atomic_path
+from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.model import proxy
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
-from mtlx2neural.textures.footprint import footprint_targets, sample_levels
+from mtlx2neural.reference.vec import cosine_sample
+from mtlx2neural.textures.footprint import (
+    SIGMA_TEXELS,
+    footprint_targets,
+    sample_levels,
+)
 from mtlx2neural.textures.parameter_stack import ParameterStack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import (
@@ -39,8 +47,11 @@ from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.mollify import cone_mean, lobe_directions
 
 UNIFORM_PDF = 1.0 / (2.0 * math.pi)
+KL_ESTIMATOR = "proposal"  # brdf_and_sampler_losses: "proposal" (the paper's) or "uniform" (before 2026-12-02)
+KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine density (defensive mixture)
 GRAD_CLIP = 10.0  # global gradient-norm cap
 GRAZING_MAX_COS = 0.25  # cfg.grazing_fraction's viewers: within ~14 degrees of the horizon
+MOLLIFY_SCHEDULE = "cosine"  # the cone's decay (Trainer.mollify_angle): "cosine" (the paper's) or "linear"
 GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
 
 
@@ -53,20 +64,37 @@ def _lr(cfg: TrainConfig, step: int) -> float:
     return cfg.lr_end + 0.5 * (cfg.lr_start - cfg.lr_end) * (1.0 + math.cos(math.pi * t))
 
 
-def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, wo_u):
+def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u):
     """The two batches of one step, given the latents.
 
     BRDF: log-L1 between the decoder and the (filtered) reference target.
-    Sampler: KL(neural BRDF || proxy) up to a constant, estimated with directions
-    ``wo_u`` uniform on the hemisphere and self-normalised weights; the latent is
-    detached so the sampler cannot pull the latents towards what it can sample.
+    Sampler: KL(neural BRDF || proxy) up to a constant, scored on directions drawn from the sampler itself
+    (the paper's estimator), mixed defensively with cosine sampling: each row's ``wo`` comes from the
+    learned proxy (detached) or, where ``u[:, 2] < KL_DEFENSIVE``, from the cosine density, and is
+    weighted by f / r with r = (1 - KL_DEFENSIVE) q + KL_DEFENSIVE cos / pi the mixture's density, the
+    weights normalised over the batch. ``u`` [N,3] uniform random numbers. The latent is detached so the
+    sampler cannot pull the latents towards what it can sample. (:data:`KL_ESTIMATOR` ``"uniform"``:
+    the estimator before 2026-12-02, uniform directions (normalised Gaussians from ``u``) mirrored above
+    the horizon, kept for the measurement in docs/history/paper-choices-2026-12-02.md.)
     """
     loss_brdf = log_l1(decoder(latent, wi, wo), target)
     lat_d = latent.detach()
     with torch.no_grad():
-        w = decoder(lat_d, wi, wo_u).mean(-1) / UNIFORM_PDF
+        if KL_ESTIMATOR == "uniform":
+            wo_s = torch.nn.functional.normalize(torch.special.ndtri(u.clamp(1e-6, 1 - 1e-6)), dim=-1)
+            wo_s = torch.cat([wo_s[:, :2], wo_s[:, 2:3].abs()], -1)
+            density = torch.full_like(wo_s[:, 0], UNIFORM_PDF)
+        else:
+            params_d = sampler(wi, lat_d)
+            wo_s = torch.where((u[:, 2] < KL_DEFENSIVE)[:, None], cosine_sample(u[:, :2]),
+                               proxy.sample(wi, params_d, u[:, :2]))
+            wo_s = torch.nn.functional.normalize(torch.nan_to_num(wo_s, nan=0.0), dim=-1)
+            density = ((1.0 - KL_DEFENSIVE) * proxy.pdf(wi, wo_s, params_d)
+                       + KL_DEFENSIVE * wo_s[:, 2].clamp_min(0.0) / math.pi)
+        ok = (wo_s[:, 2] > 0) & (density > 0) & torch.isfinite(density)
+        w = torch.where(ok, decoder(lat_d, wi, wo_s).mean(-1) / density.clamp_min(1e-12), torch.zeros_like(density))
         w = w / w.sum().clamp_min(1e-12)
-    q = sampler.pdf(wi, wo_u, lat_d)
+    q = sampler.pdf(wi, wo_s, lat_d)
     loss_kl = -(w * torch.log(q + 1e-4)).sum()
     return loss_brdf, loss_kl
 
@@ -136,11 +164,15 @@ class Trainer:
 
     # -- one step ----------------------------------------------------------------------
     def mollify_angle(self) -> float:
-        """This step's mollification cone half-angle (radians): a linear decay from ``mollify_degrees``
-        over ``mollify_fraction`` of the run, never below ``mollify_min_degrees``."""
+        """This step's mollification cone half-angle (radians): the paper's cosine decay (supplement,
+        eq. 2) from ``mollify_degrees`` to 0 over ``mollify_fraction`` of the run,
+        ``0.5 * mollify_degrees * (1 + cos(pi * t))`` with t the share of that span done, never below
+        ``mollify_min_degrees``. (:data:`MOLLIFY_SCHEDULE` ``"linear"``: 1 - t, the schedule before
+        2026-12-02, kept for the measurement in docs/history/paper-choices-2026-12-02.md.)"""
         cfg = self.cfg
-        frac = self.step / max(1.0, cfg.iterations * cfg.mollify_fraction)
-        return math.radians(max(cfg.mollify_degrees * max(0.0, 1.0 - frac), cfg.mollify_min_degrees))
+        t = min(1.0, self.step / max(1.0, cfg.iterations * cfg.mollify_fraction))
+        decay = 1.0 - t if MOLLIFY_SCHEDULE == "linear" else 0.5 * (1.0 + math.cos(math.pi * t))
+        return math.radians(max(cfg.mollify_degrees * decay, cfg.mollify_min_degrees))
 
     def _targets(self, wi, wo, uv, level):
         cfg = self.cfg
@@ -161,6 +193,23 @@ class Trainer:
         k = cfg.mollify_samples
         wo_k = cone_jitter(wo, angle, k, self.gen)
         return self._reference_eval(wi.repeat_interleave(k, 0), wo_k).view(-1, k, 3).mean(1)
+
+    def albedo_targets(self, wi: torch.Tensor, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        """One-sample Monte Carlo estimates [N,3] of the reference's directional albedo (f * cos integrated
+        over wo, linear RGB) at each row's point: the reference's sample weight at ``wi`` (local frame).
+
+        A textured material is sampled at a point of the row's footprint: ``uv`` plus a Gaussian offset of
+        the level's standard deviation (``textures.footprint``), so the estimate's mean is the albedo
+        averaged over the footprint, as the BRDF targets are (the albedo is linear in the BRDF). A uniform
+        material ignores ``uv`` and ``level``."""
+        g, dev = self.gen, wi.device
+        u = torch.rand(wi.shape[0], 2, generator=g).to(dev)
+        if not self.textured:
+            return self.ref.sample(wi, u)[1]
+        h, w = self.stack.resolution
+        sigma = SIGMA_TEXELS * torch.pow(2.0, level.to(uv.dtype))[:, None] / uv.new_tensor([w, h])
+        pts = uv + sigma * torch.randn(uv.shape, generator=g, dtype=uv.dtype).to(dev)
+        return self.ref.sample(wi, u, ShadingPoint(uv=pts))[1]
 
     def _latent(self, uv, level):
         if self.baked:
@@ -216,13 +265,12 @@ class Trainer:
         with torch.no_grad():
             target = self._targets(wi, wo, uv, level)
         latent = self._latent(uv, level)
-        wo_u = torch.nn.functional.normalize(torch.randn(b, 3, generator=g).to(dev), dim=-1)
-        wo_u = torch.cat([wo_u[:, :2], wo_u[:, 2:3].abs()], -1)
-        loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, latent, wi, wo, target, wo_u)
+        u_kl = torch.rand(b, 3, generator=g).to(dev)
+        loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, latent, wi, wo, target, u_kl)
         loss = loss_brdf + loss_kl
         if cfg.albedo_head:
             with torch.no_grad():
-                _, weight, _ = self.ref.sample(wi, torch.rand(b, 2, generator=g).to(dev))
+                weight = self.albedo_targets(wi, uv, level)
             loss = loss + ((self.model.decoder.predict_albedo(latent, wi) - weight) ** 2).mean()
         for group in self.opt.param_groups:
             group["lr"] = _lr(cfg, self.step)

@@ -189,3 +189,19 @@ def test_grazing_rows_are_extra_and_half_of_them_near_the_lobes(carpaint, tmp_pa
     mirror = graze_wi * torch.tensor([-1.0, -1.0, 1.0])
     near = (graze_wo * mirror).sum(-1) > torch.cos(torch.tensor(0.35))
     assert float(near[:64].float().mean()) > 0.5 and float(near[64:].float().mean()) < 0.2
+
+
+def test_mollification_cone_follows_the_papers_cosine_decay(carpaint, tmp_path):
+    """The cone's half-angle is 0.5 * 10 deg * (1 + cos(pi t)) over mollify_fraction of the run (the
+    paper's supplement, eq. 2), then the floor: exact values at the start, midway and the end."""
+    import math
+
+    ref, stack = carpaint
+    tr = Trainer(ref, stack, preset("fast", iterations=1000, mollify_fraction=0.1, mollify_min_degrees=1.0),
+                 tmp_path)
+    expected = {0: 10.0, 25: 0.5 * 10.0 * (1 + math.cos(math.pi / 4)), 50: 5.0, 75: 1.4644660940672627,
+                90: 1.0, 100: 1.0, 900: 1.0}
+    for step, degrees in expected.items():
+        tr.step = step
+        # exact arithmetic but for float rounding
+        assert math.isclose(math.degrees(tr.mollify_angle()), degrees, rel_tol=1e-9), (step, degrees)
