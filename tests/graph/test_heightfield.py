@@ -4,6 +4,8 @@ MaterialX builds the normal from screen-space derivatives (dFdx/dFdy), which its
 kernel) does not have, so these cases check against analytic heights instead: the normal of the height h
 over the node's texcoord (s, t) is normalize(-dh'/ds, -dh'/dt, 1) * 0.5 + 0.5, h' = h * scale / 16, for any
 non-degenerate screen parametrisation (see the module docstring of mtlx2neural.graph.heightfield).
+A slow case also draws the node with MaterialX's GlslRenderer (real screen derivatives) and compares per
+pixel.
 
 Tolerances: analytic cases 1e-4 on the encoded normal: float32 sin/cos and autograd against a float64
 formula; the sine's argument reaches 2 pi * 4.5 ~ 28 on the scaled texcoord, where float32 rounds it by ~2e-6,
