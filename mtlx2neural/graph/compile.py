@@ -112,6 +112,11 @@ class CompiledMaterial:
         }
 
 
+FILE_READERS = ("image", "hextiledimage", "hextilednormalmap")
+"""Categories whose ``file`` input is read when the material is compiled: a missing file is an error
+(or, with ``allow_missing_textures``, the node's default) and a file named with another case is found."""
+
+
 def compile_material(document: mx.Document, material: str | None = None, device="cpu",
                      allow_missing_textures: bool = False, strict_case: bool = False) -> CompiledMaterial:
     """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries).
@@ -135,7 +140,7 @@ def compile_material(document: mx.Document, material: str | None = None, device=
     for i in spatial_nodes:
         n = graph[i]
         f = n.inputs.get("file")
-        if n.category == "image" and isinstance(f, Const) and f.value:
+        if n.category in FILE_READERS and isinstance(f, Const) and f.value:
             try:
                 found, fixed = resolve_case(f.value, node=n.path, strict=strict_case)
                 if fixed:

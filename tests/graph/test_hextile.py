@@ -24,6 +24,8 @@ import torch
 from conftest import write_float_image
 from node_oracle import points, require_oracle
 
+from mtlx2neural.errors import InputError
+from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.node_eval import compile_output
 from mtlx2neural.oracle.points import mtlx_node_eval
 
@@ -126,3 +128,26 @@ def test_hextiling_is_seamless_and_without_file_returns_default(tmp_path):
     e.setInputValue("default", mx.Color3(0.2, 0.3, 0.4))
     np.testing.assert_array_equal(compile_output(empty, "img")(uv[:4]).numpy(),
                                   np.tile(np.float32([0.2, 0.3, 0.4]), (4, 1)))
+
+
+def _hextiled_material(file: str):
+    doc = mx.createDocument()
+    img = doc.addNode("hextiledimage", "tiles", "color3")
+    img.setInputValue("file", file, "filename")
+    img.setInputValue("default", mx.Color3(0.2, 0.4, 0.6))
+    shader = doc.addNode("standard_surface", "SR_tiles", "surfaceshader")
+    shader.setConnectedNode("base_color", img)
+    doc.addMaterialNode("M_tiles", shader)
+    return doc
+
+
+def test_hextiled_files_are_checked_when_compiled_like_image_files(tmp_path):
+    """A missing file names the node at compile time (not at the first bake), --allow-missing-textures
+    gives the node's default, and a file named with another case is found, as for `image`."""
+    colour, _ = _textures(tmp_path)
+    with pytest.raises(InputError, match=r"tiles.*allow-missing-textures"):
+        compile_material(_hextiled_material(str(tmp_path / "absent.exr")), "M_tiles")
+    lenient = compile_material(_hextiled_material(str(tmp_path / "absent.exr")), "M_tiles", allow_missing_textures=True)
+    assert any("absent.exr" in n and "default" in n for n in lenient.program.notes)
+    fixed = compile_material(_hextiled_material(str(tmp_path / "COLOUR.exr")), "M_tiles")
+    assert len(fixed.case_fixes) == 1 and "COLOUR.exr" in fixed.case_fixes[0] and colour.name in fixed.case_fixes[0]
