@@ -26,12 +26,23 @@ MIN_NZ = 0.05       # normals flatter than ~87 degrees are clamped before taking
 ALPHA_RANGE = (1e-4, 1.0)
 
 
-def moments(normal: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """[..., 3] normals and [..., 2] alphas -> [..., 5] moments (sx, sy, Mxx, Myy, Mxy)."""
+def moments(normal: torch.Tensor, alpha: torch.Tensor, tangent: torch.Tensor | None = None) -> torch.Tensor:
+    """[..., 3] normals and [..., 2] alphas -> [..., 5] moments (sx, sy, Mxx, Myy, Mxy).
+
+    ``tangent`` [..., 3] (optional): the lobe's tangent, along which ``alpha[..., 0]`` lies; its angle in
+    the geometric xy plane rotates the lobe's slope covariance, R diag(a_x^2, a_y^2) R^T / 2, so a rotated
+    anisotropic lobe keeps its orientation (``lobe_from_moments`` reads it back as the major axis).
+    ``None``: alphas along the geometric x/y axes, as before the tangent was kept."""
     nz = normal[..., 2:3].clamp_min(MIN_NZ)
     s = -normal[..., :2] / nz
     a2 = alpha * alpha * 0.5
-    return torch.cat([s, s * s + a2, s[..., 0:1] * s[..., 1:2]], -1)
+    if tangent is None:
+        return torch.cat([s, s * s + a2, s[..., 0:1] * s[..., 1:2]], -1)
+    phi = torch.atan2(tangent[..., 1:2], tangent[..., 0:1])
+    c, si = phi.cos(), phi.sin()
+    ax2, ay2 = a2[..., 0:1], a2[..., 1:2]
+    cov = torch.cat([ax2 * c * c + ay2 * si * si, ax2 * si * si + ay2 * c * c, (ax2 - ay2) * c * si], -1)
+    return torch.cat([s, s * s + cov[..., :2], s[..., 0:1] * s[..., 1:2] + cov[..., 2:3]], -1)
 
 
 def lobe_from_moments(m: torch.Tensor):

@@ -111,3 +111,19 @@ def test_filtered_lobe_matches_average_of_fine_lobes(tmp_path, level):
     # clearly better than naive averaging (at most 0.6x its error).
     assert lean_rel < 0.5
     assert lean_rel < 0.6 * naive_rel
+
+
+def test_moments_keep_a_rotated_lobes_tangent():
+    """An anisotropic lobe (alpha 0.4 x 0.1) with its tangent rotated by 30 degrees in the xy plane reads
+    back with that tangent and those alphas (flat normal: exact up to float rounding), and without the
+    tangent as before (alphas along x/y)."""
+    angle = math.radians(30.0)
+    n = torch.tensor([[0.0, 0.0, 1.0]])
+    a = torch.tensor([[0.4, 0.1]])
+    t = torch.tensor([[math.cos(angle), math.sin(angle), 0.0]])
+    normal, tangent, alpha = lobe_from_moments(moments(n, a, t))
+    torch.testing.assert_close(alpha, a, atol=1e-5, rtol=0)
+    assert abs(float((tangent * t).sum())) > 1 - 1e-6  # the same axis (a tangent's sign is free)
+    _, tangent0, alpha0 = lobe_from_moments(moments(n, a))
+    torch.testing.assert_close(alpha0, a, atol=1e-5, rtol=0)
+    assert abs(float(tangent0[0, 0])) > 1 - 1e-6
