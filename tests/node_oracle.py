@@ -210,14 +210,16 @@ def points(n: int, seed: int, uv_span: float = 3.0, pos_span: float = 3.0):
     return uv, pos
 
 
-def compare(builder: Builder, uv, pos, normal=None):
-    """{(node, output): (torch [N,C], MaterialX [N,C])} for every target of ``builder``'s document."""
+def compare(builder: Builder, uv, pos, normal=None, application=None):
+    """{(node, output): (torch [N,C], MaterialX [N,C])} for every target of ``builder``'s document;
+    ``application``: the instant ``time``/``frame`` fold to on the torch side (``compile_output``)."""
     doc = builder.document()
     targets = [(name, out) if out else name for name, out, _ in builder.targets]
     want = mtlx_node_eval(doc, targets, uv.astype(np.float64), pos.astype(np.float64), normal=normal)
     result = {}
     for (name, out, _), expected in zip(builder.targets, want):
-        got = compile_output(doc, name, out)(torch.from_numpy(uv), torch.from_numpy(pos)).numpy()
+        got = compile_output(doc, name, out, application=application)(torch.from_numpy(uv),
+                                                                      torch.from_numpy(pos)).numpy()
         result[(name, out)] = (got.astype(np.float64), expected)
     return result
 

@@ -31,7 +31,8 @@ def preset_settings(_field: str, top: dict) -> TrainConfig:
 
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_SKIPPED = 0, 1, 2, 3
-EPILOG = ("exit codes: 0 every selected material converted; 3 some were skipped (they cannot be converted: "
+EPILOG = ("exit codes: 0 every selected material converted; 3 some were skipped (they cannot be converted, or "
+          "their training failed: "
           "each is printed with its node and reason, and recorded in the layer; the others converted); "
           "2 bad input, or nothing convertible (with --strict: any material that cannot be converted), "
           "nothing written; 1 a failure during the run (a write, Ctrl-C).")

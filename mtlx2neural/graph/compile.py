@@ -14,7 +14,7 @@ from mtlx2neural.graph.evaluator import GraphEvaluator
 from mtlx2neural.graph.expand import expand_material
 from mtlx2neural.graph.geometry import geometry_reads
 from mtlx2neural.graph.ir import Const, Input, IRGraph, Ref
-from mtlx2neural.graph.ops import OPS
+from mtlx2neural.graph.ops import OPS, Application, bake_application
 from mtlx2neural.graph.spatial import (
     FRAME_AXES,
     SPATIAL,
@@ -41,6 +41,10 @@ class CompiledMaterial:
     spatial_nodes: list[int]
     case_fixes: list[str] = field(default_factory=list)
     """Warnings for texture paths read with another case (:func:`mtlx2neural.imaging.resolve.resolve_case`)."""
+    application: Application = field(default_factory=Application)
+    """The instant ``time`` and ``frame`` nodes folded to (:class:`~mtlx2neural.graph.ops.Application`)."""
+    reads_application: list[str] = field(default_factory=list)
+    """The application nodes the graph reads (``time``, ``frame``): then baked at ``application``."""
     _parameters: list | None = field(default=None, repr=False)
 
     def parameters(self) -> list[tuple[str, Input, str]]:
@@ -118,8 +122,13 @@ FILE_READERS = ("image", "hextiledimage", "hextilednormalmap")
 
 
 def compile_material(document: mx.Document, material: str | None = None, device="cpu",
-                     allow_missing_textures: bool = False, strict_case: bool = False) -> CompiledMaterial:
+                     allow_missing_textures: bool = False, strict_case: bool = False,
+                     application: Application | None = None) -> CompiledMaterial:
     """Expand, fold and prune ``material`` of ``document`` (a MaterialX document without libraries).
+
+    ``time`` and ``frame`` nodes fold to ``application``'s instant (None: frame 1 at 24 fps, time
+    1/24 s; :class:`~mtlx2neural.graph.ops.Application`); a graph that reads them gets a note naming
+    the frame and time it was baked at.
 
     A missing texture is an error naming the file and node, unless
     ``allow_missing_textures``: then its image node returns its declared ``default``.
@@ -128,6 +137,8 @@ def compile_material(document: mx.Document, material: str | None = None, device=
     :func:`mtlx2neural.imaging.resolve.resolve_case`).
     """
     graph, root, source, notes = expand_material(document, material, NATIVE)
+    application = application or Application()
+    reads = bake_application(graph, application)  # before the evaluator folds the constants
     ev = GraphEvaluator(graph, source, device=device)
     program = build_program(ev, root)
     program.notes += notes
@@ -156,4 +167,14 @@ def compile_material(document: mx.Document, material: str | None = None, device=
                 n.attrs["missing"] = "1"
                 program.notes.append(f"texture '{f.value}' of '{n.path}' is missing: its declared default is used")
     name = material or next(n.getName() for n in document.getMaterialNodes())
-    return CompiledMaterial(name, source, graph, ev, program, spatial_nodes, case_fixes=case_fixes)
+    if reads:
+        program.notes.append(application_note(name, reads, application))
+    return CompiledMaterial(name, source, graph, ev, program, spatial_nodes, case_fixes=case_fixes,
+                            application=application, reads_application=reads)
+
+
+def application_note(material: str, reads: list[str], application: Application) -> str:
+    """The note of a material whose graph reads ``time``/``frame`` (``reads``): the instant it is baked at."""
+    nodes = " and ".join(f"`{r}`" for r in reads)
+    return (f"material {material} reads {nodes}: baked at frame {application.frame:g} "
+            f"(time {application.time:g} s at {application.fps:g} fps); set --frame (and --fps)")

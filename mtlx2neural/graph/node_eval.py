@@ -17,6 +17,7 @@ from mtlx2neural.graph.compile import NATIVE
 from mtlx2neural.graph.evaluator import GraphEvaluator
 from mtlx2neural.graph.expand import Expander, _drive, _Scope
 from mtlx2neural.graph.ir import CHANNELS, Const, Input, IRGraph
+from mtlx2neural.graph.ops import Application, bake_application
 
 __all__ = ["CompiledOutput", "compile_output"]
 
@@ -52,10 +53,11 @@ class CompiledOutput:
 
 
 def compile_output(document: mx.Document, target: str, output: str | None = None,
-                   device="cpu") -> CompiledOutput:
+                   device="cpu", application: Application | None = None) -> CompiledOutput:
     """Compile output ``output`` of ``target`` in ``document`` (without libraries): ``target`` names a
     top-level node (``output`` for a multi-output node) or a nodegraph (``output`` names its output
-    unless it has only one)."""
+    unless it has only one). ``time``/``frame`` nodes fold to ``application`` (None: frame 1 at 24 fps,
+    :class:`~mtlx2neural.graph.ops.Application`)."""
     exp = Expander(document, NATIVE)
     scope = _Scope(exp.doc, "")
     elem = exp.doc.getChild(target)
@@ -67,5 +69,6 @@ def compile_output(document: mx.Document, target: str, output: str | None = None
     else:
         raise InputError(f"{exp.source}: no top-level node or nodegraph named '{target}'.")
     mx_type = inp.type if isinstance(inp, Const) else exp.graph.output_type(inp)
+    bake_application(exp.graph, application)
     ev = GraphEvaluator(exp.graph, exp.source, device=device)
     return CompiledOutput(exp.graph, ev, inp, mx_type)

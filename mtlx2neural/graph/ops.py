@@ -14,6 +14,7 @@ and normalize is guarded so that no NaN or Inf leaves an operator.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -171,10 +172,52 @@ def _convert(x, mx_type: str):
 
 
 # --- application state -----------------------------------------------------------------
-# A baked material is one instant: ``time`` (seconds) and ``frame`` fold to these constants.
-APPLICATION = {"time": 0.0, "frame": 1.0}
-op("time")(lambda a, n: torch.tensor([[APPLICATION["time"]]]))
-op("frame")(lambda a, n: torch.tensor([[APPLICATION["frame"]]]))
+@dataclass(frozen=True)
+class Application:
+    """The instant a baked material is one of: what ``frame`` and ``time`` fold to.
+
+    ``frame``: the host's frame number (MaterialX's ``frame`` node; its nodedef's default is 1).
+    ``fps``: frames per second; ``time`` (seconds, MaterialX's ``time`` node) is ``frame / fps``,
+    USD's convention (time code / time codes per second). The ``time`` node's own ``fps`` input
+    is not read: the specification marks it unused, to be removed.
+    """
+
+    frame: float = 1.0
+    fps: float = 24.0
+
+    @property
+    def time(self) -> float:
+        """Seconds: ``frame / fps``."""
+        return self.frame / self.fps
+
+    def value(self, category: str) -> float:
+        """What a ``time`` or ``frame`` node returns at this instant."""
+        return self.time if category == "time" else self.frame
+
+
+APPLICATION_NODES = ("time", "frame")
+DEFAULT_APPLICATION = Application()
+"""The instant of a graph compiled without one (frame 1 at 24 fps)."""
+
+
+def bake_application(graph, application: Application | None) -> list[str]:
+    """Store ``application``'s value (None: :data:`DEFAULT_APPLICATION`) in every ``time``/``frame`` node
+    of the IR ``graph`` (``attrs["application"]``, read by their operators when the graph is folded), so
+    the compiled graph carries its instant; returns the categories the graph reads, in order."""
+    application = application or DEFAULT_APPLICATION
+    read = []
+    for node in graph.nodes:
+        if node.category in APPLICATION_NODES:
+            node.attrs["application"] = repr(float(application.value(node.category)))
+            if node.category not in read:
+                read.append(node.category)
+    return read
+
+
+@op(*APPLICATION_NODES)
+def _application(a, n):
+    value = n.attrs.get("application")
+    return torch.tensor([[float(value) if value is not None else DEFAULT_APPLICATION.value(n.category)]])
 
 
 # --- logic ------------------------------------------------------------------------

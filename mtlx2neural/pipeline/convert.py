@@ -18,6 +18,10 @@ Steps (the library behind the default command):
    node, bad value, missing texture) is left out with its node and reason
    (``Summaries.failed``, the layer's ``skippedMaterials``) and keeps its original network;
    the others convert. None convertible, or ``strict``: the error, before anything is written;
+   a material whose training raises (a non-finite loss, out of memory, an error in a worker
+   process or a Ray task: step 4) is skipped the same way once the others have trained
+   (``Summaries.failed``, with reason ``training failed (<error type>): ...``); none trained,
+   or ``strict``: the error and no layer (a fresh output folder is removed). Ctrl-C stops all;
 3. reuse: a material whose ``summary.json`` carries the same source hash (document,
    texture bytes, settings: :mod:`.source_hash`) is not trained again (``force``
    retrains);
@@ -79,7 +83,12 @@ from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
     resolve_output,
 )
 from mtlx2neural.pipeline.lock import output_lock
-from mtlx2neural.pipeline.options import ConvertOptions, check_options, options_record
+from mtlx2neural.pipeline.options import (
+    ConvertOptions,
+    application_of,
+    check_options,
+    options_record,
+)
 from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     DECODERS,
     MaterialFailure,
@@ -122,6 +131,13 @@ def _nothing_convertible(asset, failures) -> InputError:
                       node=failures[0].node)
 
 
+def _training_failed(asset, failures) -> InputError:
+    """The ``strict`` error of a run some of whose materials failed to train (exit 2, no layer)."""
+    listing = "\n".join(f"  {f.material}: {f.reason}" for f in failures)
+    return InputError(f"{asset}: --strict: {len(failures)} material(s) failed to train, so no layer was "
+                      f"written:\n{listing}", node=failures[0].node)
+
+
 def _reuse(folder: Path, digest: str):
     """(model, summary) of an earlier run of the same source hash in ``folder``, or None."""
     summary = cached_summary(folder, digest)
@@ -137,7 +153,7 @@ def _reuse(folder: Path, digest: str):
 class Summaries(list):
     """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
     left out (``{"material", "reason"}``; only when no ``material`` was named), ``failed``: the
-    selected materials that could not be converted and were skipped (``{"material", "node",
+    selected materials that could not be converted (or whose training failed) and were skipped (``{"material", "node",
     "reason"}``, :class:`~mtlx2neural.pipeline.plan.MaterialFailure`; the CLI then exits 3),
     ``kept``: the materials an existing layer kept from earlier runs (a ``--material`` run),
     ``folder``: the output folder, and ``layer``: the neural layer written."""
@@ -326,7 +342,8 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
     plans = plan_materials(sources, cfg, options.allow_missing_textures, options.max_error,
                            options.texel_density, stage if stage is not None else scene.asset,
-                           failures=None if options.strict else failures, strict=options.strict)
+                           failures=None if options.strict else failures, strict=options.strict,
+                           application=application_of(options))
     if failures:  # the others convert; a failed material keeps its original network only
         if not plans:
             raise _nothing_convertible(scene.asset, failures)
@@ -339,30 +356,50 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
         _check_resume(plans, folders, options.max_error)
     keep = _kept_materials(layout, record, {s.name for s in sources}, material)
     # 5. the output folder: writable, ours, and held by this run alone
+    fresh = not layout.folder.exists()  # removed again when training leaves nothing to export
     prepare_folder(layout, source, __version__)
-    with output_lock(layout.folder):
-        summaries, trained = _train_and_share(plans, folders, cfg, device, options.resume, options.progress,
-                                              options.allow_missing_textures, options.force, workers,
-                                              options.max_error, options_record(options))
-        summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
-        if cfg.iterations == 0:
-            for s in summaries:
-                s.setdefault("warnings", []).append("exported untrained (--iterations 0 --allow-untrained)")
-        if flat is not None:
-            write_snapshot(flat, source)
-        layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
-                                       tool_version=__version__, skipped={f.material: f.reason for f in failures},
-                                       engine_shaders=options.engine_shaders)
-        if flat is None and not (keep and keep.entries):
-            # An earlier conversion's snapshot of an in-memory or edited stage: the new layer sublayers
-            # the file instead, so it is stale (kept materials' summaries may still name it: kept then).
-            (layout.folder / SNAPSHOT_NAME).unlink(missing_ok=True)
+    error = None
+    try:
+        with output_lock(layout.folder):
+            summaries, trained = _train_and_share(plans, folders, cfg, device, options.resume, options.progress,
+                                                  options.allow_missing_textures, options.force, workers,
+                                                  options.max_error, options_record(options),
+                                                  application_of(options))
+            if summaries.failed and (options.strict or not trained):  # all or nothing: no layer
+                error = (_training_failed(scene.asset, summaries.failed) if options.strict
+                         else _nothing_convertible(scene.asset, failures + summaries.failed))
+                raise error
+            failures = failures + summaries.failed
+            layer, exported = _export(summaries, trained, scene, material, cfg, flat, source, layout, label,
+                                      keep, failures, options)
+    except InputError as exc:
+        if exc is error and fresh:  # a folder this run created, for nothing
+            shutil.rmtree(layout.folder, ignore_errors=True)
+        raise
     for s, e in zip(summaries, exported):
         s["usd"], s["export_notes"] = str(layer), e.notes
     summaries.kept = sorted(keep.entries) if keep else []
     summaries.failed = [f.record() for f in failures]
     summaries.folder, summaries.layer = layout.folder, Path(layer)
     return summaries
+
+
+def _export(summaries, trained, scene, material, cfg, flat, source, layout, label, keep, failures, options):
+    """Write the neural layer and the export of ``trained`` (under the output lock): (layer, exported)."""
+    summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
+    if cfg.iterations == 0:
+        for s in summaries:
+            s.setdefault("warnings", []).append("exported untrained (--iterations 0 --allow-untrained)")
+    if flat is not None:
+        write_snapshot(flat, source)
+    layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
+                                   tool_version=__version__, skipped={f.material: f.reason for f in failures},
+                                   engine_shaders=options.engine_shaders)
+    if flat is None and not (keep and keep.entries):
+        # An earlier conversion's snapshot of an in-memory or edited stage: the new layer sublayers
+        # the file instead, so it is stale (kept materials' summaries may still name it: kept then).
+        (layout.folder / SNAPSHOT_NAME).unlink(missing_ok=True)
+    return layer, exported
 
 
 def _stage_source(stage, layout: OutputLayout):
@@ -381,9 +418,19 @@ def _stage_source(stage, layout: OutputLayout):
     return target, flatten(stage)
 
 
+def training_failure(material: str, exc: BaseException) -> MaterialFailure:
+    """The :class:`MaterialFailure` of a material whose training raised ``exc`` (a non-finite loss,
+    out of memory, an error in a worker process or Ray task)."""
+    what = "out of memory" if isinstance(exc, MemoryError) or "out of memory" in str(exc).lower() else None
+    reason = f"training failed ({what or type(exc).__name__}): {exc}"
+    return MaterialFailure(material, getattr(exc, "node", None), reason)
+
+
 def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
-                     max_error, record: dict | None = None) -> tuple[Summaries, list[tuple]]:
-    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder) per plan)."""
+                     max_error, record: dict | None = None, application=None) -> tuple[Summaries, list[tuple]]:
+    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder) per
+    converted plan). A plan whose training raised (and one sharing its result) is left out and listed
+    in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end."""
     results: dict[int, tuple] = {}  # plan index -> (model or None, summary, cached)
     jobs, job_plans = [], []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
@@ -402,7 +449,7 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
             continue
         jobs.append(make_job(plan, folder, plan.cfg, device=device, resume=resume, progress=progress,
                              allow_missing_textures=allow_missing_textures, max_error=max_error,
-                             options=record))
+                             options=record, application=application))
         job_plans.append(i)
 
     finished = []
@@ -413,14 +460,31 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
             print(f"[{len(finished)}/{len(jobs)}] {s['material']}: decoder {s['decoder']}, {s['steps']} steps "
                   f"in {s['seconds']} s, HDR FLIP {s['flip_mean']:.4f}", flush=True)
 
-    for k, s in enumerate(run_jobs(jobs, workers, report)):
+    errors: dict[int, MaterialFailure] = {}  # plan index -> why its training failed
+
+    def failed(k: int, exc: BaseException) -> None:
         i = job_plans[k]
-        results[i] = (load_checkpoint(folders[i]), s, False)
+        errors[i] = training_failure(plans[i].name, exc)
+        if progress:
+            print(f"{plans[i].name}: {errors[i].reason}", flush=True)
+
+    for k, s in enumerate(run_jobs(jobs, workers, report, failed)):
+        i = job_plans[k]
+        if s is not None:
+            results[i] = (load_checkpoint(folders[i]), s, False)
     first = {p.name: i for i, p in reversed(list(enumerate(plans)))}
     summaries, trained = Summaries(), []
+    summaries.failed = []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
+        if i in errors:
+            summaries.failed.append(errors[i])
+            continue
         if plan.shared_with:
             j = first[plan.shared_with]
+            if j in errors:  # shares the result of a material whose training failed
+                summaries.failed.append(MaterialFailure(plan.name, None, f"identical to {plan.shared_with}, "
+                                                        f"whose training failed: {errors[j].reason}"))
+                continue
             model, rep, cached = results[j]
             summary = _share(plan.source, plan, rep, folders[j], folder)
             if progress:

@@ -37,6 +37,7 @@ from mtlx2neural.baseline.analytic_model import (
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
+from mtlx2neural.graph.ops import Application
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.renderer import compare_many, save_png
@@ -133,8 +134,11 @@ def write_summary(folder: Path, summary: dict) -> None:
 
 def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
                    allow_missing_textures: bool, digest: str, resolution: tuple[int, int] | None = None,
-                   extra: dict | None = None, preview: bool = True):
+                   extra: dict | None = None, preview: bool = True, application: Application | None = None):
     """Train one material into ``folder``; returns (model, summary) and writes ``summary.json``.
+
+    ``application``: the instant ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps); a graph
+    that reads them records it in the summary's ``application`` (frame, fps, time in seconds, nodes).
 
     ``resolution`` is the latent grid (default: :func:`mtlx2neural.pipeline.plan.latent_resolution`);
     ``extra`` is merged into the summary (its ``notes`` are put before the stack's). ``preview``:
@@ -152,7 +156,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     if not preview:  # a baseline of an earlier run would otherwise be exported as this run's fallback
         (folder / BASELINE_FILE).unlink(missing_ok=True)
     compiled = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures)
+                                allow_missing_textures=allow_missing_textures, application=application)
     geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
     ref = ReferenceMaterial(compiled)
     stack = build_parameter_stack(compiled, resolution=resolution or latent_resolution(compiled, cfg))
@@ -192,6 +196,10 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                "notes": list(extra.pop("notes", [])) + list(stack.notes) + ([geometry_note] if geometry_note else [])}
     if preview:
         summary.update(preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
+    if compiled.reads_application:
+        app = compiled.application
+        summary["application"] = {"frame": app.frame, "fps": app.fps, "time": app.time,
+                                   "nodes": list(compiled.reads_application)}
     summary.update(extra)
     write_summary(folder, summary)
     return model, summary
@@ -227,12 +235,13 @@ def preview_record(errors: list[dict], fit_seconds: float, iterations: int = PRE
 
 
 def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, resolution, seed: int,
-                summary: dict, iterations: int = PREVIEW_ITERATIONS) -> dict:
+                summary: dict, iterations: int = PREVIEW_ITERATIONS,
+                application: Application | None = None) -> dict:
     """Fit (``iterations`` steps), save and measure the preview baseline for a material trained without
     it (the chosen decoder of an error budget, :func:`train_within_budget`); returns ``summary`` with
     its record."""
     compiled = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures)
+                                allow_missing_textures=allow_missing_textures, application=application)
     bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
     ref = ReferenceMaterial(compiled)
     stack = build_parameter_stack(compiled, resolution=tuple(resolution))
@@ -247,7 +256,8 @@ BUDGET_FOLDER = "budget"
 
 def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
                         allow_missing_textures: bool, digest: str, max_error: float,
-                        resolution: tuple[int, int] | None = None, extra: dict | None = None) -> dict:
+                        resolution: tuple[int, int] | None = None, extra: dict | None = None,
+                        application: Application | None = None) -> dict:
     """Train the smallest decoder of :data:`~mtlx2neural.pipeline.plan.DECODERS` whose HDR FLIP mean is at
     most ``max_error`` (:func:`choose_decoder`); returns its summary.
 
@@ -262,7 +272,8 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     def attempt(decoder: str) -> float:
         sub = folder / BUDGET_FOLDER / decoder
         _, s = train_material(src, dataclasses.replace(cfg, decoder=decoder), sub, device, resume, progress,
-                              allow_missing_textures, digest, resolution, extra, preview=False)
+                              allow_missing_textures, digest, resolution, extra, preview=False,
+                              application=application)
         runs[decoder] = s
         if progress:
             print(f"{src.name}: decoder {decoder}: HDR FLIP {s['flip_mean']:.4f} "
@@ -277,7 +288,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     summary = dict(runs[decoder])
     if cfg.preview_iterations > 0:
         summary = add_preview(src, folder, device, allow_missing_textures, runs[decoder]["resolution"], cfg.seed,
-                              summary, cfg.preview_iterations)
+                              summary, cfg.preview_iterations, application)
     else:
         (folder / BASELINE_FILE).unlink(missing_ok=True)
     summary["budget"] = {"max_error": max_error, "flip_by_decoder": flips,
@@ -338,6 +349,8 @@ class MaterialJob:
     """The conversion's options (:func:`mtlx2neural.pipeline.options.options_record`): the summary's ``options``."""
     stage_file: str | None = None
     """The USD stage whose bound meshes provide the geometry the graph reads (``MaterialSource.stage_file``)."""
+    application: Application | None = None
+    """The instant ``time``/``frame`` nodes fold to (``--frame``/``--fps``; None: frame 1 at 24 fps)."""
 
     def source(self):
         """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML."""
@@ -387,11 +400,12 @@ def run_job(job: MaterialJob) -> dict:
         with _running():
             if job.max_error is None:
                 _, summary = train_material(src, job.cfg, folder, device, job.resume, job.progress,
-                                            job.allow_missing_textures, job.digest, job.resolution, extra)
+                                            job.allow_missing_textures, job.digest, job.resolution, extra,
+                                            application=job.application)
             else:
                 summary = train_within_budget(src, job.cfg, folder, device, job.resume, job.progress,
                                               job.allow_missing_textures, job.digest, job.max_error,
-                                              job.resolution, extra)
+                                              job.resolution, extra, application=job.application)
         if job.ship:
             summary = {**summary, "_files": {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}}
         return summary

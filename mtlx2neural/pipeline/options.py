@@ -13,6 +13,7 @@ checked by :func:`check_options` before any work.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
@@ -55,6 +56,12 @@ class ConvertOptions:
     texel_density: float | None = field(default=None, metadata={"metavar": "D"})
     """Latent texels per metre of surface (512 = 5.12 texels/cm): each material's grid is scaled down
     to what its bound meshes' UVs need (never up; USD input only)."""
+    frame: float = field(default=1.0, metadata={"metavar": "F"})
+    """The instant a material that reads MaterialX's ``frame`` or ``time`` node is baked at: ``frame``
+    folds to F, ``time`` to F / ``fps`` seconds (a note names each such material)."""
+    fps: float = field(default=24.0, metadata={"metavar": "R"})
+    """Frames per second that turn ``--frame`` into the ``time`` node's seconds (the node's own ``fps``
+    input is unused, as the MaterialX specification says)."""
     resume: bool = False
     """Continue from the checkpoints in the output folder."""
     force: bool = False
@@ -117,11 +124,24 @@ def check_options(options: ConvertOptions) -> TrainConfig:
         raise InputError(f"--preset {options.preset!r}: unknown; choose one of {', '.join(PRESETS)}")
     cfg = options.train_config()
     validate_config(cfg, options.allow_untrained)
+    for name, v in (("frame", options.frame), ("fps", options.fps)):
+        number = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        if not number or (name == "fps" and v <= 0):
+            raise InputError(f"--{name} {v!r}: must be a {'positive' if name == 'fps' else 'finite'} number")
     for name in ("max_error", "texel_density"):
         v = getattr(options, name)
         if v is not None and not (isinstance(v, (int, float)) and 0 < v < float("inf")):
             raise InputError(f"--{name.replace('_', '-')} {v!r}: must be a positive number")
     return cfg
+
+
+def application_of(options: ConvertOptions):
+    """The instant ``time``/``frame`` nodes fold to (:class:`~mtlx2neural.graph.ops.Application`):
+    ``options.frame`` at ``options.fps``."""
+    # Local: this module serves --help, which must answer without importing torch (graph.ops does).
+    from mtlx2neural.graph.ops import Application
+
+    return Application(frame=float(options.frame), fps=float(options.fps))
 
 
 def options_record(options) -> dict:

@@ -41,7 +41,9 @@ from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
+from mtlx2neural.graph.compile import application_note
 from mtlx2neural.graph.geometry import bind_geometry
+from mtlx2neural.graph.ops import Application
 from mtlx2neural.pipeline.source_hash import content_hash, source_hash
 from mtlx2neural.scene.texel_density import (
     open_stage_for,
@@ -94,6 +96,14 @@ def cache_key(source, cfg: TrainConfig, allow_missing_textures: bool, max_error:
         return source_hash(source, cfg, allow_missing_textures)
     base = source_hash(source, dataclasses.replace(cfg, decoder="budget"), allow_missing_textures)
     return hashlib.sha256(f"{base}\0{budget_tag(max_error)}".encode()).hexdigest()
+
+
+def application_tag(compiled) -> str:
+    """What the hashes add for a graph that reads ``time``/``frame``: the instant it is baked at."""
+    if not compiled.reads_application:
+        return ""
+    app = compiled.application
+    return f"\0application=frame {app.frame!r} at {app.fps!r} fps"
 
 
 def geometry_tag(compiled) -> str:
@@ -222,7 +232,7 @@ def _named_node(message: str) -> str | None:
 def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = False,
                    max_error: float | None = None, texel_density: float | None = None,
                    asset=None, failures: list[MaterialFailure] | None = None,
-                   strict: bool = False) -> list[MaterialPlan]:
+                   strict: bool = False, application: Application | None = None) -> list[MaterialPlan]:
     """Compile each of ``sources`` and decide its grid, settings, cache key and sharing (module docstring).
 
     ``texel_density``: latent texels per metre of surface (``--texel-density``); the
@@ -234,13 +244,15 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
     :class:`MaterialFailure` and left out of the plans; None: the error propagates.
     ``strict``: a texture found only by ignoring case is an error instead of a warning
     (:func:`mtlx2neural.graph.compile.compile_material`).
+    ``application``: the instant ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps); a
+    material that reads them gets a note, and the instant joins its hashes.
     """
     plans, first = [], {}
     stage, no_stage = _density_stage(texel_density, asset)
     for src in sources:
         try:
             compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
-                                        strict_case=strict)
+                                        strict_case=strict, application=application)
         except InputError as exc:
             if failures is None:
                 raise
@@ -249,7 +261,9 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         surface = implied = None
         notes = []
         bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
-        geo = geometry_tag(compiled)
+        geo = geometry_tag(compiled) + application_tag(compiled)
+        if compiled.reads_application:
+            notes.append(application_note(src.name, compiled.reads_application, compiled.application))
         if texel_density and compiled.varying_parameters():
             if stage is None:
                 notes.append(f"--texel-density has no effect: {no_stage}")

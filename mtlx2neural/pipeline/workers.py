@@ -95,32 +95,66 @@ def parse_workers(value) -> int | str | None:
 
 Report = Callable[[int, dict], None]
 """Called in the parent as each job finishes: (job index, summary)."""
+Failed = Callable[[int, BaseException], None]
+"""Called in the parent for each job whose training raised: (job index, the error)."""
 
 
-def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None) -> list[dict]:
+def _interrupt(exc: BaseException) -> bool:
+    """Is ``exc`` a stop of the whole run (Ctrl-C in a worker), never a per-material failure?"""
+    return isinstance(exc, (TrainingInterrupted, KeyboardInterrupt, SystemExit))
+
+
+def _settle(errors: list[tuple[int, BaseException]], failed: Failed | None) -> None:
+    """After every job ran: re-raise an interrupt, else report each failure through ``failed``
+    (None: raise the first)."""
+    for _, exc in errors:
+        if _interrupt(exc):
+            raise exc
+    if errors and failed is None:
+        raise errors[0][1]
+    for i, exc in errors:
+        failed(i, exc)
+
+
+def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
+             failed: Failed | None = None) -> list[dict | None]:
     """Run every job of ``jobs`` with ``workers`` (see the module docstring); summaries in job order.
 
-    When jobs fail, the others still run to the end (their results are saved and
-    cached) and the first failure is raised afterwards. Ctrl-C stops every job at a
-    checkpoint and raises :class:`~mtlx2neural.train.trainer.TrainingInterrupted`.
+    When jobs fail (any ``Exception`` their training raises: a non-finite loss, out of
+    memory, an error in a worker process or Ray task), the others still run to the end
+    (their results are saved and cached). Then, with ``failed``, each failure is passed to
+    it and its summary is None; without, the first failure is raised. Ctrl-C stops every
+    job at a checkpoint and raises :class:`~mtlx2neural.train.trainer.TrainingInterrupted`
+    (never a per-material failure).
     """
     workers = parse_workers(workers)
     if not jobs:
         return []
     if isinstance(workers, str):
-        return _run_ray(jobs, workers, report)
+        return _run_ray(jobs, workers, report, failed)
     n = workers or default_workers(len(jobs), jobs[0].device)
     if n == 1 or len(jobs) == 1:
-        out = []
+        out: list[dict | None] = []
+        errors: list[tuple[int, BaseException]] = []
         for i, job in enumerate(jobs):
-            out.append(run_job(job))
+            try:
+                out.append(run_job(job))
+            except TrainingInterrupted:
+                raise
+            except Exception as exc:  # noqa: BLE001 - one material's failure; the others still train
+                if failed is None:
+                    raise
+                out.append(None)
+                errors.append((i, exc))
+                continue
             if report:
                 report(i, out[-1])
+        _settle(errors, failed)
         return out
-    return _run_pool(jobs, n, report)
+    return _run_pool(jobs, n, report, failed)
 
 
-def _run_pool(jobs, n: int, report) -> list[dict]:
+def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict | None]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -137,7 +171,7 @@ def _run_pool(jobs, n: int, report) -> list[dict]:
                                 progress_queue=bars.queue if bars else None, index=i)
             for i, j in enumerate(jobs)]
     results: list[dict | None] = [None] * len(jobs)
-    errors: list[BaseException] = []
+    errors: list[tuple[int, BaseException]] = []
     with _thread_env(threads):
         ex = ProcessPoolExecutor(n, mp_context=ctx,
                                  initializer=init_pool_worker, initargs=(threads,))
@@ -146,7 +180,7 @@ def _run_pool(jobs, n: int, report) -> list[dict]:
             for f in as_completed(futures):
                 i = futures[f]
                 if f.exception() is not None:
-                    errors.append(f.exception())
+                    errors.append((i, f.exception()))
                     continue
                 results[i] = f.result()
                 if report:
@@ -159,8 +193,7 @@ def _run_pool(jobs, n: int, report) -> list[dict]:
             ex.shutdown(wait=True)
             if bars:
                 bars.close()
-    if errors:
-        raise errors[0]
+    _settle(sorted(errors, key=lambda e: e[0]), failed)
     return results
 
 
@@ -217,7 +250,7 @@ def check_workers(workers):
     return workers
 
 
-def _run_ray(jobs, address: str, report) -> list[dict]:
+def _run_ray(jobs, address: str, report, failed: Failed | None = None) -> list[dict | None]:
     check_workers(address)
     import ray  # local: Ray is an optional extra, imported only for a Ray runner
 
@@ -247,7 +280,7 @@ def _run_ray(jobs, address: str, report) -> list[dict]:
             try:
                 summary = ray.get(done[0])
             except Exception as exc:  # noqa: BLE001 - re-raised once the others finish
-                errors.append(getattr(exc, "cause", None) or exc)
+                errors.append((i, getattr(exc, "cause", None) or exc))
                 continue
             files = summary.pop("_files", None)
             if files is not None:
@@ -258,8 +291,7 @@ def _run_ray(jobs, address: str, report) -> list[dict]:
             results[i] = summary
             if report:
                 report(i, summary)
-        if errors:
-            raise errors[0]
+        _settle(sorted(errors, key=lambda e: e[0]), failed)
         return results
     finally:
         if started:

@@ -31,7 +31,7 @@ from node_oracle import (
     require_oracle,
 )
 
-from mtlx2neural.graph.ops import APPLICATION
+from mtlx2neural.graph.ops import Application
 
 GROUPS = (
     ("absval", "acos", "add", "and", "asin", "atan2", "bitangent", "ceil", "clamp", "combine2"),
@@ -61,16 +61,16 @@ ATOL = RTOL = 1e-5  # see the module docstring
 
 @pytest.mark.slow
 @pytest.mark.parametrize("group", range(len(GROUPS)), ids=[g[0] for g in GROUPS])
-def test_value_categories_match_materialx_oracle(group, monkeypatch):
-    # `frame` folds to APPLICATION["frame"] (1, the nodedef's default); MaterialX's shader reads a u_frame
-    # uniform that the oracle leaves at 0, so the comparison runs with frame 0.
-    monkeypatch.setitem(APPLICATION, "frame", 0.0)
+def test_value_categories_match_materialx_oracle(group):
+    # `frame` folds to the conversion's frame (1 by default, the nodedef's default) and `time` to frame / fps;
+    # MaterialX's shader reads u_frame and u_time uniforms that the oracle leaves at 0, so the torch side
+    # is compiled at frame 0 (time 0).
     require_oracle()
     builder = Builder(seed=100 + group)
     counts = {c: category_nodes(builder, c) for c in GROUPS[group]}
     assert all(counts.values()), f"a category has no drivable nodedef: {counts}"
     uv, pos = points(128, seed=200 + group)
-    results = compare(builder, uv, pos)
+    results = compare(builder, uv, pos, application=Application(frame=0.0))
     spread: dict[str, float] = {}  # per node: the largest variation of its outputs
     for (name, _), (_, want) in results.items():
         spread[name] = max(spread.get(name, 0.0), float(np.ptp(want)))
