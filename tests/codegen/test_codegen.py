@@ -95,6 +95,15 @@ def torch_ops(model, lat, wi, wo, u):
     return [t.numpy().astype(np.float64) for t in out[:2]] + [[t.numpy().astype(np.float64) for t in out[2]]]
 
 
+def torch_eval(model, lat, wi, wo) -> np.ndarray:
+    """NeuralMaterial.eval (BRDF x cosine, 0 below the horizon) in float64 at the given latents (on a
+    float64 copy's forward: ``model`` itself becomes float64, as the callers' fresh models may)."""
+    m = model.double()
+    m._latent = lambda n, uv, lod, ul: lat.double()
+    with torch.no_grad():
+        return m.eval(wi.double(), wo.double()).numpy()
+
+
 def rel(a, b, floor):
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     err = np.abs(a - b) / np.maximum(np.abs(b), floor)

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_codegen import make_inputs, make_model
+from test_codegen import make_inputs, make_model, torch_eval
+from test_codegen import rel as codegen_rel
 
 from mtlx2neural.codegen import as_spec, emulate, engine, write_material_shader
 from mtlx2neural.codegen.compile import find_slangc, slangc, spirv_extensions
@@ -77,16 +78,9 @@ def perturbed(model):
     return model
 
 
-def torch_eval(model, lat, wi, wo) -> np.ndarray:
-    """NeuralMaterial.eval (BRDF x cosine, 0 below the horizon) in float64 at the given latents."""
-    m = model.double()
-    m._latent = lambda n, uv, lod, ul: lat.double()
-    with torch.no_grad():
-        return m.eval(wi.double(), wo.double()).numpy()
-
-
 def rel(a, b, floor=FLOOR):
-    return (np.abs(np.asarray(a, np.float64) - b) / np.maximum(np.abs(b), floor)).max(-1)
+    """Relative error per query (max over RGB), with this file's floor by default."""
+    return codegen_rel(a, b, floor)
 
 
 def emulated_eval(spec16, lat, wi, wo, acc):

@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_codegen import make_inputs, make_model
+from test_codegen import make_inputs, make_model, torch_eval
+from test_codegen import rel as codegen_rel
 
 from mtlx2neural.codegen import as_spec, emulate, write_material_shader
 from mtlx2neural.codegen.compile import find_slangc, slangc
@@ -90,16 +91,9 @@ def run_eval(spv: bytes, lat, wi, wo) -> np.ndarray:
     return np.asarray(out["gOut"]["__member0"], np.float64).reshape(n, 3)
 
 
-def torch_eval(model, lat, wi, wo) -> np.ndarray:
-    """NeuralMaterial.eval (BRDF x cosine) in float64 at the given latents."""
-    m = model.double()
-    m._latent = lambda n, uv, lod, ul: lat.double()
-    with torch.no_grad():
-        return m.eval(wi.double(), wo.double()).numpy()
-
-
 def rel(a, b, floor=FLOOR):
-    return (np.abs(a - b) / np.maximum(np.abs(b), floor)).max(-1)
+    """Relative error per query (max over RGB), with this file's floor by default."""
+    return codegen_rel(a, b, floor)
 
 
 @pytest.fixture(scope="module")
