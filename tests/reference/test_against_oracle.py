@@ -39,7 +39,6 @@ NOT_COMPARED = {
     ("chiang_hair_bsdf.mtlx", "test_chiang_hair1_out"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("chiang_hair_surfaceshader.mtlx", "simple_hair_default"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("flake_surfaceshader.mtlx", "flake_surfaceshader"): (UnsupportedNodeError, "flake3d has no torch operator yet"),
-    ("standard_surface_onyx_hextiled.mtlx", "M_OnyxHextiled"): (UnsupportedNodeError, "hextiledimage not supported"),
     ("surfacematerial_with_graph.mtlx", "M_EmptySurface"): (InputError, "the material has no surface shader"),
     ("mapped_surfaceshader.mtlx", "UnitMappedShaderMaterial"): (
         None, "textured: a tiledimage with real-world tile sizes (unit-converted) and uv offset differs from "
