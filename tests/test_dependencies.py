@@ -31,8 +31,11 @@ OPTIONAL_GUARDED = {
     "slangpy": "shader timings in the report (optional: the 'shaders' extra)",
 }
 
+# Modules already loaded when the interpreter starts (site's .pth hooks, e.g. the cmeel wheels'
+# cmeel_pth) are not imported by the commands, so they are left out of the record.
 SCRIPT = r"""
 import json, sys
+started = {m.split(".")[0] for m in list(sys.modules)}
 from mtlx2neural.cli import main
 asset, out, layer, record = sys.argv[1:5]
 codes = {
@@ -42,7 +45,7 @@ codes = {
                     "-o", out]),
     "report": main(["report", layer, "--res", "8", "--spp", "1", "--analytic-iterations", "2"]),
 }
-modules = sorted({m.split(".")[0] for m in list(sys.modules)})
+modules = sorted({m.split(".")[0] for m in list(sys.modules)} - started)
 with open(record, "w") as f:
     json.dump({"codes": codes, "modules": modules}, f)
 """
