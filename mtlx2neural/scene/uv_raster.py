@@ -191,6 +191,8 @@ class _Canvas:
 
     def maps(self, prims, notes) -> GeometryMaps:
         """The drawn values with every uncovered texel filled from its nearest covered one."""
+        # Local: scipy.ndimage is needed only here, once per drawn layout; importing it at the top
+        # would load it for every command, --help included.
         from scipy import ndimage
 
         if self.covered.any() and not self.covered.all():
