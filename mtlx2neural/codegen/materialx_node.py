@@ -142,17 +142,19 @@ def write_latent_atlas(chain: list[np.ndarray], path: Path) -> Path:
     return path
 
 
-def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None = None,
-                       levels: int | None = None) -> LatentLayout:
-    """Check the latent textures ``paths`` (in channel order) for ``channels`` latent channels and
-    return their layout. ``resolution`` (height, width of level 0) and ``levels``, when given, are
-    what the networks were trained with. Raises InputError naming the offending file."""
+def read_latent_files(paths, channels: int, resolution: tuple[int, int] | None = None,
+                      levels: int | None = None) -> tuple[LatentLayout, list[list[np.ndarray]]]:
+    """Read and check the latent textures ``paths`` (in channel order) for ``channels`` latent
+    channels; returns (their layout, each file's MIP chain as :func:`_latent_chain` reads it).
+    ``resolution`` (height, width of level 0) and ``levels``, when given, are what the networks were
+    trained with. Raises InputError naming the offending file."""
     paths = [Path(p) for p in paths]
     groups = math.ceil(channels / 4)
     if len(paths) != groups:
         raise InputError(f"{channels} latent channels are stored in {groups} latent texture(s), got {len(paths)}: "
                          f"{', '.join(map(str, paths)) or 'none'}")
-    chains = [[tuple(level.shape[:2]) for level in chain] for chain in map(_latent_chain, paths)]
+    images = [_latent_chain(p) for p in paths]
+    chains = [[tuple(level.shape[:2]) for level in chain] for chain in images]
     for p, chain in zip(paths, chains):
         if resolution is not None and chain[0] != tuple(resolution):
             raise InputError(f"latent texture {p} is {chain[0][1]} x {chain[0][0]} texels; the networks were "
@@ -162,7 +164,7 @@ def check_latent_files(paths, channels: int, resolution: tuple[int, int] | None 
         if chain != chains[0]:
             raise InputError(f"latent texture {p}: MIP levels {chain} differ from {paths[0]}'s {chains[0]}")
     (h, w) = chains[0][0]
-    return LatentLayout(channels, groups, w, h, len(chains[0]), tuple(chains[0]))
+    return LatentLayout(channels, groups, w, h, len(chains[0]), tuple(chains[0])), images
 
 
 def _expected_latents(model_or_export) -> tuple[tuple[int, int] | None, int | None]:
@@ -249,7 +251,7 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
             base = folder
         latent_files = [base / f for f in latent_file_names(spec.latent_channels)]
     resolution, levels = _expected_latents(model_or_export)
-    layout = check_latent_files(latent_files, spec.latent_channels, resolution, levels)
+    layout, chains = read_latent_files(latent_files, spec.latent_channels, resolution, levels)
     names = node_names(name)
     folder.mkdir(parents=True, exist_ok=True)
     atlases = atlas_file_names(layout.groups)
@@ -261,8 +263,8 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
              names.slang: node_source(spec, name, layout, "genslang", file=names.slang, nodedef=names.nodedef,
                                       version=version, source=source),
              names.mtlx: mx.writeToXmlString(doc)}
-    for source_file, atlas in zip(latent_files, atlases):
-        write_latent_atlas(read_mip_chain(source_file), folder / atlas)
+    for chain, atlas in zip(chains, atlases):
+        write_latent_atlas(chain, folder / atlas)
     for file, text in texts.items():  # the document last: it names the other files
         with atomic_path(folder / file) as tmp:
             tmp.write_text(text)
