@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 from mtlx2neural.codegen.paths import runtime_path
-from mtlx2neural.codegen.spirv_tools import spirv_val
+from mtlx2neural.codegen.spirv_tools import instructions, spirv_val, spirv_words
 
 __all__ = ["COOPVEC_SPIRV_EXTENSION", "CompileError", "find_slangc", "glslang_hlsl", "slangc", "spirv_extensions",
            "spirv_val", "tool"]
@@ -92,16 +92,9 @@ def slangc(source: Path, target: str, *, entry: str | None = None, stage: str | 
 
 def spirv_extensions(spv: bytes) -> list[str]:
     """The OpExtension strings of a SPIR-V module."""
-    words = struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4])
-    out, i = [], 5
-    while i < len(words):
-        count, op = words[i] >> 16, words[i] & 0xFFFF
-        if count == 0:
-            break
-        if op == 10:  # OpExtension
-            out.append(struct.pack(f"<{count - 1}I", *words[i + 1:i + count]).split(b"\0", 1)[0].decode())
-        i += count
-    return out
+    words = spirv_words(spv)
+    return [struct.pack(f"<{count - 1}I", *words[i + 1:i + count]).split(b"\0", 1)[0].decode()
+            for i, op, count in instructions(words) if op == 10]  # OpExtension
 
 
 def glslang_hlsl(hlsl: str, entry: str, stage: str = "comp") -> tuple[str, str]:

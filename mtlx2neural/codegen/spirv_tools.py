@@ -104,18 +104,30 @@ def find_spirv_run() -> Path | None:
 # Validation and optimisation
 # ------------------------------------------------------------------------------------------
 
-def zero_source_language(spv: bytes) -> bytes:
-    """``spv`` with OpSource's language operand set to 0 (Unknown): SPIRV-Tools releases older
-    than Slang's source-language id reject the module otherwise (the cmeel 2025.5 one does not)."""
-    words = list(struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4]))
+def spirv_words(spv: bytes) -> list[int]:
+    """The 32-bit words of a SPIR-V module (little-endian, as slangc writes it)."""
+    return list(struct.unpack(f"<{len(spv) // 4}I", spv[: len(spv) // 4 * 4]))
+
+
+def instructions(words: list[int]):
+    """(word index, opcode, word count) of each instruction after the 5-word header, in order;
+    stops at a malformed zero-length instruction."""
     i = 5
     while i < len(words):
         count, op = words[i] >> 16, words[i] & 0xFFFF
         if count == 0:
-            break
+            return
+        yield i, op, count
+        i += count
+
+
+def zero_source_language(spv: bytes) -> bytes:
+    """``spv`` with OpSource's language operand set to 0 (Unknown): SPIRV-Tools releases older
+    than Slang's source-language id reject the module otherwise (the cmeel 2025.5 one does not)."""
+    words = spirv_words(spv)
+    for i, op, count in list(instructions(words)):
         if op == 3 and count > 1:  # OpSource: source language -> Unknown
             words[i + 1] = 0
-        i += count
     return struct.pack(f"<{len(words)}I", *words)
 
 
