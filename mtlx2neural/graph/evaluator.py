@@ -21,6 +21,7 @@ from mtlx2neural.graph import (  # noqa: F401  (register operators)
     compositing,
     heightfield,
     hextile,
+    matrix,
     noise,
     ramps,
     transforms,

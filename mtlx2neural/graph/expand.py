@@ -93,6 +93,9 @@ def _const_value(elem: mx.ValueElement, mx_type: str, base_dir: str):
         return value
     if isinstance(value, (bool, int, float)):
         return (float(value),)
+    if isinstance(value, (mx.Matrix33, mx.Matrix44)):  # row by row, the order of the value string
+        n = value.numRows()
+        return tuple(float(value[r, c]) for r in range(n) for c in range(n))
     if hasattr(value, "asTuple"):
         value = value.asTuple()
     return tuple(float(x) for x in value)
