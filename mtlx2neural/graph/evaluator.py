@@ -19,6 +19,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.graph import (  # noqa: F401  (register operators)
     blackbody,
     compositing,
+    flake,
     heightfield,
     hextile,
     matrix,

@@ -24,7 +24,7 @@ from mtlx2neural.graph.spatial import FRAME_AXES, UV_PRIMVARS
 from mtlx2neural.scene.uv_raster import GeometrySource
 
 GEOMETRIC = {"position", "geomcolor", "geompropvalue"} | set(FRAME_AXES)
-FRAME_INPUTS = {"normalmap": ("normal", "tangent", "bitangent")}
+FRAME_INPUTS = {c: ("normal", "tangent", "bitangent") for c in ("normalmap", "flake2d", "flake3d")}
 """Non-closure nodes whose listed inputs are a shading frame (they output a shading normal)."""
 CLOSURE_FRAME_INPUTS = ("normal", "tangent")
 

@@ -32,7 +32,7 @@ HERE = Path(__file__).parent
 # test_heightfield's cases are analytic (heighttonormal differentiates over the screen, which the oracle's
 # compute kernel has not).
 ORACLE_MODULES = ("test_compositing", "test_ramps", "test_blackbody", "test_transforms", "test_stdlib_sweep",
-                  "test_heightfield", "test_hextile", "test_matrix")
+                  "test_heightfield", "test_hextile", "test_matrix", "test_flake")
 # tests/graph/test_noise.py (written before ORACLE_CATEGORIES): its categories, each checked to be named there.
 NOISE = ("noise2d", "noise3d", "fractal2d", "fractal3d", "cellnoise2d", "cellnoise3d", "worleynoise2d",
          "worleynoise3d", "unifiednoise2d", "unifiednoise3d", "randomfloat", "randomcolor")
@@ -111,9 +111,10 @@ def _is_closure(category: str) -> bool:
 def test_coverage_table_statuses():
     table = coverage()
     for c in ("over", "ramplr", "splittb", "blackbody", "transformnormal", "noise3d", "standard_surface",
-              "heighttonormal", "bump", "hextiledimage", "hextilednormalmap"):
+              "heighttonormal", "bump", "hextiledimage", "hextilednormalmap", "flake2d", "flake3d",
+              "transformmatrix", "invertmatrix", "multiply", "extract", "switch"):
         assert table[c].status == "supported", table[c]
-    for c in ("flake3d",):  # a later task
+    for c in ("viewdirection",):  # nprlib: view-dependent, not a reflectance input
         assert table[c].status == "unsupported" and table[c].reason, table[c]
     for c in OUT_OF_SCOPE:
         assert table[c].status == "out of scope"
