@@ -70,7 +70,7 @@ def metrics(summary: dict, preset: str) -> dict:
     return {"flip": summary.get("flip_mean", float("nan")), "iterations": summary.get("steps", 0),
             "preset": preset, "device": summary.get("device_name") or summary.get("device", ""),
             "train_seconds": summary.get("train_seconds", summary.get("seconds", 0.0)),
-            "preview_flip": summary.get("preview_flip")}
+            "preview_flip": summary.get("preview_flip"), "flip_in_scene": summary.get("flip_in_scene")}
 
 
 def export_material(model, summary: dict, staged: Path, final: Path, preset: str,

@@ -22,8 +22,11 @@ Per converted Material, everything neural lives in the ``neural`` variant of the
 variant set ``neuralMaterial`` (selected by default):
 
 - the applied ``NeuralMaterialAPI`` and its ``neural:*`` attributes (``neural:metrics:flip``: the
-  neural material's mean HDR FLIP against the reference; ``neural:metrics:previewFlip``: the
-  UsdPreviewSurface fallback's, so a pipeline sees what each render context costs);
+  neural material's mean HDR FLIP against the reference on the analytic views;
+  ``neural:metrics:flipInScene``: the same on the stage's own bound meshes, with its camera and
+  lights, for a USD input bound to meshes (the figure ``--max-error`` checks then);
+  ``neural:metrics:previewFlip``: the UsdPreviewSurface fallback's, so a pipeline sees what each
+  render context costs);
 - ``outputs:neural:surface``: the ``NeuralBSDF`` Shader (with a ``UsdPrimvarReader_float2`` for
   ``st``), read by this project (:func:`~mtlx2neural.export.load.load_neural`);
 - ``outputs:mtlx:surface``: the MaterialX network of the material's ``NeuralMaterial_<ident>.mtlx``
@@ -193,6 +196,8 @@ def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
     _set(prim, "neural:metrics:flip", t.Float, float(x["flip"]))
     if x.get("preview_flip") is not None:  # the UsdPreviewSurface fallback's mean HDR FLIP
         _set(prim, "neural:metrics:previewFlip", t.Float, float(x["preview_flip"]))
+    if x.get("flip_in_scene") is not None:  # on the stage's own meshes, camera and lights (USD input)
+        _set(prim, "neural:metrics:flipInScene", t.Float, float(x["flip_in_scene"]))
     _set(prim, "neural:metrics:iterations", t.Int, int(x["iterations"]))
     _set(prim, "neural:metrics:preset", t.Token, str(x["preset"]))
     _set(prim, "neural:metrics:device", t.String, str(x["device"]))

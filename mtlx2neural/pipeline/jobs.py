@@ -9,6 +9,13 @@ job writes its results into its material folder (``checkpoint.pt``,
 layer's UsdPreviewSurface fallback, ``analytic_baseline.pt``: :func:`train_material`). With an error
 budget (``max_error``) it trains decoders from small to large until the HDR FLIP meets
 the budget (:func:`choose_decoder`).
+
+Fidelity is measured twice for a USD source whose material is bound to meshes: on the analytic
+views (``flip_mean``: the unit sphere, three views, :func:`~mtlx2neural.render.renderer.compare`)
+and in the scene (``flip_in_scene``: the bound meshes, the stage's camera and lights,
+:mod:`mtlx2neural.render.in_scene`, recorded with how it was viewed and lit in ``in_scene``). The
+error budget uses the in-scene figure when there is one (:func:`budget_error`), the analytic one
+otherwise (``.mtlx`` input, or a stage whose bound prims give no triangles).
 """
 
 from __future__ import annotations
@@ -34,12 +41,13 @@ from mtlx2neural.baseline.analytic_model import (
     fit_analytic,
     save_analytic,
 )
-from mtlx2neural.errors import InputError
+from mtlx2neural.errors import InputError, Mtlx2NeuralError
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.render.in_scene import compare_in_scene, stage_in_scene
 from mtlx2neural.render.renderer import compare_many, save_png
 from mtlx2neural.scene import MaterialSource
 from mtlx2neural.textures.footprint import footprint_targets
@@ -126,6 +134,48 @@ def check_device(device: str) -> str:
     return str(d)
 
 
+IN_SCENE_KEYS = {"neural": "flip_in_scene", "analytic": "preview_flip_in_scene"}
+"""Summary key of each model's in-scene HDR FLIP."""
+
+
+def measure_in_scene(ref, models: dict, texels: tuple[int, int], src, folder: Path | None = None) -> dict:
+    """The summary's in-scene entries for ``models`` (labels ``neural`` and/or ``analytic``) on the meshes
+    ``src`` is bound to, with its stage's camera and lights (:mod:`mtlx2neural.render.in_scene`):
+    ``flip_in_scene`` / ``preview_flip_in_scene`` (HDR FLIP over the pixels that show the meshes) and
+    ``in_scene`` (camera, lights, prims, triangles, resolution, samples, the whole-image FLIP, coverage,
+    seconds, notes). ``{}`` for a source without a stage file or bound prims (``.mtlx``); when the stage
+    gives nothing to render, or reading it fails, ``in_scene`` says why and there is no figure.
+    ``folder``: also write ``in_scene_reference.png``, ``in_scene_<label>.png`` and ``in_scene_flip.png``."""
+    stage_file = getattr(src, "stage_file", None)
+    if not stage_file or not src.bound_prims:
+        return {}
+    try:
+        scene = stage_in_scene(stage_file, src.bound_prims)
+        if isinstance(scene, str):
+            return {"in_scene": {"measured": False, "why": scene}}
+        results = compare_in_scene(ref, models, texels, scene)
+    except (Mtlx2NeuralError, OSError, ValueError, RuntimeError) as exc:  # a measure never fails the training
+        return {"in_scene": {"measured": False, "why": f"{type(exc).__name__}: {exc}"}}
+    out = {IN_SCENE_KEYS.get(label, f"{label}_flip_in_scene"): round(r["flip"], 4) for label, r in results.items()}
+    first = results[next(iter(results))]
+    out["in_scene"] = {"measured": True, **scene.record, "res": first["res"], "spp": first["spp"],
+                       "coverage": first["coverage"],
+                       "flip_image": {label: round(r["flip_image"], 4) for label, r in results.items()},
+                       "seconds": {label: r["seconds"] for label, r in results.items()}}
+    if folder is not None:
+        save_png(folder / "in_scene_reference.png", first["reference"])
+        for label, r in results.items():
+            save_png(folder / f"in_scene_{label}.png", r[label])
+        save_png(folder / "in_scene_flip.png", first["flip_map"], linear=False)
+    return out
+
+
+def budget_error(summary: dict) -> float:
+    """The HDR FLIP an error budget (``--max-error``) is checked against: ``flip_in_scene`` when the
+    summary has one (a USD source bound to meshes), else ``flip_mean`` (the analytic views)."""
+    return summary["flip_in_scene"] if summary.get("flip_in_scene") is not None else summary["flip_mean"]
+
+
 def write_summary(folder: Path, summary: dict) -> None:
     """Write ``folder/summary.json`` atomically."""
     with atomic_path(folder / "summary.json") as tmp:
@@ -175,6 +225,8 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         errors, preview_errors = both["neural"], both["analytic"]
     else:  # the same renders as compare(..., label="neural")
         errors = compare_many(ref, {"neural": model}, texels=tuple(stack.resolution))["neural"]
+    in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
+                                tuple(stack.resolution), src, folder)
     for i, e in enumerate(errors):
         save_png(folder / f"view{i}_reference.png", e["reference"])
         save_png(folder / f"view{i}_neural.png", e["neural"])
@@ -193,6 +245,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                "flip_per_view": [round(e["flip"], 4) for e in errors],
                "flip_mean": round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
                "relmse_mean": round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
+               **in_scene,
                "notes": list(extra.pop("notes", [])) + list(stack.notes) + ([geometry_note] if geometry_note else [])}
     if preview:
         summary.update(preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
@@ -247,7 +300,9 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
     stack = build_parameter_stack(compiled, resolution=tuple(resolution))
     analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
     errors = compare_many(ref, {"analytic": analytic}, texels=tuple(stack.resolution))["analytic"]
-    return {**summary, **preview_record(errors, seconds, iterations)}
+    scene = measure_in_scene(ref, {"analytic": analytic}, tuple(stack.resolution), src)
+    extra = {"preview_flip_in_scene": scene["preview_flip_in_scene"]} if "preview_flip_in_scene" in scene else {}
+    return {**summary, **preview_record(errors, seconds, iterations), **extra}
 
 
 BUDGET_FOLDER = "budget"
@@ -258,12 +313,14 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
                         allow_missing_textures: bool, digest: str, max_error: float,
                         resolution: tuple[int, int] | None = None, extra: dict | None = None,
                         application: Application | None = None) -> dict:
-    """Train the smallest decoder of :data:`~mtlx2neural.pipeline.plan.DECODERS` whose HDR FLIP mean is at
-    most ``max_error`` (:func:`choose_decoder`); returns its summary.
+    """Train the smallest decoder of :data:`~mtlx2neural.pipeline.plan.DECODERS` whose HDR FLIP is at
+    most ``max_error`` (:func:`choose_decoder`); returns its summary. The FLIP is the in-scene one when
+    the source's stage gives one, else the analytic views' mean (:func:`budget_error`).
 
     Each size trains into ``folder/budget/<size>/``; the chosen one's files then move up
     into ``folder`` and the others are deleted. The summary adds ``budget`` (the budget,
-    the FLIP and seconds of every size tried) and ``budget_met``; a missed budget is
+    the FLIP and seconds of every size tried, and ``metric``: which figure was checked,
+    ``flip_in_scene`` or ``flip_mean``) and ``budget_met``; a missed budget is
     also a warning in ``warnings`` and ``notes``.
     """
     (folder / "summary.json").unlink(missing_ok=True)
@@ -275,10 +332,12 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
                               allow_missing_textures, digest, resolution, extra, preview=False,
                               application=application)
         runs[decoder] = s
+        err = budget_error(s)
         if progress:
-            print(f"{src.name}: decoder {decoder}: HDR FLIP {s['flip_mean']:.4f} "
-                  f"({'meets' if s['flip_mean'] <= max_error else 'misses'} the budget {max_error})", flush=True)
-        return s["flip_mean"]
+            where = "in scene" if s.get("flip_in_scene") is not None else "analytic views"
+            print(f"{src.name}: decoder {decoder}: HDR FLIP {err:.4f} ({where}; "
+                  f"{'meets' if err <= max_error else 'misses'} the budget {max_error})", flush=True)
+        return err
 
     decoder, flips = choose_decoder(attempt, max_error)
     met = bool(flips[decoder] <= max_error)
@@ -292,6 +351,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     else:
         (folder / BASELINE_FILE).unlink(missing_ok=True)
     summary["budget"] = {"max_error": max_error, "flip_by_decoder": flips,
+                         "metric": "flip_in_scene" if runs[decoder].get("flip_in_scene") is not None else "flip_mean",
                          "seconds_by_decoder": {k: v["seconds"] for k, v in runs.items()}, "met": met}
     summary["budget_met"] = met
     summary["seconds"] = round(sum(v["seconds"] for v in runs.values()), 1)

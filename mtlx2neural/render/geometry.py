@@ -10,6 +10,11 @@ Conventions (all torch float32, world units as the geometry defines them):
   ``distance`` bounding-sphere radii (> 1: the camera is outside the object), with
   a full vertical field of view ``fov`` (degrees). Images are square, row 0 at the
   top; each pixel's ray passes through a uniformly jittered point of the pixel.
+- :class:`PinholeCamera` is the general perspective pinhole: an eye ``position``, a unit view
+  direction ``forward``, an image ``up`` and a full vertical field of view ``fov`` (degrees), all
+  in world space; :meth:`PinholeCamera.from_matrix` reads a camera-to-world matrix (row-vector
+  convention, as USD: the camera looks along its local -z with +y up, the translation in the
+  last row) and :func:`framing_camera` frames a bounding sphere from an azimuth/elevation.
 - :class:`OrthographicCamera` looks from the same ``azimuth``/``elevation`` with
   parallel rays: the image spans +-``half_width`` bounding-sphere radii (1.1: the
   unit sphere with a margin, the evaluation views of ``renderer.render``); each
@@ -44,8 +49,10 @@ Surfaces:
   projected into the camera, every pixel of its screen bounding box is tested
   with an exact ray/triangle test against that pixel's ray, and a z-buffer keeps
   the nearest hit. This needs the camera's projection (``Rays.project``, from
-  either camera) and is brute force over triangles (no BVH), chunked to bound
-  memory.
+  any camera) and is brute force over triangles (no BVH), chunked to bound
+  memory. A triangle wholly behind a pinhole's eye is skipped; one that straddles
+  the eye's plane (a stage camera inside a room) tests every pixel of the image,
+  the exact ray test deciding.
 """
 
 from __future__ import annotations
@@ -103,17 +110,77 @@ class Camera:
             raise ValueError(f"camera distance {self.distance} must exceed 1 bounding-sphere radius")
         d, right, up = self.basis()
         origin = torch.as_tensor(centre, dtype=torch.float32) + d * (self.distance * radius)
-        tan_half = math.tan(math.radians(self.fov) / 2)
-        x, y = _jittered_pixels(res, generator)
-        dirs = F.normalize(-d + (x * tan_half)[:, None] * right + (y * tan_half)[:, None] * up, dim=-1)
+        return _pinhole_rays(origin, d, right, up, math.tan(math.radians(self.fov) / 2), res, generator)
 
-        def project(points: torch.Tensor):
-            rel = points - origin
-            z = -(rel @ d)
-            zs = torch.where(z > 0, z, torch.ones_like(z))
-            return ((rel @ right) / zs / tan_half + 1) / 2 * res, (1 - (rel @ up) / zs / tan_half) / 2 * res, z
 
-        return Rays(origin, dirs, 2 * tan_half / res, 0.0, project)
+def _pinhole_rays(origin, d, right, up, tan_half: float, res: int, generator) -> Rays:
+    """A pinhole's rays from ``origin`` along ``-d`` (``d``, ``right``, ``up``: orthonormal, world),
+    the image spanning +-``tan_half`` on the plane at distance 1 in both axes (square)."""
+    x, y = _jittered_pixels(res, generator)
+    dirs = F.normalize(-d + (x * tan_half)[:, None] * right + (y * tan_half)[:, None] * up, dim=-1)
+
+    def project(points: torch.Tensor):
+        rel = points - origin
+        z = -(rel @ d)
+        zs = torch.where(z > 0, z, torch.ones_like(z))
+        return ((rel @ right) / zs / tan_half + 1) / 2 * res, (1 - (rel @ up) / zs / tan_half) / 2 * res, z
+
+    return Rays(origin, dirs, 2 * tan_half / res, 0.0, project)
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """A perspective pinhole anywhere (module docstring): eye ``position``, view direction ``forward``
+    and image ``up`` (world; normalised here, ``up`` made orthogonal to ``forward``), full vertical
+    field of view ``fov`` in degrees; the image is square. Unlike :class:`Camera` it ignores the
+    geometry's bounds: it sees what a stage's camera sees."""
+
+    position: tuple
+    forward: tuple
+    up: tuple = (0.0, 1.0, 0.0)
+    fov: float = 30.0
+
+    @classmethod
+    def from_matrix(cls, to_world, fov: float) -> PinholeCamera:
+        """The camera of a 4x4 camera-to-world matrix in the row-vector convention (USD's Gf.Matrix4d:
+        world = [x, y, z, 1] @ M): it looks along its local -z (row 2 negated), +y (row 1) is image
+        up, the eye is row 3; scale and shear only change lengths, which are normalised away."""
+        m = np.asarray(to_world, dtype=np.float64).reshape(4, 4)
+        return cls(tuple(m[3, :3] / m[3, 3]), tuple(-m[2, :3]), tuple(m[1, :3]), float(fov))
+
+    def basis(self):
+        """(d, right, up): unit vector from the view towards the eye (-forward), and the image axes."""
+        d = -F.normalize(torch.tensor(self.forward, dtype=torch.float32), dim=0)
+        up = torch.tensor(self.up, dtype=torch.float32)
+        right = torch.linalg.cross(up, d)
+        if float(right.norm()) < 1e-6:  # up parallel to the view: any perpendicular will do
+            right = torch.linalg.cross(torch.tensor([0.0, 0.0, -1.0]) if abs(float(d[1])) > 0.9
+                                       else torch.tensor([0.0, 1.0, 0.0]), d)
+        right = F.normalize(right, dim=0)
+        return d, right, torch.linalg.cross(d, right)
+
+    def rays(self, res: int, centre=None, radius: float | None = None,
+             generator: torch.Generator | None = None) -> Rays:
+        """One ray per pixel (row-major, row 0 at the top) from ``position`` through a jittered point of
+        the pixel: cones of width 0 at the eye and spread ``2 tan(fov/2) / res`` radians. ``centre`` and
+        ``radius`` (the geometry's bounds, which :func:`~mtlx2neural.render.renderer.render_scene`
+        passes every camera) are ignored."""
+        if not 0.0 < self.fov < 180.0:
+            raise ValueError(f"field of view {self.fov} degrees must lie in (0, 180)")
+        d, right, up = self.basis()
+        origin = torch.tensor(self.position, dtype=torch.float32)
+        return _pinhole_rays(origin, d, right, up, math.tan(math.radians(self.fov) / 2), res, generator)
+
+
+def framing_camera(centre, radius: float, azimuth: float = 30.0, elevation: float = 25.0,
+                   fov: float = 30.0, margin: float = 1.1) -> PinholeCamera:
+    """A :class:`PinholeCamera` looking at ``centre`` from ``azimuth``/``elevation`` (degrees, as
+    :class:`Camera`) far enough for the sphere of ``radius`` around it (world units) to fill the
+    image with ``margin``: distance ``margin * radius / sin(fov / 2)``."""
+    d, _, up = _view_basis(azimuth, elevation)
+    dist = margin * max(float(radius), 1e-6) / math.sin(math.radians(fov) / 2)
+    c = torch.as_tensor(centre, dtype=torch.float32)
+    return PinholeCamera(tuple((c + d * dist).tolist()), tuple((-d).tolist()), tuple(up.tolist()), fov)
 
 
 @dataclass(frozen=True)
@@ -331,14 +398,17 @@ class Mesh:
         if res * res != len(rays.dirs):
             raise ValueError(f"meshes are rasterised into a square image; got {len(rays.dirs)} rays")
         sx, sy, z = rays.project(self.positions)  # column, row, depth
-        if bool((z <= 1e-6).any()):
-            raise ValueError("the camera is inside the mesh's bounding sphere")
         tri = self.triangles
         x, y = sx[tri], sy[tri]
         j0 = (x.min(1).values - 1e-3).floor().clamp(0, res).long()
         j1 = (x.max(1).values + 1e-3).floor().clamp(-1, res - 1).long()
         i0 = (y.min(1).values - 1e-3).floor().clamp(0, res).long()
         i1 = (y.max(1).values + 1e-3).floor().clamp(-1, res - 1).long()
+        behind = z[tri] <= 1e-6  # [T, 3]: corners at or behind the eye's plane project nowhere
+        straddle = behind.any(1) & ~behind.all(1)
+        j0, i0 = torch.where(straddle, 0, j0), torch.where(straddle, 0, i0)  # the whole image
+        j1, i1 = torch.where(straddle, res - 1, j1), torch.where(straddle, res - 1, i1)
+        j1 = torch.where(behind.all(1), -1, j1)  # wholly behind: no pixel
         w, h = (j1 - j0 + 1).clamp_min(0), (i1 - i0 + 1).clamp_min(0)
         count = w * h
         live = torch.nonzero(count > 0)[:, 0]

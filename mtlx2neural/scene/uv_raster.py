@@ -272,8 +272,9 @@ def _hits(px: np.ndarray, py: np.ndarray):
     return tuple(np.concatenate(o) for o in out)
 
 
-def _mesh_triangles(stage, path: str, primvars: Iterable[str]):
-    """(uv [T,3,2], corners {key: [T,3,C]}) of the mesh or GeomSubset at ``path``, or a reason why not."""
+def _mesh_triangles(stage, path: str, primvars: Iterable[str], need_uv: bool = True):
+    """(uv [T,3,2], corners {key: [T,3,C]}) of the mesh or GeomSubset at ``path``, or a reason why not.
+    ``need_uv=False`` (rendering the mesh, :mod:`.stage_render`): a mesh without UVs reads uv 0."""
     from pxr import Usd, UsdGeom
 
     # Local: the mesh readers live beside the texel-density measure, which shares them.
@@ -299,6 +300,8 @@ def _mesh_triangles(stage, path: str, primvars: Iterable[str]):
     if counts.sum() != len(indices) or indices.min() < 0 or indices.max() >= len(points):
         return "malformed topology (faceVertexCounts/faceVertexIndices do not match the points)"
     uv, how = _texcoords(mesh)
+    if uv is None and not need_uv:
+        uv, how = np.zeros((len(points), 2)), "vertex"
     if uv is None:
         return f"no UVs ({how})"
     if len(uv) != (len(indices) if how == "faceVarying" else len(points)):

@@ -1,0 +1,124 @@
+"""The conversion's in-scene fidelity: a USD stage with a bound quad, a camera and a distant light gets
+``flip_in_scene`` (and how it was viewed and lit) in summary.json and the layer beside ``flip_mean``,
+and ``--max-error`` checks that figure. Tiny trainings (4 steps of 128 samples, no preview fit) and
+small renders: the decisions are checked, not the fidelity; about 30 s on 2 shared cores."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from mtlx2neural.pipeline import jobs
+from mtlx2neural.pipeline.convert import convert_asset
+from mtlx2neural.pipeline.options import ConvertOptions
+from mtlx2neural.train.config import preset
+
+pytest.importorskip("pxr", reason="usd-core is needed for a USD stage")
+
+TINY = preset("fast", iterations=4, batch=128, preview_iterations=0)
+
+STAGE = """#usda 1.0
+(
+    upAxis = "Y"
+)
+def Xform "World"
+{
+    def Mesh "Quad" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")
+        rel material:binding = </World/Looks/M>
+    }
+    def Camera "Cam"
+    {
+        double3 xformOp:translate = (0, 0, 6)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def DistantLight "Sun"
+    {
+        float inputs:intensity = 2
+        float xformOp:rotateX = -30
+        uniform token[] xformOpOrder = ["xformOp:rotateX"]
+    }
+    def Scope "Looks"
+    {
+        def Material "M"
+        {
+            token outputs:mtlx:surface.connect = </World/Looks/M/SR.outputs:out>
+            def Shader "SR"
+            {
+                uniform token info:id = "ND_standard_surface_surfaceshader"
+                color3f inputs:base_color = (0.7, 0.3, 0.2)
+                float inputs:specular_roughness = 0.3
+                token outputs:out
+            }
+        }
+    }
+}
+"""
+
+
+def small_renders(monkeypatch) -> None:
+    """Both measures at 32 px and 4 samples: these tests check what is recorded and decided, not the
+    figures' precision (the defaults take ~10x longer on 2 shared cores)."""
+    many, in_scene = jobs.compare_many, jobs.compare_in_scene
+    monkeypatch.setattr(jobs, "compare_many", lambda *a, **k: many(*a, **k, res=32, spp=4))
+    monkeypatch.setattr(jobs, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
+
+
+def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp_path, monkeypatch):
+    asset = tmp_path / "scene.usda"
+    asset.write_text(STAGE)
+    small_renders(monkeypatch)
+    (s,) = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1))
+    flip = s["flip_in_scene"]
+    assert 0.0 < flip < 1.0 and math.isfinite(s["flip_mean"])  # both figures, side by side
+    rec = s["in_scene"]
+    assert rec["measured"] and rec["camera"].startswith("/World/Cam") and rec["prims"] == ["/World/Quad"]
+    assert rec["lights"][0].startswith("/World/Sun: distant") and rec["triangles"] == 2
+    assert (rec["res"], rec["spp"]) == (32, 4)
+    # USD's default lens at 6 units spans +-0.92: the quad (+-1) fills the image.
+    assert rec["coverage"] > 0.95
+    folder = tmp_path / "scene_neural" / "World.Looks.M"
+    assert json.loads((folder / "summary.json").read_text())["flip_in_scene"] == flip
+    assert (folder / "in_scene_reference.png").is_file() and (folder / "in_scene_neural.png").is_file()
+    from pxr import Usd
+
+    layer = Usd.Stage.Open(str(tmp_path / "scene_neural.usda"))
+    # float32 in the layer against the summary's 4 decimals.
+    assert layer.GetPrimAtPath("/World/Looks/M").GetAttribute("neural:metrics:flipInScene").Get() == \
+        pytest.approx(flip, abs=1e-6)
+
+    # --max-error checks the in-scene figure: made exact (0), it meets a budget of 1e-9 with the
+    # smallest decoder, which the analytic views' figure (> 0 after 4 steps) would miss with all three.
+    real = jobs.compare_in_scene
+
+    def exact(*args, **kwargs):
+        return {label: {**r, "flip": 0.0} for label, r in real(*args, **kwargs).items()}
+
+    monkeypatch.setattr(jobs, "compare_in_scene", exact)
+    trained = []
+    train = jobs.train_material
+    monkeypatch.setattr(jobs, "train_material", lambda src, cfg, *a, **k: trained.append(cfg.decoder)
+                        or train(src, cfg, *a, **k))
+    (b,) = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1,
+                                               max_error=1e-9))
+    assert trained == ["2x16"] and b["decoder"] == "2x16" and b["budget_met"] is True
+    assert b["budget"]["metric"] == "flip_in_scene" and b["budget"]["flip_by_decoder"] == {"2x16": 0.0}
+    assert b["flip_mean"] > 1e-9  # the analytic figure, still recorded, would have missed the budget
+
+
+def test_mtlx_input_has_no_in_scene_figure_and_budgets_on_the_analytic_views():
+    """A .mtlx source (no stage file, no bound prims) gets no in-scene entry, so the summary is as before
+    (the .mtlx conversions of tests/pipeline/test_jobs.py check the rest)."""
+
+    class Src:
+        stage_file, bound_prims = None, []
+
+    assert jobs.measure_in_scene(None, {}, (1, 1), Src()) == {}
+    assert jobs.budget_error({"flip_mean": 0.2}) == 0.2
+    assert jobs.budget_error({"flip_mean": 0.2, "flip_in_scene": 0.3}) == 0.3
