@@ -19,6 +19,7 @@ import MaterialX as mx
 from mtlx2neural.errors import InputError, UnsupportedNodeError
 from mtlx2neural.graph.compile import NATIVE
 from mtlx2neural.graph.expand import Expander, _drive, _Scope
+from mtlx2neural.graph.ir import Const
 from mtlx2neural.graph.library import standard_library
 
 __all__ = ["CategoryCoverage", "OUT_OF_SCOPE", "coverage", "coverage_summary", "format_coverage"]
@@ -70,12 +71,12 @@ def _compile_nodedefs(nodedefs: list[mx.NodeDef]) -> dict[str, str]:
     scope = _Scope(exp.doc, "")
     result = {}
     for nd_name, (node_name, out) in names.items():
-        if out.getType() in ("string", "filename"):
-            result[nd_name] = f"output type {out.getType()} (a string, not a shading value)"
-            continue
         try:
-            _drive(exp._node_output(scope, node_name, out.getName()))
-            result[nd_name] = ""
+            got = _drive(exp._node_output(scope, node_name, out.getName()))
+            strings = ("string", "filename")
+            # A string output counts when it folds to a constant (an image's file can read it).
+            result[nd_name] = ("" if out.getType() not in strings or isinstance(got, Const) else
+                               f"output type {out.getType()} (a string, not a shading value)")
         except (UnsupportedNodeError, InputError) as exc:
             result[nd_name] = str(exc)
         except Exception as exc:  # a value the expansion cannot read (matrices) is not supported either

@@ -34,6 +34,11 @@ from mtlx2neural.imaging.colour import convert
 # unsupported node there becomes "unconnected" (with a note) instead of an error.
 EMISSION_ONLY = {"surface": {"edf"}, "surface_unlit": None}  # None: every input
 
+# Nodes whose string/filename output is one of their inputs: folded to that constant when the graph is
+# expanded, so that an image's ``file`` read through them is still a constant (checked and read at load).
+# geompropvalueuniform's primvar is a per-geometry string no bake can vary: its ``default`` is used.
+STRING_PASS = {"constant": "value", "dot": "in", "geompropvalueuniform": "default"}
+
 # geomprop category -> IR category for geometric inputs.
 _GEOMPROPS = {"normal", "tangent", "bitangent", "position", "texcoord", "geomcolor"}
 
@@ -229,6 +234,8 @@ class Expander:
         if key not in self._memo:
             self._memo[key] = yield self._expand_node(scope, node)
         kind, payload, nodedef = self._memo[key]
+        if kind == "const":
+            return payload
         out_name = output or nodedef.getActiveOutputs()[0].getName()
         if kind == "native":
             if out_name not in self.graph[payload].outputs:
@@ -237,7 +244,8 @@ class Expander:
         return (yield self._graph_output(payload, out_name))
 
     def _expand_node(self, scope: _Scope, node: mx.Node) -> Step:
-        """Step: ``("native", IR index, nodedef)`` or ``("graph", implementation scope, nodedef)``."""
+        """Step: ``("native", IR index, nodedef)``, ``("graph", implementation scope, nodedef)`` or
+        ``("const", Const, nodedef)`` (a string pass-through, :data:`STRING_PASS`)."""
         path = f"{scope.label}/{node.getName()}" if scope.interface is not None else node.getNamePath()
         nodedef = node.getNodeDef()
         if nodedef is None:
@@ -265,6 +273,14 @@ class Expander:
             if not scope.library:
                 # Values a library nodegraph passes on were checked on the instance that set them.
                 check_enum_inputs(self.source, node.getNamePath(), nodedef, inputs)
+            passed = inputs.get(STRING_PASS.get(category, ""))
+            if isinstance(passed, Const) and nodedef.getType() in ("string", "filename"):
+                if category == "geompropvalueuniform":
+                    gp = inputs.get("geomprop")
+                    self.notes.append(f"'{path}' reads the uniform primvar "
+                                      f"'{gp.value if isinstance(gp, Const) else ''}', which a baked material "
+                                      f"cannot vary: its default '{passed.value}' is used")
+                return ("const", passed, nodedef)
             if category in self.native:
                 attrs = {}
                 file_in = inputs.get("file")

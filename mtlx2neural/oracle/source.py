@@ -157,7 +157,8 @@ def _generate_pixel_shader(document, material: str):
 
 
 def _value_rgba(value) -> tuple[float, float, float, float]:
-    if value is None:
+    if value is None or value.getTypeString() in ("string", "filename"):
+        # (geompropvalueuniform's "default" is the file name, not an image node's fallback colour)
         return (0.0, 0.0, 0.0, 0.0)
     comps = _components(value, 1)
     if len(comps) == 1:
@@ -174,11 +175,25 @@ def _int_uniform(uniforms: dict, name: str, fallback: int) -> int:
     return int(data) if isinstance(data, (int, np.integer)) and not isinstance(data, bool) else fallback
 
 
+def _geomprop_default(geomprop: str, uniforms: dict):
+    """The ``default`` value of the ``geompropvalueuniform`` node that reads ``geomprop``, or None.
+
+    MaterialX generates a filename ``geompropvalueuniform`` as a texture uniform ``u_geomprop_<name>``
+    that the renderer binds from the geometry; the probe geometry has no primvars, so, as the node
+    specifies for a missing property, the oracle binds the node's ``default`` file."""
+    for name, (_, value) in uniforms.items():
+        if name.endswith("_geomprop") and value is not None and value.getValueString() == geomprop:
+            return uniforms.get(name[: -len("_geomprop")] + "_default", (None, None))[1]
+    return None
+
+
 def _make_texture(uniform: str, uniforms: dict, base_dir: Path) -> _Texture:
     # Sampling properties come from the uniforms next to "<root>_file", as MaterialX's renderers
     # find them (ImageSamplingProperties); absent ones mean periodic addressing and linear filtering.
     root = uniform.rsplit("_", 1)[0] if "_" in uniform else uniform
     _, file_value = uniforms.get(uniform, (None, None))
+    if file_value is None and uniform.startswith("u_geomprop_"):
+        file_value = _geomprop_default(uniform[len("u_geomprop_"):], uniforms)
     default = _value_rgba(uniforms.get(root + "_default", (None, None))[1])
     umode = _int_uniform(uniforms, root + "_uaddressmode", _ADDRESS_PERIODIC)
     vmode = _int_uniform(uniforms, root + "_vaddressmode", _ADDRESS_PERIODIC)

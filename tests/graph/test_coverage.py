@@ -32,7 +32,7 @@ HERE = Path(__file__).parent
 # test_heightfield's cases are analytic (heighttonormal differentiates over the screen, which the oracle's
 # compute kernel has not).
 ORACLE_MODULES = ("test_compositing", "test_ramps", "test_blackbody", "test_transforms", "test_stdlib_sweep",
-                  "test_heightfield", "test_hextile", "test_matrix", "test_flake")
+                  "test_heightfield", "test_hextile", "test_matrix", "test_flake", "test_uniform_primvar")
 # tests/graph/test_noise.py (written before ORACLE_CATEGORIES): its categories, each checked to be named there.
 NOISE = ("noise2d", "noise3d", "fractal2d", "fractal3d", "cellnoise2d", "cellnoise3d", "worleynoise2d",
          "worleynoise3d", "unifiednoise2d", "unifiednoise3d", "randomfloat", "randomcolor")

@@ -3,8 +3,8 @@ checked against MaterialX's own generated Slang code at 128 seeded points (the p
 mtlx2neural.oracle.points).
 
 Each group below is one document holding one node per drivable nodedef of its categories (every output
-type MaterialX defines, matrices excepted: they do not compile yet), each numeric input following a smooth
-function of uv (in [-3, 3]^2) and position (in [-3, 3]^3) over [0.1, 0.9] (positive and away from 0 and 1,
+type MaterialX defines but matrices, which tests/graph/test_matrix.py reads through vectors; cmlib's matrix
+colour transforms are a group), each numeric input following a smooth function of uv (in [-3, 3]^2) and position (in [-3, 3]^3) over [0.1, 0.9] (positive and away from 0 and 1,
 so divisions, logarithms, arc sines and powers stay in their domains), over [-3, 3] for the rounding and
 sign functions and [-4, 4] for integer inputs (tests/node_oracle.py).  Outputs that are constant by nature
 (the geometric frame of the flat stand-in surface, time and frame) are listed in CONSTANT; every other
@@ -49,6 +49,8 @@ GROUPS = (
      "tiledhexagons"),
     ("g18_rec709_to_lin_rec709", "g22_rec709_to_lin_rec709", "rec709_display_to_lin_rec709",
      "srgb_texture_to_lin_rec709", "UsdTransform2d", "open_pbr_anisotropy"),
+    ("acescg_to_lin_rec709", "adobergb_to_lin_rec709", "g22_ap1_to_lin_rec709", "lin_adobergb_to_lin_rec709",
+     "lin_displayp3_to_lin_rec709", "srgb_displayp3_to_lin_rec709"),  # cmlib: matrix colour transforms
     ("standard_surface_to_UsdPreviewSurface", "standard_surface_to_gltf_pbr", "standard_surface_to_open_pbr_surface",
      "open_pbr_surface_to_standard_surface"),
 )
