@@ -39,6 +39,13 @@ from mtlx2neural.textures.lean import lobe_from_moments, moments
 MICROFACET = {"dielectric_bsdf", "conductor_bsdf", "generalized_schlick_bsdf"}
 DEFAULT_PROCEDURAL_RES = 256
 MAX_RES = 8192  # finest grid kept; denser texel densities are prefiltered down to it
+LEAN_TANGENT = True
+"""The lobe's tangent (the compiled leaf's ``tangent`` input, which the shading models' graphs build from
+standard_surface's ``specular_rotation``/``coat_rotation`` (0-1 = 0-360 degrees) and ``tangent``, open_pbr's
+``geometry_tangent``/``geometry_coat_tangent``, gltf_pbr's ``anisotropy_rotation``) rotates its LEAN slope
+covariance (:func:`.lean.moments`), so level 0 keeps a rotated anisotropic lobe's orientation and a
+coarse level's anisotropy falls where rotations vary. ``False``: alphas along the geometric x/y axes,
+the path before 2026-12-02, kept for the measurement in docs/history/paper-choices-2026-12-02.md."""
 
 
 @dataclass
@@ -268,7 +275,8 @@ def build_parameter_stack(compiled: CompiledMaterial, resolution: tuple[int, int
                 n = get(f"{lobe}.normal", 3)
                 a = get(f"{lobe}.roughness", 2)
                 n = torch.where((n * n).sum(-1, keepdim=True) < 1e-12, z, n)
-                parts.append(moments(n / n.norm(dim=-1, keepdim=True), a.clamp(1e-4, 1.0)))
+                t = get(f"{lobe}.tangent", 3) if LEAN_TANGENT else None
+                parts.append(moments(n / n.norm(dim=-1, keepdim=True), a.clamp(1e-4, 1.0), t))
             else:
                 parts.append(get(name, width))
         block = torch.cat(parts, 1)  # [count, C]

@@ -108,3 +108,101 @@ def test_brick_normal_map_matches_the_source_texture():
     # The specular lobe is LEAN-filtered and reproduces the same normals at level 0.
     spec_n = values[next(k for k in values if k.endswith("specular_bsdf.normal"))].numpy().astype(np.float64)
     np.testing.assert_allclose(spec_n.mean(0), n.mean(0), atol=1e-4)
+
+
+# 4x4 specular_rotation map (fraction of a turn, row 0 at the top): each 2x2 block is one level-1 texel.
+# Top-left: 0 and 90 degrees in a checker; top-right: 0 and 45 degrees; bottom-left: all 30 degrees;
+# bottom-right: all 0.
+ROTATIONS = np.array([[0.0, 0.25, 0.0, 0.125],
+                      [0.25, 0.0, 0.125, 0.0],
+                      [30 / 360, 30 / 360, 0.0, 0.0],
+                      [30 / 360, 30 / 360, 0.0, 0.0]], dtype=np.float32)
+
+
+def _rotated_metal(tmp_path, rotation: np.ndarray | None = None, roughness: np.ndarray | None = None,
+                   constant_rotation: float = 0.0):
+    """A standard_surface metal, specular_anisotropy 0.8, specular_roughness 0.4, with a textured
+    specular_rotation (``rotation`` [H, W]) or a constant one and a textured roughness."""
+    import MaterialX as mx
+    from conftest import write_float_image
+
+    from mtlx2neural.graph import compile_material
+
+    doc = mx.createDocument()
+    s = doc.addNode("standard_surface", "s", "surfaceshader")
+    s.setInputValue("metalness", 1.0)
+    s.setInputValue("specular_anisotropy", 0.8)
+    s.setInputValue("specular_roughness", 0.4)
+    s.setInputValue("specular_rotation", constant_rotation)
+    for name, img in (("specular_rotation", rotation), ("specular_roughness", roughness)):
+        if img is not None:
+            write_float_image(tmp_path / f"{name}.exr", np.repeat(img[..., None], 3, -1))
+            node = doc.addNode("image", name, "float")
+            node.setInputValue("file", str(tmp_path / f"{name}.exr"), "filename")
+            s.setConnectedNode(name, node)
+    doc.addMaterialNode("M", s)
+    return compile_material(doc, "M")
+
+
+def _lobe(values):
+    return (next(v for k, v in values.items() if k.endswith("metal_bsdf.tangent")),
+            next(v for k, v in values.items() if k.endswith("metal_bsdf.roughness")))
+
+
+def _axis_degrees(tangent):
+    """Angle of each tangent's axis in the xy plane, degrees in [0, 180)."""
+    return np.degrees(np.arctan2(tangent[:, 1], tangent[:, 0])) % 180.0
+
+
+def _axis_difference(a, b):
+    d = np.abs(a - b) % 180.0
+    return np.minimum(d, 180.0 - d)
+
+
+def test_level_zero_keeps_each_texels_rotation(tmp_path):
+    stack = build_parameter_stack(_rotated_metal(tmp_path, ROTATIONS))
+    assert stack.resolution == (4, 4)
+    tangent, alpha = (v.numpy().astype(np.float64) for v in _lobe(stack.texel_values(0)))
+    # standard_surface turns the tangent clockwise about the normal (MaterialX's rotate3d), by 360 x rotation.
+    want = (-360.0 * ROTATIONS.reshape(-1)) % 180.0
+    # Level 0 holds each texel's own lobe: the moments round-trip up to float32 rounding (~1e-5 rad).
+    assert _axis_difference(_axis_degrees(tangent), want).max() < 0.01
+    # Every texel has the same anisotropic alpha (specular_roughness 0.4, anisotropy 0.8).
+    assert np.ptp(alpha, 0).max() < 1e-6 and alpha[0, 1] < 0.5 * alpha[0, 0]
+
+
+def test_coarse_level_averages_rotations_as_lean_predicts(tmp_path):
+    stack = build_parameter_stack(_rotated_metal(tmp_path, ROTATIONS))
+    ax, ay = (float(a) for a in _lobe(stack.texel_values(0))[1][0])
+    tangent, alpha = (v.numpy().astype(np.float64) for v in _lobe(stack.texel_values(1)))
+
+    def expected(degrees):  # LEAN: the block's mean slope covariance R diag(ax^2, ay^2) R^T / 2
+        cov = 0
+        for d in degrees:
+            c, s = np.cos(np.radians(d)), np.sin(np.radians(d))
+            r = np.array([[c, -s], [s, c]])
+            cov = cov + r @ np.diag([ax * ax, ay * ay]) @ r.T / 2 / len(degrees)
+        lam, vec = np.linalg.eigh(cov)
+        return np.sqrt(2 * lam[::-1]), np.degrees(np.arctan2(vec[1, 1], vec[0, 1])) % 180.0
+
+    # Level-1 texels (row-major): 0/90 checker, 0/45 checker, all 30 degrees, all 0 (clockwise: -30, -45).
+    blocks = ([0, 90, 0, 90], [0, -45, 0, -45], [-30] * 4, [0] * 4)
+    # Moments are averaged in float32 and read back exactly: 1e-5 on alpha, 0.01 degrees on the axis.
+    for i, degrees in enumerate(blocks):
+        a, axis = expected(degrees)
+        np.testing.assert_allclose(alpha[i], a, atol=1e-5)
+        if a[0] > a[1] * 1.001:  # an isotropic lobe has no axis
+            assert _axis_difference(_axis_degrees(tangent[i:i + 1]), axis).max() < 0.01, (i, tangent[i], axis)
+    # The 0/90 block is round, alpha sqrt((ax^2 + ay^2) / 2) both ways; the 0/45 block keeps some anisotropy
+    # along -22.5 degrees; uniform blocks keep their lobe.
+    np.testing.assert_allclose(alpha[0], [np.sqrt((ax * ax + ay * ay) / 2)] * 2, atol=1e-5)
+    assert alpha[1, 1] / alpha[1, 0] > ay / ax and alpha[1, 1] / alpha[1, 0] < 0.9
+    np.testing.assert_allclose(alpha[2], [ax, ay], atol=1e-5)
+
+
+def test_a_constant_rotation_is_kept_when_roughness_varies(tmp_path):
+    """A lobe LEAN-filtered because its roughness is textured takes its tangent from the constant rotation."""
+    rough = np.array([[0.3, 0.5], [0.5, 0.3]], dtype=np.float32)
+    stack = build_parameter_stack(_rotated_metal(tmp_path, roughness=rough, constant_rotation=0.1))
+    tangent = _lobe(stack.texel_values(0))[0].numpy().astype(np.float64)
+    assert _axis_difference(_axis_degrees(tangent), (-36.0) % 180.0).max() < 0.01
