@@ -4,7 +4,9 @@ The trainer saves ``{"model": state_dict, "config": asdict(TrainConfig), "step",
 "baked", ...}``. The constructor's arguments are recovered from the state dict's
 shapes where they are not in the config:
 
-- ``resolution`` (h, w): the latent pyramid's level 0 (``latents.levels.0``, [C, h, w]);
+- ``resolution`` (h, w): the latent pyramid's level 0 (``latents.levels.0``, [C, h, w], or
+  [T, C, h, w] for a UDIM material, whose trained tiles are the buffer ``latents.tiles``, UDIM
+  numbers in the order of the leading axis; the trainer also saves them as ``"udim_tiles"``);
 - ``latent_dim``: its channel count C;
 - ``in_dim``: the encoder's first Linear ``in_features``; the encoder of a uniform
   material has ``in_dim = 0`` but a 1-wide layer, so a 1-wide encoder over a 1x1
@@ -47,7 +49,8 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     """NeuralMaterial constructor arguments recovered from a state dict (see the module docstring)."""
     config = config or {}
     level0 = state["latents.levels.0"]
-    latent_dim, h, w = (int(s) for s in level0.shape)
+    latent_dim, h, w = (int(s) for s in level0.shape[-3:])
+    tiles = state.get("latents.tiles")
     enc_in = int(state["encoder.net.0.weight"].shape[1])
     in_dim = 0 if (enc_in == 1 and (h, w) == (1, 1)) else enc_in
     frame_w = state.get("decoder.frame_layer.weight")
@@ -55,7 +58,8 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     hidden = tuple(_linear_widths(state, "decoder.net.")[:-1]) or config.get("decoder", "2x32")
     args = {"resolution": (h, w), "in_dim": in_dim, "latent_dim": latent_dim, "frames": frames,
             "decoder": hidden, "albedo_head": any(k.startswith("decoder.albedo.") for k in state),
-            "analytic_cosine": bool(config.get("analytic_cosine", False))}
+            "analytic_cosine": bool(config.get("analytic_cosine", False)),
+            "tiles": None if tiles is None else [int(t) for t in tiles]}
     # Forward compatibility: constructor options that only the config records (e.g. a decoder ablation).
     accepted = inspect.signature(NeuralMaterial).parameters
     args.update({k: v for k, v in config.items() if k in accepted and k not in args})
@@ -83,15 +87,21 @@ RESUME_FIELDS = ("decoder", "frames", "latent_dim", "albedo_head", "analytic_cos
 """Settings a resumed run must share with its checkpoint: they fix the network's shape."""
 
 
-def resume_conflicts(ck: dict, settings: dict, grid: tuple[int, int]) -> list[str]:
+def resume_conflicts(ck: dict, settings: dict, grid: tuple[int, int], tiles=None) -> list[str]:
     """What differs between the checkpoint ``ck`` and a run with ``settings`` (a TrainConfig as a
-    dict) and latent ``grid`` (H, W): one ``"name: checkpoint X, this run Y"`` per difference."""
+    dict), latent ``grid`` (H, W) and, when given, UDIM ``tiles``: one ``"name: checkpoint X, this run
+    Y"`` per difference."""
     config, state = ck.get("config") or {}, ck["model"]
     out = [f"{k}: checkpoint {config[k]!r}, this run {settings.get(k)!r}"
            for k in RESUME_FIELDS if k in config and config[k] != settings.get(k)]
     level0 = state.get("latents.levels.0")
-    if level0 is not None and tuple(level0.shape[1:]) != tuple(grid):
-        out.append(f"latent grid: checkpoint {level0.shape[2]}x{level0.shape[1]}, this run {grid[1]}x{grid[0]}")
+    if level0 is not None and tuple(level0.shape[-2:]) != tuple(grid):
+        out.append(f"latent grid: checkpoint {level0.shape[-1]}x{level0.shape[-2]}, this run {grid[1]}x{grid[0]}")
+    if tiles is not None:
+        have = state.get("latents.tiles")
+        have = None if have is None else [int(t) for t in have]
+        if have != (None if tiles is None else sorted(tiles)):
+            out.append(f"UDIM tiles: checkpoint {have}, this run {sorted(tiles)}")
     return out
 
 

@@ -6,6 +6,15 @@ render time a level is chosen stochastically between the two nearest to the
 requested level of detail (probability = fractional part), and read bilinearly
 within that level with periodic wrapping; uv (0,0) is the bottom-left corner,
 row 0 the top, as image files store it.
+
+UDIM materials (a graph that reads a ``<UDIM>`` texture set; docs/ARCHITECTURE.md, "UDIM
+latents") get one pyramid per trained UDIM tile: ``tiles`` lists the tiles' UDIM numbers
+(``1001 + tu + 10 * tv``) and every level is a ``[T, C, H, W]`` parameter, tile ``t`` covering
+uv in ``[tu, tu+1) x [tv, tv+1)``. Inside a tile the latents are read at ``frac(uv)`` with
+*clamp* addressing at the tile's edges (neighbouring tiles are unrelated textures), and a uv in
+a tile that is not in ``tiles`` raises ``ValueError`` naming the tile. Without ``tiles`` (every
+non-UDIM material) the levels stay ``[C, H, W]`` with periodic addressing, which is the
+one-tile case of the same lookup with wrap instead of clamp.
 """
 
 from __future__ import annotations
@@ -26,12 +35,61 @@ def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
     return shapes
 
 
+def udim_of_uv(uv: torch.Tensor) -> torch.Tensor:
+    """UDIM numbers [N] (int64) of uv [N,2]: ``1001 + floor(u) + 10 * floor(v)``; uv with u outside
+    [0, 10) or v < 0 (no UDIM tile) give -1."""
+    tu, tv = torch.floor(uv[:, 0]), torch.floor(uv[:, 1])
+    ok = (tu >= 0) & (tu < 10) & (tv >= 0) & torch.isfinite(uv).all(-1)
+    return torch.where(ok, 1001 + tu + 10 * tv, torch.full_like(tu, -1)).long()
+
+
+def bilinear_clamp(grid: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """[C, H, W] grid, [N, 2] uv in [0, 1] -> [N, C]: bilinear with clamp-to-edge addressing (the
+    conventions of :func:`~mtlx2neural.imaging.grid_lookup.bilinear_periodic`: row 0 at v = 1, texel
+    centres at half-integers)."""
+    c, h, w = grid.shape
+    x = uv[:, 0].clamp(0.0, 1.0) * w - 0.5
+    y = (1.0 - uv[:, 1].clamp(0.0, 1.0)) * h - 0.5
+    x0, y0 = x.floor(), y.floor()
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.long(), y0.long()
+    flat = grid.reshape(c, -1)
+    out = 0
+    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        idx = (y0 + dy).clamp(0, h - 1) * w + (x0 + dx).clamp(0, w - 1)
+        out = out + flat[:, idx].T * wgt
+    return out
+
+
 class LatentPyramid(nn.Module):
-    def __init__(self, height: int = 1, width: int = 1, channels: int = 8, init_std: float = 0.0):
+    """``height`` x ``width`` latent codes of ``channels`` channels at level 0, halved to 1x1;
+    ``tiles`` (UDIM numbers, sorted) makes it a UDIM pyramid of ``[T, C, H, W]`` levels (module
+    docstring); the tile list is also the persistent buffer ``tiles`` (in the state dict)."""
+
+    def __init__(self, height: int = 1, width: int = 1, channels: int = 8, init_std: float = 0.0,
+                 tiles=None):
         super().__init__()
         self.channels = channels
+        lead = () if tiles is None else (len(tiles),)
         self.levels = nn.ParameterList(
-            nn.Parameter(torch.randn(channels, h, w) * init_std) for h, w in level_shapes(height, width))
+            nn.Parameter(torch.randn(*lead, channels, h, w) * init_std) for h, w in level_shapes(height, width))
+        if tiles is not None:
+            tiles = sorted(int(t) for t in tiles)
+            if not tiles or tiles[0] < 1001 or len(set(tiles)) != len(tiles):
+                raise ValueError(f"UDIM tiles must be distinct numbers >= 1001, got {tiles}")
+            self.register_buffer("tiles", torch.tensor(tiles, dtype=torch.long))
+        else:
+            self.tiles = None
+
+    @property
+    def tile_list(self) -> list[int] | None:
+        """The trained UDIM tiles (sorted UDIM numbers), or None for a single periodic pyramid."""
+        return None if self.tiles is None else [int(t) for t in self.tiles]
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        """(H, W) of level 0 (per tile for a UDIM pyramid)."""
+        return tuple(int(s) for s in self.levels[0].shape[-2:])
 
     @property
     def num_levels(self) -> int:
@@ -44,6 +102,19 @@ class LatentPyramid(nn.Module):
         k = k + (u < (lod - k)).to(k.dtype)
         return k.clamp(0, self.num_levels - 1).long()
 
+    def tile_index(self, uv: torch.Tensor) -> torch.Tensor:
+        """Index [N] into ``tiles`` of each uv's UDIM tile; ``ValueError`` naming the first untrained tile
+        (or the uv outside every UDIM tile) when a uv falls outside the trained tiles."""
+        udim = udim_of_uv(uv)
+        idx = torch.searchsorted(self.tiles, udim).clamp(max=len(self.tiles) - 1)
+        bad = self.tiles[idx] != udim
+        if bool(bad.any()):
+            i = int(torch.nonzero(bad)[0, 0])
+            where = f"UDIM tile {int(udim[i])}" if int(udim[i]) > 0 else "no UDIM tile"
+            raise ValueError(f"uv ({float(uv[i, 0]):.4g}, {float(uv[i, 1]):.4g}) is in {where}, which this "
+                             f"material was not trained on (its tiles: {self.tile_list})")
+        return idx
+
     def fetch(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """Bilinear latents [N, C] at uv [N,2] from integer ``level`` [N] (0 = finest).
 
@@ -51,13 +122,27 @@ class LatentPyramid(nn.Module):
         (bilinear weights over one texel sum to 1); otherwise each level present in the batch is
         read with :func:`bilinear_periodic`. (A single gather over all levels laid end to end was
         measured slower on the CPU: 14 ms against 11 ms for 65k queries on a 256² pyramid.)
+        A UDIM pyramid reads each (tile, level) group with :func:`bilinear_clamp` at ``frac(uv)``.
         """
+        if self.tiles is not None:
+            return self._fetch_tiled(uv, level)
         if self.num_levels == 1 and tuple(self.levels[0].shape[1:]) == (1, 1):
             return self.levels[0].reshape(1, self.channels).expand(uv.shape[0], -1)
         out = torch.zeros(uv.shape[0], self.channels, dtype=self.levels[0].dtype, device=uv.device)
         for k in torch.unique(level).tolist():
             idx = torch.nonzero(level == k)[:, 0]
             out = out.index_put((idx,), bilinear_periodic(self.levels[int(k)], uv[idx]))
+        return out
+
+    def _fetch_tiled(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        tile = self.tile_index(uv)
+        local = uv - torch.floor(uv)
+        out = torch.zeros(uv.shape[0], self.channels, dtype=self.levels[0].dtype, device=uv.device)
+        key = tile * self.num_levels + level
+        for kk in torch.unique(key).tolist():
+            t, k = divmod(int(kk), self.num_levels)
+            idx = torch.nonzero(key == kk)[:, 0]
+            out = out.index_put((idx,), bilinear_clamp(self.levels[k][t], local[idx]))
         return out
 
     def forward(self, uv: torch.Tensor, lod: torch.Tensor, u: torch.Tensor) -> torch.Tensor:

@@ -44,12 +44,14 @@ class NeuralMaterial(nn.Module):
     albedo / describe). ``resolution`` (h, w) of the finest latent level, ``in_dim`` parameter channels
     the encoder reads in training, ``latent_dim`` channels per texel, ``frames`` learned shading frames,
     ``decoder`` the MLP's hidden layers ("2x16", "2x32", "3x64"), ``albedo_head`` an extra albedo output
-    for training, ``analytic_cosine`` whether the decoder multiplies by max(0, wo.z) itself."""
+    for training, ``analytic_cosine`` whether the decoder multiplies by max(0, wo.z) itself, ``tiles`` the
+    trained UDIM tiles of a UDIM material (one latent pyramid each, :mod:`mtlx2neural.model.latent`; a uv
+    outside them raises ``ValueError``), None otherwise."""
 
     def __init__(self, resolution: tuple[int, int], in_dim: int, latent_dim: int = 8, frames: int = 2,
-                 decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True):
+                 decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True, tiles=None):
         super().__init__()
-        self.latents = LatentPyramid(*resolution, channels=latent_dim)
+        self.latents = LatentPyramid(*resolution, channels=latent_dim, tiles=tiles)
         self.encoder = Encoder(in_dim, latent_dim)
         self.decoder = BrdfDecoder(latent_dim, frames, decoder, albedo_head, analytic_cosine)
         self.sampler = SamplerNet(latent_dim)
@@ -139,15 +141,15 @@ class NeuralMaterial(nn.Module):
         return estimate_albedo(self, self._wi(wi), at, samples, seed)
 
     def describe(self) -> dict:
-        """Sizes and settings: latent resolution (h, w) and levels, latent channels, learned frames, the
-        decoder's hidden layers, whether it applies the cosine analytically or has an albedo head, and
+        """Sizes and settings: latent resolution (h, w, per tile) and levels, the UDIM tiles (None: not
+        UDIM), latent channels, learned frames, the decoder's hidden layers, whether it applies the cosine analytically or has an albedo head, and
         parameter counts (the encoder only trains; the rest is what an export stores)."""
         dec = self.decoder
 
         def count(module) -> int:
             return sum(p.numel() for p in module.parameters())
 
-        return {"kind": "neural", "resolution": list(self.latents.levels[0].shape[1:]),
+        return {"kind": "neural", "resolution": list(self.latents.resolution), "udim_tiles": self.latents.tile_list,
                 "levels": self.latents.num_levels, "latent_dim": self.latents.channels, "frames": dec.frames,
                 "decoder_hidden": list(dec.hidden), "analytic_cosine": dec.analytic_cosine,
                 "albedo_head": dec.albedo is not None, "sampler_hidden": [m.out_features for m in

@@ -45,6 +45,7 @@ from mtlx2neural.train.directions import (
 )
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.mollify import cone_mean, lobe_directions
+from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
 UNIFORM_PDF = 1.0 / (2.0 * math.pi)
 KL_ESTIMATOR = "proposal"  # brdf_and_sampler_losses: "proposal" (the paper's) or "uniform" (before 2026-12-02)
@@ -110,10 +111,12 @@ class Trainer:
         self.out_dir = Path(out_dir)
         self.device = torch.device(device)
         self.textured = stack.levels[0].shape[0] > 0
+        # A UDIM material (train.udim.TiledStack): one latent pyramid per trained tile, uv drawn over them.
+        self.tiles = list(stack.tiles) if is_udim_stack(stack) else None
         torch.manual_seed(cfg.seed)  # the model's initial weights
         self.model = NeuralMaterial(stack.resolution if self.textured else (1, 1), stack.levels[0].shape[0],
                                     cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head,
-                                    cfg.analytic_cosine).to(self.device)
+                                    cfg.analytic_cosine, tiles=self.tiles).to(self.device)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
         self.step = 0
         self.baked = False
@@ -140,7 +143,7 @@ class Trainer:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         _atomic_save({"model": self.model.state_dict(), "opt": self.opt.state_dict(), "step": self.step,
                       "baked": self.baked, "history": self.history, "config": dataclasses.asdict(self.cfg),
-                      "rng": self.gen.get_state()}, self.checkpoint_path)
+                      "rng": self.gen.get_state(), "udim_tiles": self.tiles}, self.checkpoint_path)
         self._write_curves()
 
     def resume(self) -> bool:
@@ -231,12 +234,16 @@ class Trainer:
         """Phase 2: run the encoder over every texel of every level into the latent pyramid."""
         with torch.no_grad():
             for k, lv in enumerate(self.model.latents.levels):
-                if self.textured:
+                if self.tiles is not None and self.textured:  # one [C, H, W] stack level per tile
+                    for t, tile_stack in enumerate(self.stack.stacks):
+                        raw = tile_stack.levels[k].float().reshape(tile_stack.levels[k].shape[0], -1).T
+                        lv[t].copy_(self.model.encoder(raw).T.reshape(lv[t].shape))
+                elif self.textured:
                     raw = self.stack.levels[k].float().reshape(self.stack.levels[k].shape[0], -1).T
                     codes = torch.cat([self.model.encoder(raw[s:s + 65536]) for s in range(0, raw.shape[0], 65536)])
                     lv.copy_(codes.T.reshape(lv.shape))
                 else:
-                    lv.copy_(self.model.encoder(torch.zeros(1, 0)).T.reshape(lv.shape))
+                    lv.copy_(self.model.encoder(torch.zeros(1, 0)).T.reshape(lv.shape[-3:]).expand_as(lv))
         self.baked = True
         # The encoder is no longer used: keep optimising latents, decoder and sampler.
         for p in self.model.encoder.parameters():
@@ -246,7 +253,7 @@ class Trainer:
         cfg, g, dev = self.cfg, self.gen, self.device
         n_graze = round(cfg.grazing_fraction * cfg.batch)
         b = cfg.batch + n_graze
-        uv = torch.rand(b, 2, generator=g).to(dev)
+        uv = draw_uv(b, self.tiles, g).to(dev)
         level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
             else torch.zeros(b, dtype=torch.long, device=dev)
         wi, wo = half_difference_pairs(b, g, dev)
