@@ -38,7 +38,6 @@ NOT_COMPARED = {
                                                  "for this graph, so the oracle shader does not compile"),
     ("chiang_hair_bsdf.mtlx", "test_chiang_hair1_out"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("chiang_hair_surfaceshader.mtlx", "simple_hair_default"): (UnsupportedNodeError, "hair is not a surface BRDF"),
-    ("flake_surfaceshader.mtlx", "flake_surfaceshader"): (UnsupportedNodeError, "flake3d has no torch operator yet"),
     ("surfacematerial_with_graph.mtlx", "M_EmptySurface"): (InputError, "the material has no surface shader"),
     ("mapped_surfaceshader.mtlx", "UnitMappedShaderMaterial"): (
         None, "textured: a tiledimage with real-world tile sizes (unit-converted) and uv offset differs from "
