@@ -41,3 +41,33 @@ def test_textured_sample_is_layered_textured_and_trainable(tmp_path, capsys):
     for name in ("World.Looks.GlazedCeramic", "World.Looks.BrushedMetal"):
         summary = json.loads((tmp_path / "out" / name / "summary.json").read_text())
         assert summary["steps"] == 10 and summary["varying_channels"] > 0
+
+
+def test_rotated_sample_is_a_textured_rotation_that_the_stack_keeps(tmp_path):
+    """samples/make_rotated_sample.py: the bundled files are what it writes (small), and the metal's
+    specular_rotation texture reaches the lobe's tangent at level 0 of the parameter stack."""
+    import math
+
+    import numpy as np
+
+    from mtlx2neural.textures.parameter_stack import build_parameter_stack
+
+    spec = importlib.util.spec_from_file_location("make_rotated_sample", SAMPLES / "make_rotated_sample.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    stage = mod.build(tmp_path / "rotated")
+    for name in ("spun_metal.usda", "spun_rotation.png"):  # the committed copies are the generator's output
+        assert (stage.parent / name).read_bytes() == (SAMPLES / "rotated" / name).read_bytes(), name
+    assert (SAMPLES / "rotated" / "spun_rotation.png").stat().st_size < 4096
+    ref = m2n.load_reference(stage, "SpunMetal")
+    assert {Path(t["file"]).name for t in ref.describe()["textures"]} == {"spun_rotation.png"}
+    stack = build_parameter_stack(ref.compiled)
+    assert stack.resolution == (16, 16) and len(stack.lean_groups) == 1
+    tangent = next(v for k, v in stack.texel_values(0).items() if k.endswith(".tangent")).numpy()
+    got = np.degrees(np.arctan2(tangent[:, 1], tangent[:, 0]))
+    want = -360.0 * mod.rotation_map(16).reshape(-1)  # clockwise (MaterialX's rotate3d)
+    diff = (got - want) % 180.0
+    # 16-bit texture: the rotation is quantised to 360 / 65535 degrees; float32 maths: 0.01 degrees.
+    assert np.minimum(diff, 180.0 - diff).max() < 0.01
+    assert math.isclose(float(np.ptp(np.degrees(np.arctan2(tangent[:, 1], tangent[:, 0])) % 180.0)), 180.0,
+                        abs_tol=10.0)  # the circles' tangents take every direction
