@@ -102,11 +102,13 @@ def print_summaries(summaries) -> None:
         else:
             how = f"{s['steps']} steps in {s['seconds']} s"
         print(f"{s['material']}: {how}, decoder {s.get('decoder', s['config']['decoder'])}, held-out log-L1 "
-              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})")
+              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})"
+              + (f", in scene {s['flip_in_scene']:.4f}" if s.get("flip_in_scene") is not None else ""))
         budget = s.get("budget")
         if budget:
             tried = ", ".join(f"{k} {v:.4f}" for k, v in budget["flip_by_decoder"].items())
-            print(f"  budget HDR FLIP <= {budget['max_error']}: {'met' if budget['met'] else 'NOT met'} "
+            where = " in scene" if budget.get("metric") == "flip_in_scene" else ""
+            print(f"  budget HDR FLIP{where} <= {budget['max_error']}: {'met' if budget['met'] else 'NOT met'} "
                   f"(tried {tried})")
         for w in s.get("warnings", []):
             print(f"  warning: {w}")

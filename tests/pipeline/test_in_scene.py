@@ -10,6 +10,7 @@ import math
 
 import pytest
 
+from mtlx2neural.commands.convert import print_summaries
 from mtlx2neural.pipeline import jobs
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
@@ -70,11 +71,12 @@ def small_renders(monkeypatch) -> None:
     monkeypatch.setattr(jobs, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
 
 
-def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp_path, monkeypatch):
+def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp_path, monkeypatch, capsys):
     asset = tmp_path / "scene.usda"
     asset.write_text(STAGE)
     small_renders(monkeypatch)
-    (s,) = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1))
+    first = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1))
+    (s,) = first
     flip = s["flip_in_scene"]
     assert 0.0 < flip < 1.0 and math.isfinite(s["flip_mean"])  # both figures, side by side
     rec = s["in_scene"]
@@ -105,11 +107,17 @@ def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp
     train = jobs.train_material
     monkeypatch.setattr(jobs, "train_material", lambda src, cfg, *a, **k: trained.append(cfg.decoder)
                         or train(src, cfg, *a, **k))
-    (b,) = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1,
-                                               max_error=1e-9))
+    budgeted = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1,
+                                                   max_error=1e-9))
+    (b,) = budgeted
     assert trained == ["2x16"] and b["decoder"] == "2x16" and b["budget_met"] is True
     assert b["budget"]["metric"] == "flip_in_scene" and b["budget"]["flip_by_decoder"] == {"2x16": 0.0}
     assert b["flip_mean"] > 1e-9  # the analytic figure, still recorded, would have missed the budget
+    capsys.readouterr()
+    print_summaries(first)
+    print_summaries(budgeted)
+    out = capsys.readouterr().out  # the command's report names both figures and the one budgeted
+    assert f"in scene {flip:.4f}" in out and "budget HDR FLIP in scene <= 1e-09: met" in out
 
 
 def test_mtlx_input_has_no_in_scene_figure_and_budgets_on_the_analytic_views():
