@@ -121,3 +121,26 @@ def test_stage_camera_looking_away_falls_back_to_framing():
     scene = setup_in_scene(read_stage_view(stage, ["/World/Quad"]), res=32)
     assert scene.record["camera"].startswith("framing camera")
     assert any("/World/Cam sees 0.0%" in n for n in scene.record["notes"])
+
+
+def test_dome_texture_in_openexr_orientation_and_the_sky_fallback(tmp_path):
+    """A dome's lat-long texture follows OpenEXR (left edge longitude +pi, +x at a quarter of the width,
+    the centre +z): a bright patch at u = 0.25 on the equator lights from +x, times the dome's
+    intensity. Without any distant or dome light, the procedural sky stands in."""
+    from conftest import write_float_image
+
+    img = np.full((8, 16, 3), 0.01, np.float32)
+    img[3:5, 3:5] = 100.0  # columns 3-4: u around 0.25; rows 3-4: the equator
+    write_float_image(tmp_path / "dome.exr", img)
+    stage = _stage((0.0, 0.0, 1.0))
+    stage.RemovePrim("/World/Sun")
+    dome = UsdLux.DomeLight.Define(stage, "/World/Dome")
+    dome.CreateTextureFileAttr(str(tmp_path / "dome.exr"))
+    dome.CreateIntensityAttr(2.0)
+    (env,) = setup_in_scene(read_stage_view(stage, ["/World/Quad"]), res=16).lights
+    axes = torch.tensor([[1.0, 0, 0], [-1.0, 0, 0], [0, 0, 1.0], [0, 0, -1.0]])
+    rad = env.radiance(axes)[:, 0]
+    assert rad[0] == pytest.approx(200.0) and torch.allclose(rad[1:], torch.tensor(0.02))  # x2 intensity
+    stage.RemovePrim("/World/Dome")
+    scene = setup_in_scene(read_stage_view(stage, ["/World/Quad"]), res=16)
+    assert scene.record["lights"] == ["the procedural sky (the stage has no distant or dome light)"]
