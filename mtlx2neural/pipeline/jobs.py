@@ -156,8 +156,12 @@ def measure_in_scene(ref, models: dict, texels: tuple[int, int], src, folder: Pa
         results = compare_in_scene(ref, models, texels, scene)
     except (Mtlx2NeuralError, OSError, ValueError, RuntimeError) as exc:  # a measure never fails the training
         return {"in_scene": {"measured": False, "why": f"{type(exc).__name__}: {exc}"}}
-    out = {IN_SCENE_KEYS.get(label, f"{label}_flip_in_scene"): round(r["flip"], 4) for label, r in results.items()}
     first = results[next(iter(results))]
+    if not math.isfinite(first["flip"]):  # every pixel black in every render: back faces, or no light above
+        return {"in_scene": {"measured": False, **scene.record,
+                             "why": "the in-scene render shows nothing lit (back faces, or every light below the "
+                                    "surfaces' horizon)"}}
+    out = {IN_SCENE_KEYS.get(label, f"{label}_flip_in_scene"): round(r["flip"], 4) for label, r in results.items()}
     out["in_scene"] = {"measured": True, **scene.record, "res": first["res"], "spp": first["spp"],
                        "coverage": first["coverage"],
                        "flip_image": {label: round(r["flip_image"], 4) for label, r in results.items()},

@@ -151,7 +151,9 @@ def compare_in_scene(reference, models: dict, texels: tuple[int, int], scene: In
     "coverage", "res", "spp", "seconds"}}`` for each model of ``models`` against one reference render of ``scene``
     (module docstring: ``flip`` over the pixels showing the meshes, ``flip_image`` over all; ``mae``,
     ``relmse`` over all, as :func:`.renderer.image_errors`; ``coverage`` the share of pixels that show
-    the meshes; ``seconds`` the wall time of the reference render and this model's, with the errors)."""
+    the meshes; ``seconds`` the wall time of the reference render and this model's, with the errors).
+    When the reference render is black everywhere (nothing lit, or back faces only) the FLIP figures
+    are NaN: there is nothing to measure."""
     import flip_evaluator
 
     env = any(isinstance(li, EnvironmentMap) for li in scene.lights)
@@ -168,10 +170,16 @@ def compare_in_scene(reference, models: dict, texels: tuple[int, int], scene: In
     for label, model in models.items():
         t1 = time.time()
         test = draw(model)
-        errors = image_errors(ref, test)
-        raw, _, _ = flip_evaluator.evaluate(np.clip(ref, 0, None), np.clip(test, 0, None), "HDR", applyMagma=False)
-        shown = (ref.sum(-1) > 0) | (test.sum(-1) > 0)
-        flip = float(raw[..., 0][shown].mean()) if shown.any() else math.nan
+        if float(ref.max()) > 0:
+            errors = image_errors(ref, test)
+            raw, _, _ = flip_evaluator.evaluate(np.clip(ref, 0, None), np.clip(test, 0, None), "HDR",
+                                                applyMagma=False)
+            shown = (ref.sum(-1) > 0) | (test.sum(-1) > 0)
+            flip = float(raw[..., 0][shown].mean())
+        else:  # nothing lit in the reference: flip_evaluator would end the process (no exposure range)
+            errors = {"flip": math.nan, "flip_map": np.zeros_like(ref), "mae": float(np.abs(test - ref).mean()),
+                      "relmse": math.nan}
+            flip = math.nan
         out[label] = {"reference": ref, label: test, **errors, "flip_image": errors["flip"], "flip": flip,
                       "coverage": round(mask, 4), "res": res, "spp": spp,
                       "seconds": round(ref_seconds + time.time() - t1, 2)}

@@ -130,3 +130,26 @@ def test_mtlx_input_has_no_in_scene_figure_and_budgets_on_the_analytic_views():
     assert jobs.measure_in_scene(None, {}, (1, 1), Src()) == {}
     assert jobs.budget_error({"flip_mean": 0.2}) == 0.2
     assert jobs.budget_error({"flip_mean": 0.2, "flip_in_scene": 0.3}) == 0.3
+
+
+def test_a_scene_showing_nothing_lit_records_why_and_no_figure(tmp_path, monkeypatch):
+    """The stage's only light shines on the quad's back: every pixel is black in both renders, so there
+    is no in-scene figure (FLIP of two black images would read as a perfect 0) and the budget falls
+    back to the analytic views."""
+    import torch
+
+    class Grey:
+        def eval(self, wi, wo, at=None):
+            return torch.full((len(wi), 3), 0.2)
+
+    asset = tmp_path / "behind.usda"
+    asset.write_text(STAGE.replace("float xformOp:rotateX = -30", "float xformOp:rotateX = 180"))
+
+    class Src:
+        stage_file, bound_prims = str(asset), ["/World/Quad"]
+
+    small_renders(monkeypatch)
+    out = jobs.measure_in_scene(Grey(), {"neural": Grey()}, (1, 1), Src())
+    assert "flip_in_scene" not in out and out["in_scene"]["measured"] is False
+    assert "shows nothing lit" in out["in_scene"]["why"] and out["in_scene"]["camera"].startswith("/World/Cam")
+    assert jobs.budget_error({"flip_mean": 0.2, **out}) == 0.2
