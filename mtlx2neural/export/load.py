@@ -3,7 +3,8 @@
 ``load_neural(path, material)`` opens the layer, selects the ``neural`` variant of
 the Material (in the session layer, so nothing is written), reads the
 ``neural:*`` attributes, the weights manifest and binary, and the latent EXR MIP
-chains, and builds a :class:`NeuralMaterial` in float32 holding exactly the stored
+chains (for a UDIM material, ``<UDIM>`` patterns read tile by tile for the tiles the manifest
+lists, ``architecture.udim_tiles``), and builds a :class:`NeuralMaterial` in float32 holding exactly the stored
 FP16 values. Its ``eval``/``sample``/``pdf`` therefore equal those of the trained
 model with its latents and weights rounded to FP16 (the encoder, used only in
 training, is not exported and is left untrained).
@@ -78,10 +79,19 @@ def _get(prim, name: str, path):
 
 def _resolved(asset_path, prim, name: str, path) -> Path:
     """The file ``asset_path`` names: USD's resolved path, else (a file that does not exist) the
-    authored path anchored at the layer's folder, so that the reader's error names the file."""
+    authored path anchored at the layer's folder, so that the reader's error names the file. A
+    ``<UDIM>`` pattern (which USD leaves unresolved) is anchored at the layer that authored it
+    (``UsdShade.UdimUtils``), the token kept."""
+    from pxr import UsdShade
+
     p = asset_path.resolvedPath
     if p:
         return Path(p)
+    if UsdShade.UdimUtils.IsUdimIdentifier(asset_path.path):
+        stack = prim.GetAttribute(name).GetPropertyStack()
+        found = UsdShade.UdimUtils.ResolveUdimPath(asset_path.path, stack[0].layer) if stack else ""
+        if found:
+            return Path(found)
     if not asset_path.path:
         raise InputError(f"{path}: {prim.GetPath()}.{name} is empty; re-export it with mtlx2neural")
     return (Path(path).resolve().parent / asset_path.path).resolve()
@@ -141,9 +151,12 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
         if usd_value != file_value:
             raise InputError(f"{path}: {prim.GetPath()}.{name} = {usd_value} but {manifest_file} says "
                              f"{file_value}; the layer and its files are from different exports")
-    levels = read_latent_textures(textures, channels)
+    tiles = arch.get("udim_tiles")  # a UDIM material: the tiles of its <UDIM> latent textures
+    levels = read_latent_textures(textures, channels, tiles)  # a missing tile's file: InputError naming it
     for k, lv in enumerate(levels):
         state[f"latents.levels.{k}"] = lv
+    if tiles:
+        state["latents.tiles"] = torch.tensor([int(t) for t in tiles], dtype=torch.long)
     state["encoder.net.0.weight"] = torch.zeros(1, 1)  # not exported: build a placeholder encoder
     args = model_arguments(state, {"decoder": tuple(arch["decoder_hidden"])})
     args["in_dim"] = 0

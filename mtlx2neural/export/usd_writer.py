@@ -187,6 +187,8 @@ def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
     _set(prim, "neural:latentTextures", t.AssetArray,
          Sdf.AssetPathArray([Sdf.AssetPath(rel(p)) for p in m.latent_textures]))
     _set(prim, "neural:latentResolution", t.Int2, Gf.Vec2i(*a["latent_resolution"]))
+    if a.get("udim_tiles"):  # a UDIM material: latentTextures are <UDIM> patterns, one file per tile
+        _set(prim, "neural:udimTiles", t.IntArray, Vt.IntArray([int(u) for u in a["udim_tiles"]]))
     _set(prim, "neural:weights", t.Asset, Sdf.AssetPath(rel(m.weights)))
     _set(prim, "neural:weightsManifest", t.Asset, Sdf.AssetPath(rel(m.manifest)))
     _set(prim, "neural:weightsLayout", t.Token, "row_major_fp16")

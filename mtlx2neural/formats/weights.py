@@ -94,8 +94,10 @@ def architecture(model) -> dict:
         "sampler_input": f"[wi (3), latent[{c}]] = {3 + c} values",
         "sampler_output": "alpha_x, alpha_y, rho, slope_spec (2), slope_diffuse (2), logit_spec, logit_diffuse",
         "proxy_type": "tilted_cosine_aniso_ggx",
-        "latent_resolution": [int(lat.levels[0].shape[2]), int(lat.levels[0].shape[1])],  # width, height
+        "latent_resolution": [int(lat.levels[0].shape[-1]), int(lat.levels[0].shape[-2])],  # width, height
         "levels": int(lat.num_levels),
+        # UDIM materials only: the trained tiles, in the order of the latents' leading axis
+        **({"udim_tiles": lat.tile_list} if getattr(lat, "tile_list", None) else {}),
     }
 
 
