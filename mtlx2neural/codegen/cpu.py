@@ -3,7 +3,9 @@
 :class:`CpuMaterial` writes the module into a temporary folder, compiles the harness kernel
 (``codegen/templates/cpu_harness.slang.in``) for one network variant and evaluates
 ``eval`` / ``evalPdf`` / ``sample`` / ``albedo`` for batches of (latent, wi, wo, u) given as
-float32 NumPy arrays, plus the latent fetch. Buffers are passed through ``dispatch(vars=...)``
+float32 NumPy arrays, plus the latent fetch (and, for a UDIM material's module, the tile lookup,
+per-tile fetch and eval of ``codegen/templates/cpu_harness_udim.slang.in``:
+:meth:`CpuMaterial.udim_fetch_eval`). Buffers are passed through ``dispatch(vars=...)``
 (docs/ARCHITECTURE.md, "Verification"). The CPU back end compiles the C++ on first dispatch.
 
 Variants: ``"FP32"``, ``"FP16"``, ``"FP16Buffer"``, ``"CoopVec"``, ``"Auto"`` (the per-warp
@@ -127,6 +129,9 @@ class CpuMaterial:
             module=self.module, net_type=net, net_init=init, channels=self.channels)
         mod = self.dev.load_module_from_source(f"m2n_harness_{variant}_{digest}", harness)
         self._module, self._fetch_eval_kernel = mod, None
+        self._udim = None  # the UDIM harness (udim_fetch_eval), compiled on first use
+        self._harness_args = {"module": self.module, "net_type": net, "net_init": init, "channels": self.channels,
+                              "prefix": f"NM_{self.ident}", "tag": f"{variant}_{digest}"}
         self.kernel = self.dev.create_compute_kernel(self.dev.link_program([mod], [mod.entry_point("nmHarness")]))
         self.fetch_kernel = self.dev.create_compute_kernel(
             self.dev.link_program([mod], [mod.entry_point("nmHarnessFetch")]))
@@ -201,6 +206,37 @@ class CpuMaterial:
                 "gOut": out, "gCount": n, "gWeights": self.weights, "gLatent": self._dummy,
                 "gU": self._dummy, "gOp": 0})
             return out.to_numpy().view(np.float32)[: 3 * n].reshape(n, 3).copy()
+
+    def udim_fetch_eval(self, tiles: list[list[np.ndarray]], uv, lod, u, wi, wo) -> tuple[np.ndarray, np.ndarray]:
+        """(eval [N, 3], slot [N]) of a UDIM module (``codegen/templates/cpu_harness_udim.slang.in``):
+        per query the module's ``udimSlot(uv)``, the tile's latent (``NMBufferTiledLatents``: ``tiles[k]``
+        the pyramid of slot k, each level [C, H, W], finest first) and eval; slot -1 gives black."""
+        import slangpy as spy
+
+        n = int(wi.shape[0])
+        if self._udim is None:
+            a = dict(self._harness_args)
+            text = Template(template("cpu_harness_udim.slang.in")).substitute(a)
+            mod = self.dev.load_module_from_source(f"m2n_harness_udim_{a['tag']}", text)
+            self._udim = self.dev.create_compute_kernel(
+                self.dev.link_program([mod], [mod.entry_point("nmHarnessUdimFetchEval")]))
+        texels, table, off = [], [], 0
+        for levels in tiles:  # slot-major: levels[slot * numLevels + j]
+            for lv in levels:
+                c, h, w = lv.shape
+                texels.append(np.ascontiguousarray(np.transpose(lv, (1, 2, 0)), np.float32).ravel())
+                table.append([w, h, off, 0])
+                off += h * w * c
+        lv_buf = self.dev.create_buffer(usage=spy.BufferUsage.shader_resource, struct_size=16,
+                                        data=np.asarray(table, np.uint32).ravel())
+        out = self._out(4 * n)
+        with _lock:
+            self._udim.dispatch(thread_count=[max(n, 1), 1, 1], vars={
+                "gTexels": self._buf(np.concatenate(texels)), "gLevels": lv_buf, "gNumLevels": len(tiles[0]),
+                "gQuery": self._buf(query_array(uv, lod, u)), "gWi": self._buf(wi), "gWo": self._buf(wo),
+                "gOut": out, "gCount": n, "gWeights": self.weights})
+            r = out.to_numpy().view(np.float32)[: 4 * n].reshape(n, 4).copy()
+        return r[:, :3], r[:, 3].astype(np.int64)
 
     def pyramid(self, levels: list[np.ndarray]) -> tuple:
         """Upload latent ``levels`` (each [C, H, W], finest first) for :meth:`fetch_eval`."""

@@ -408,7 +408,36 @@ def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bo
     subs["coopmat_functions"] = _coopmat_functions(ctx, spec32, cm_layout)
     subs["coherent_structs"] = (Template(template("coherent.slang.in" if coherent else "fallback.slang.in")).substitute(subs)
                                 + Template(template("coopmat.slang.in")).substitute(subs))
-    return Template(template("material.slang.in")).substitute(subs)
+    text = Template(template("material.slang.in")).substitute(subs)
+    return text + _udim_table(ctx, spec32.udim_tiles) if spec32.udim_tiles else text
+
+
+def _udim_table(ctx: _Ctx, tiles: list[int]) -> str:
+    """The tile table of a UDIM material (docs/ARCHITECTURE.md, "UDIM latents"): its UDIM numbers in
+    slot order (slot k = layer k of the latent texture arrays, tile k of NMBufferTiledLatents) and
+    ``<prefix>_udimSlot(uv)``, the slot of uv's tile or -1 for a tile it was not trained on."""
+    p, n = ctx.p, len(tiles)
+    items = ", ".join(str(int(t)) for t in tiles)
+    return f"""
+// ---------------------------------------------------------------------------------------------
+// UDIM tiles: one latent pyramid per tile, read at frac(uv) with clamp-to-edge addressing.
+// Bind the latents as texture arrays whose layer k holds tile {p}_TILES[k] (NMTextureArrayLatents8,
+// files latents_<g>.<UDIM>.exr), or as NMBufferTiledLatents; fetch with
+// nmFetchLatentTiled(source, slot, uv, lod, u) where slot = {p}_udimSlot(uv). A uv in no trained
+// tile gives slot -1: the material is not defined there; shade it black (eval 0, no sample).
+// ---------------------------------------------------------------------------------------------
+public static const int {p}_TILE_COUNT = {n};
+public static const int {p}_TILES[{n}] = {{ {items} }};
+
+public int {p}_udimSlot(float2 uv)
+{{
+    int udim = nmUdimOfUv(uv);
+    for (int k = 0; k < {p}_TILE_COUNT; k++)
+        if ({p}_TILES[k] == udim)
+            return k;
+    return -1;
+}}
+"""
 
 
 def _layout_comment(layout: dict | None, offsets16: dict, cm_layout: dict) -> str:

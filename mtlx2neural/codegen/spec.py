@@ -44,6 +44,7 @@ class NetworkSpec:
     albedo: list[Layer] | None = None
     notes: list[str] = field(default_factory=list)  # FP16 range-check notes
     analytic_cosine: bool = True      # the decoder's RGB times max(0, wo.z) (model.decoder)
+    udim_tiles: list[int] | None = None  # a UDIM material's trained tiles (model.latent), None otherwise
 
     @property
     def decoder_hidden(self) -> list[int]:
@@ -112,8 +113,9 @@ def spec_from_state(state: dict, analytic_cosine: bool = True) -> NetworkSpec:
 
 def spec_from_model(model) -> NetworkSpec:
     """The spec of a NeuralMaterial (float32 weights as trained)."""
-    return spec_from_state({k: v for k, v in model.state_dict().items() if k.startswith(("decoder.", "sampler."))},
+    spec = spec_from_state({k: v for k, v in model.state_dict().items() if k.startswith(("decoder.", "sampler."))},
                            model.decoder.analytic_cosine)
+    return replace(spec, udim_tiles=getattr(getattr(model, "latents", None), "tile_list", None))
 
 
 def spec_from_export(folder) -> NetworkSpec:
@@ -122,7 +124,8 @@ def spec_from_export(folder) -> NetworkSpec:
     folder = Path(folder)
     manifest = folder / "weights.json" if folder.is_dir() else folder
     meta, tensors = read_weights(manifest)
-    return spec_from_state(tensors, analytic_cosine_of(meta["architecture"], manifest))
+    spec = spec_from_state(tensors, analytic_cosine_of(meta["architecture"], manifest))
+    return replace(spec, udim_tiles=meta["architecture"].get("udim_tiles"))
 
 
 def as_spec(model_or_export) -> NetworkSpec:
