@@ -35,6 +35,7 @@ from mtlx2neural.imaging.udim import (
     tile_of_udim,
     udim_number,
 )
+from mtlx2neural.scene.udim_tiles import touched_tiles
 from mtlx2neural.textures.parameter_stack import (
     ParameterStack,
     build_parameter_stack,
@@ -159,6 +160,35 @@ def build_tiled_stack(compiled, tiles, resolution: tuple[int, int] | None = None
         shifted = dataclasses.replace(compiled, evaluator=_OffsetEvaluator(compiled.evaluator, (float(tu), float(tv))))
         stacks.append(build_parameter_stack(shifted, resolution=resolution, **kwargs))
     return TiledStack(tiles, stacks)
+
+
+def training_tiles(compiled, stage_file: str | None = None, prims=()) -> tuple[list[int] | None, list[str]]:
+    """(UDIM tiles to train, notes) for ``compiled``: None when its graph reads no UDIM set; the tiles
+    that the meshes ``prims`` of the USD stage ``stage_file`` overlap
+    (:func:`~mtlx2neural.scene.udim_tiles.touched_tiles`); every tile on disk (:func:`tiles_on_disk`)
+    for ``.mtlx`` input without meshes, or when the meshes give no tile (no UVs), with a note."""
+    if not udim_patterns(compiled):
+        return None, []
+    notes: list[str] = []
+    if stage_file and list(prims):
+        # Local: opening a stage pulls in pxr's file format plugins; .mtlx input never needs them.
+        from mtlx2neural.scene.usd_stage import open_stage
+
+        tiles, notes = touched_tiles(open_stage(str(stage_file)), list(prims))
+        if tiles:
+            return tiles, notes
+        notes.append("the bound meshes touch no UDIM tile: every tile on disk is trained")
+    return tiles_on_disk(compiled), notes
+
+
+def build_training_stack(compiled, stage_file: str | None = None, prims=(), resolution=None):
+    """The stack the trainer takes: a :class:`TiledStack` over :func:`training_tiles` for a UDIM
+    material, else :func:`~mtlx2neural.textures.parameter_stack.build_parameter_stack` at
+    ``resolution``. Returns (stack, notes)."""
+    tiles, notes = training_tiles(compiled, stage_file, prims)
+    if tiles is None:
+        return build_parameter_stack(compiled, resolution=resolution), notes
+    return build_tiled_stack(compiled, tiles, resolution), notes + [f"UDIM tiles trained: {tiles}"]
 
 
 def draw_uv(n: int, tiles: list[int] | None, generator: torch.Generator) -> torch.Tensor:

@@ -14,9 +14,12 @@ from mtlx2neural.scene.udim_tiles import touched_tiles, triangle_tiles
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.trainer import Trainer
 from mtlx2neural.train.udim import (
+    TiledStack,
     build_tiled_stack,
+    build_training_stack,
     draw_uv,
     tiles_on_disk,
+    training_tiles,
     udim_patterns,
 )
 
@@ -75,3 +78,25 @@ def test_udim_training_learns_each_touched_tile(tmp_path):
     again = load_checkpoint(tr.checkpoint_path)
     assert again.latents.tile_list == [1001, 1002]
     assert torch.equal(again.eval(wi, wo, uv), model.eval(wi, wo, uv).detach())
+
+
+def test_training_tiles_from_meshes_or_disk(tmp_path):
+    """With a stage and bound meshes the touched tiles; without (.mtlx input) every tile on disk;
+    a material without a UDIM set: None (one periodic pyramid)."""
+    import MaterialX as mx
+
+    from mtlx2neural.graph import compile_material
+
+    ref = udim_reference(tmp_path / "tex")
+    stage = write_plane_stage(tmp_path / "plane.usda")
+    assert training_tiles(ref.compiled, str(stage), [PLANE]) == ([1001, 1002], [])
+    assert training_tiles(ref.compiled) == ([1001, 1002, 1011], [])
+    tiles, notes = training_tiles(ref.compiled, str(stage), ["/World/Nothing"])
+    assert tiles == [1001, 1002, 1011] and "no such prim" in notes[0] and "every tile on disk" in notes[-1]
+    stack, notes = build_training_stack(ref.compiled, str(stage), [PLANE], resolution=(4, 4))
+    assert isinstance(stack, TiledStack) and stack.tiles == [1001, 1002] and stack.resolution == (4, 4)
+    doc = mx.createDocument()
+    doc.addMaterialNode("Plain", doc.addNode("standard_surface", "s", "surfaceshader"))
+    plain = compile_material(doc, "Plain")
+    assert training_tiles(plain, str(stage), [PLANE]) == (None, [])
+    assert not isinstance(build_training_stack(plain, resolution=(1, 1))[0], TiledStack)
