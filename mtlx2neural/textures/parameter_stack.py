@@ -33,7 +33,7 @@ from mtlx2neural.graph.compile import CompiledMaterial
 from mtlx2neural.graph.ir import CHANNELS, Const
 from mtlx2neural.imaging.grid_lookup import bilinear_periodic
 from mtlx2neural.imaging.image_io import openimageio, pending_oiio_error
-from mtlx2neural.imaging.udim import is_tiled_path
+from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
 from mtlx2neural.textures.lean import lobe_from_moments, moments
 
 MICROFACET = {"dielectric_bsdf", "conductor_bsdf", "generalized_schlick_bsdf"}
@@ -141,7 +141,8 @@ def _semantic(name: str, mx_type: str) -> tuple[str, str, str]:
 
 
 def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]:
-    """Finest texel grid over UV [0,1]^2: each image's size times its UV scale (tiling)."""
+    """Finest texel grid over UV [0,1]^2: each image's size times its UV scale (tiling); a UDIM set
+    counts with its largest tile (the grid of one tile, which spans one uv unit)."""
 
     oiio = openimageio()
     g, ev, notes = compiled.graph, compiled.evaluator, []
@@ -152,14 +153,20 @@ def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]
         f = n.inputs.get("file")
         if n.category != "image" or not isinstance(f, Const) or not f.value:
             continue
-        if n.attrs.get("missing") or is_tiled_path(f.value):
-            continue  # a missing texture (its default is used) or a UDIM pattern: no single file to measure
-        inp = oiio.ImageInput.open(f.value)
-        if inp is None:
-            pending_oiio_error(f"texture '{f.value}' of '{n.path}'")  # retrieved: OIIO would print it at exit
+        if n.attrs.get("missing"):
+            continue  # a missing texture: its default is used
+        # A UDIM set: its largest tile (one tile spans one uv unit, as one image spans [0,1]).
+        files = list(discover_tiles(f.value).values()) if is_tiled_path(f.value) else [f.value]
+        w = h = 0
+        for path in files:
+            inp = oiio.ImageInput.open(path)
+            if inp is None:
+                pending_oiio_error(f"texture '{path}' of '{n.path}'")  # retrieved: OIIO would print it at exit
+                continue
+            w, h = max(w, inp.spec().width), max(h, inp.spec().height)
+            inp.close()
+        if (w, h) == (0, 0):
             continue
-        w, h = inp.spec().width, inp.spec().height
-        inp.close()
         tc = n.inputs["texcoord"]
         scale = (1.0, 1.0)
         if not isinstance(tc, Const):

@@ -28,7 +28,6 @@ import dataclasses
 import torch
 
 from mtlx2neural.graph.ir import Const
-from mtlx2neural.imaging.image_io import openimageio
 from mtlx2neural.imaging.udim import (
     discover_tiles,
     is_tiled_path,
@@ -61,21 +60,9 @@ def tiles_on_disk(compiled) -> list[int]:
 
 
 def tile_resolution(compiled) -> tuple[int, int]:
-    """(H, W) latent grid per tile: the largest tile image of the UDIM sets, or the non-UDIM
-    textures' grid (:func:`texture_resolution`) when that is finer."""
-    oiio = openimageio()
-    h = w = 0
-    for _, pat in udim_patterns(compiled):
-        for path in discover_tiles(pat).values():
-            inp = oiio.ImageInput.open(path)
-            if inp is not None:
-                h, w = max(h, inp.spec().height), max(w, inp.spec().width)
-                inp.close()
-    others = any(compiled.graph[i].category == "image" and not is_tiled_path(
-        str(getattr(compiled.graph[i].inputs.get("file"), "value", "") or "")) for i in compiled.spatial_nodes)
-    if others or (h, w) == (0, 0):
-        th, tw, _ = texture_resolution(compiled)
-        h, w = max(h, th), max(w, tw)
+    """(H, W) latent grid per tile: :func:`texture_resolution`, which counts a UDIM set by its largest
+    tile (one tile spans one uv unit, as a plain image spans [0,1]^2)."""
+    h, w, _ = texture_resolution(compiled)
     return h, w
 
 

@@ -45,8 +45,7 @@ def test_draw_uv_covers_the_tiles_uniformly():
     assert set(tiles.tolist()) == {1001, 1002, 1011} and (counts - 20000 / 3).abs().max() < 330
 
 
-@pytest.mark.slow  # ~45 s on 2 shared cores
-def test_udim_training_learns_each_touched_tile(tmp_path):
+def test_udim_training_learns_each_touched_tile(tmp_path):  # ~5 s on 2 shared cores
     ref = udim_reference(tmp_path / "tex")
     assert [p for _, p in udim_patterns(ref.compiled)] == [str(tmp_path / "tex" / "base.<UDIM>.exr")]
     assert tiles_on_disk(ref.compiled) == [1001, 1002, 1011]
@@ -56,7 +55,7 @@ def test_udim_training_learns_each_touched_tile(tmp_path):
     assert tiles == [1001, 1002] and notes == []  # 1011 is on disk, but the plane never reaches it
     stack = build_tiled_stack(ref.compiled, tiles)
     assert stack.resolution == (8, 8) and len(stack.stacks) == 2
-    cfg = preset("fast", iterations=40, batch=256, seed=0, decoder="2x16")
+    cfg = preset("fast", iterations=100, batch=256, seed=0, decoder="2x16")
     tr = Trainer(ref, stack, cfg, tmp_path / "out")
     model = tr.run(progress=False)
     assert model.latents.tile_list == [1001, 1002] and model.latents.levels[0].shape[:2] == (2, 8)
@@ -68,9 +67,9 @@ def test_udim_training_learns_each_touched_tile(tmp_path):
     # The two tiles differ as the reference does: red in 1001, blue in 1002.
     assert COLOURS[1001][0] > COLOURS[1001][2] and bool((got[:2, 0] > 4 * got[:2, 2]).all()), got
     assert bool((got[2:, 2] > 4 * got[2:, 0]).all()), got
-    # 40 steps of a 2x16 decoder: measured max |error| 0.015 (seed 0) and 0.027 (seed 1) against the
-    # 0.24 peak channel; 0.04 leaves room for platform differences, and is far below the 0.2 tile contrast.
-    assert float((got - want).abs().max()) < 0.04, (got, want)
+    # 100 steps of a 2x16 decoder: measured max |error| 0.009, 0.005, 0.005 (seeds 0, 1, 2) against the
+    # 0.24 peak channel; 0.02 leaves room for platform differences, and is far below the 0.2 tile contrast.
+    assert float((got - want).abs().max()) < 0.02, (got, want)
     with pytest.raises(ValueError, match="UDIM tile 1011"):
         model.eval(wi[:1], wo[:1], torch.tensor([[0.5, 1.5]]))
     # The checkpoint records the tiles and loads back as the same UDIM model.
