@@ -16,9 +16,9 @@ trained tile clamped to its edge. The trainer draws uv uniformly over the traine
 (:func:`draw_uv`: a uniform tile, then a uniform point in it; every tile has area 1, so this is
 area-proportional) and evaluates the reference at that true uv.
 
-Limits: every tile shares one latent grid (the largest tile image's size; a UV scale on the
-image's ``texcoord`` is not applied to it), and geometry-driven inputs (``position``,
-primvars) are rasterised over [0, 1]^2 only, so they are not supported with UDIM yet.
+Limits: every tile shares one latent grid (the largest tile image's, times the image's UV scale:
+:func:`tile_resolution`), and geometry-driven inputs (``position``, primvars) are rasterised over
+[0, 1]^2 only, so they are not supported with UDIM yet.
 """
 
 from __future__ import annotations
