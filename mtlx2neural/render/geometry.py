@@ -32,7 +32,10 @@ Conventions (all torch float32, world units as the geometry defines them):
   beam has the constant width of one pixel, ``2 half_width radius / res``, and
   spread 0. The footprint on the surface is that width / ``cos``, in uv units
   footprint/|dP/du| and footprint/|dP/dv|, in texels of the finest level those
-  times (w, h); lod = log2 of the larger, clamped at 0.
+  times (w, h). The footprint is an ellipse with axes ``width`` (across the
+  slope) and ``width / cos`` (along it); lod = log2 of the geometric mean of its
+  axes in texels, as the paper's isotropic footprint (0.5 log2 of the product),
+  clamped at 0: ``log2(width / sqrt(cos) * sqrt(w h / (dpdu dpdv)))``.
 
 Surfaces:
 
@@ -273,13 +276,14 @@ def ray_cone_lod(hits: Hits, spread: float, texels: tuple[int, int], width: floa
     The cone's width at the hit is ``width + spread * t`` world units (``width`` at the ray's origin,
     ``spread`` radians: 0 and one pixel's angle for a pinhole, one pixel's size and 0 for an
     orthographic beam); divided by ``cos`` it is the footprint on the surface, divided by
-    ``dpdu``/``dpdv`` and times the texel counts (h, w) it is in texels; the larger of the two axes
-    counts (module docstring)."""
-    foot = (width + spread * hits.t) / hits.cos.clamp_min(1e-4)
+    ``dpdu``/``dpdv`` and times the texel counts (h, w) it is in texels. Its two axes are the cone's
+    width and that width / ``cos``; the level is log2 of their geometric mean in texels, the
+    isotropic footprint of the paper's supplement (listing 1) and of the shaders'
+    ``nmLodFromFootprint`` (module docstring)."""
+    foot = (width + spread * hits.t) / hits.cos.clamp_min(1e-4).sqrt()
     h, w = texels
-    du = foot * w / hits.dpdu.clamp_min(1e-12)
-    dv = foot * h / hits.dpdv.clamp_min(1e-12)
-    return torch.log2(torch.maximum(du, dv).clamp(1.0, 2.0 ** 30))
+    texel_area = (w / hits.dpdu.clamp_min(1e-12)) * (h / hits.dpdv.clamp_min(1e-12))
+    return torch.log2((foot * texel_area.sqrt()).clamp(1.0, 2.0 ** 30))
 
 
 def _orthonormal(n: torch.Tensor, t: torch.Tensor, handed: torch.Tensor | None = None):
