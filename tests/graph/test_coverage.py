@@ -82,19 +82,40 @@ def _material_categories() -> set[str]:
     return cats
 
 
-def test_every_compiled_category_has_an_oracle_case():
-    if not MTLX_RES.exists():
-        pytest.skip("../shared (MaterialX's example materials) is absent: the closure cases cannot be listed")
+def _oracle_cases() -> tuple[set[str], set[str], set[str]]:
+    """(compiled categories without the material root, value categories with a node oracle case, all
+    categories with an oracle case)."""
     table = coverage()
     compiled = {c for c, row in table.items() if row.status in ("supported", "partial") and c not in ROOTS}
-    by_module = _module_categories()
-    value_cases = {c for cats in by_module.values() for c in cats}
+    value_cases = {c for cats in _module_categories().values() for c in cats}
     # A value category needs a node oracle case; a closure-only one may rely on the material oracle.
     materials = _material_categories()
     # (A gap stays a gap although a material uses it: emission and LamaMix are in materials the oracle
     # does not compare.)
     closure_cases = {c for c in compiled if _is_closure(c) and c in materials and c not in KNOWN_GAPS}
-    covered = value_cases | closure_cases
+    return compiled, value_cases, value_cases | closure_cases
+
+
+def oracle_figures() -> list[str]:
+    """The coverage figures the docs quote (README, BENCHMARKS.md, docs/coverage.md), one line per scope:
+    in-scope categories, compiled ones, and compiled ones with an oracle case.  ``PYTHONPATH=tests
+    python tests/graph/test_coverage.py`` prints them."""
+    table = coverage()
+    compiled, _, covered = _oracle_cases()
+    lines = []
+    for libs, label in ((("stdlib", "pbrlib"), "stdlib + pbrlib"), (None, "all libraries")):
+        s = coverage_summary(libs)
+        rows = {c for c, row in table.items() if libs is None or row.library in libs}
+        lines.append(f"{label}: {s['in_scope']} in scope, {s['supported']} compile fully, {s['partial']} partly; "
+                     f"{len(covered & compiled & rows)} of the {len(compiled & rows)} compiled non-root "
+                     f"categories have an oracle case; gaps: {', '.join(sorted((compiled & rows) - covered))}")
+    return lines
+
+
+def test_every_compiled_category_has_an_oracle_case():
+    if not MTLX_RES.exists():
+        pytest.skip("../shared (MaterialX's example materials) is absent: the closure cases cannot be listed")
+    compiled, value_cases, covered = _oracle_cases()
     stale = sorted(c for c in value_cases if c not in compiled)
     assert not stale, f"oracle cases for categories that do not compile: {stale}"
     missing = sorted(compiled - covered - set(KNOWN_GAPS))
@@ -123,3 +144,7 @@ def test_coverage_table_statuses():
     assert s["supported"] > 100
     text = format_coverage()
     assert "stdlib + pbrlib:" in text and "blackbody" in text
+
+
+if __name__ == "__main__":  # PYTHONPATH=tests python tests/graph/test_coverage.py
+    print("\n".join(oracle_figures()))
