@@ -108,10 +108,12 @@ def application_tag(compiled) -> str:
 
 def geometry_tag(compiled) -> str:
     """What the hashes add for a graph that reads geometry (:func:`~mtlx2neural.graph.geometry.bind_geometry`):
-    the stage file and the bound prims it is rasterised from (or the sphere default); "" when it reads none.
-    The meshes' contents are not hashed: editing a mesh in place keeps the cache key."""
+    the stage file, the bound prims it is rasterised from (or the sphere default) and the digest of their
+    mesh data (:meth:`~mtlx2neural.scene.uv_raster.GeometrySource.digest`: points, topology, UVs, normals,
+    the primvars read, transforms), so editing a bound mesh retrains; "" when it reads none, so editing a
+    mesh never retrains a material that reads no geometry."""
     geo = compiled.evaluator.geometry
-    return "" if geo is None else f"\0geometry={geo.stage_file or ''}|{geo.describe()}"
+    return "" if geo is None else f"\0geometry={geo.stage_file or ''}|{geo.describe()}|{geo.digest()}"
 
 
 def budget_tag(max_error: float | None) -> str:

@@ -2,7 +2,10 @@
 
 ``source_hash`` is a sha256 over, in order:
 
-- ``FORMAT_VERSION`` (the exported format; bumping it invalidates every cache);
+- ``FORMAT_VERSION`` (the exported format; bumping it invalidates every cache) and
+  ``TRAINING_VERSION`` (what a material trains to, for the same input and settings: bumped when a
+  change of the tool changes the training targets or the stack, so that old checkpoints are not
+  reused; it leaves exported assets loadable, which a ``FORMAT_VERSION`` bump would not);
 - the material's name (prim path or MaterialX name) and surfacematerial node name;
 - the material's MaterialX document as XML (``mx.writeToXmlString``). For a ``.mtlx``
   input this is the whole file's content, so editing another material of the same
@@ -41,6 +44,10 @@ from mtlx2neural.imaging.resolve import on_disk
 from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
 
 IGNORED_SETTINGS = ("checkpoint_every", "compile")
+TRAINING_VERSION = 2
+"""Version of the training targets (module docstring). History: 1, before versions were hashed; 2, the
+LEAN tangent (:mod:`mtlx2neural.textures.parameter_stack` passes each anisotropic lobe's tangent to the
+moments, so a material with a non-default tangent, e.g. a ``specular_rotation``, trains to other targets)."""
 _file_digests: dict[tuple[str, int, int], str] = {}
 
 
@@ -90,6 +97,7 @@ def source_hash(source, cfg, allow_missing_textures: bool = False) -> str:
         h.update(f"{tag}:{len(data)}:".encode() + data)
 
     put("format", str(FORMAT_VERSION))
+    put("training", str(TRAINING_VERSION))
     put("material", f"{source.name}\0{source.material}")
     put("document", mx.writeToXmlString(source.document))
     for f in referenced_files(source.document):
@@ -141,6 +149,7 @@ def content_hash(compiled, cfg, allow_missing_textures: bool = False, extra: str
         h.update(f"{tag}:{len(data)}:".encode() + data)
 
     put("format", str(FORMAT_VERSION))
+    put("training", str(TRAINING_VERSION))
     put("graph", graph_text(compiled))
     for f in graph_files(compiled):
         put("file", f)

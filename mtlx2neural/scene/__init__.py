@@ -8,7 +8,7 @@ on as a self-contained MaterialX document without the standard libraries.
 
 Modules: ``loader`` (entry points), ``materials`` (result types, choosing by
 name), ``mtlx_file``, ``usd_stage``, ``usd_to_mtlx``, ``usd_values``,
-``usd_preview``, ``mtlx_refs``, ``binding``, ``mxlib``, ``texel_density`` (metres of
+``usd_preview``, ``mtlx_refs``, ``binding``, ``mxlib``, ``mesh_digest`` (the bound meshes' data for the cache keys), ``texel_density`` (metres of
 surface per UV unit of a material's meshes, for ``--texel-density``), ``uv_raster`` (the bound
 meshes in UV space), ``stage_render`` (the bound meshes, camera and lights for the in-scene render).
 """

@@ -416,6 +416,25 @@ class GeometrySource:
         """``mesh prims A, B`` or the sphere default, in a phrase."""
         return SPHERE if self.is_sphere else f"mesh prims {', '.join(self.prims)}"
 
+    def digest(self) -> str:
+        """Hex sha256 of the mesh data the maps are drawn from (:func:`~mtlx2neural.scene.mesh_digest.mesh_digest`:
+        points, topology, UVs, normals, the primvars read, transforms); ``"sphere"`` for the default mesh."""
+        if self.is_sphere:
+            return "sphere"
+        # Local: mesh_digest reads the stage through pxr, which a sphere never needs.
+        from mtlx2neural.scene.mesh_digest import mesh_digest
+
+        return mesh_digest(self.stage(), self.prims, self.primvars)
+
+    def stage(self):
+        """The USD stage of :attr:`stage_file` (opened once)."""
+        # Local: opening a stage pulls in pxr's file format plugins; a sphere never needs them.
+        from mtlx2neural.scene.usd_stage import open_stage
+
+        if self._stage is None:
+            self._stage = open_stage(self.stage_file)
+        return self._stage
+
     def maps(self, resolution: tuple[int, int]) -> GeometryMaps:
         """The maps at (H, W) (cached)."""
         key = (int(resolution[0]), int(resolution[1]))
@@ -423,12 +442,7 @@ class GeometrySource:
             if self.is_sphere:
                 self._cache[key] = sphere_maps(key)
             else:
-                # Local: opening a stage pulls in pxr's file format plugins; a sphere never needs them.
-                from mtlx2neural.scene.usd_stage import open_stage
-
-                if self._stage is None:  # opened once, for every resolution asked
-                    self._stage = open_stage(self.stage_file)
-                self._cache[key] = rasterise_meshes(self._stage, self.prims, key, self.primvars)
+                self._cache[key] = rasterise_meshes(self.stage(), self.prims, key, self.primvars)
         return self._cache[key]
 
     def current(self) -> GeometryMaps:
