@@ -16,6 +16,16 @@ and in the scene (``flip_in_scene``: the bound meshes, the stage's camera and li
 :mod:`mtlx2neural.render.in_scene`, recorded with how it was viewed and lit in ``in_scene``). The
 error budget uses the in-scene figure when there is one (:func:`budget_error`), the analytic one
 otherwise (``.mtlx`` input, or a stage whose bound prims give no triangles).
+
+A UDIM material (its graph reads a ``<UDIM>`` texture set) trains only its tiles
+(:func:`mtlx2neural.train.udim.build_training_stack`: those its bound meshes overlap, every tile on
+disk for ``.mtlx`` input), and every measure reads uv inside them: the held-out error draws uv over
+the trained tiles, the analytic views are rendered once per trained tile (the sphere's uv shifted to
+the tile, :func:`mtlx2neural.render.udim_view.compare_tiles`; ``flip_per_view`` runs tile by tile,
+``flip_per_tile`` holds each tile's mean, the PNGs are ``tile<UDIM>_view<i>_*.png``) and the in-scene
+render reads the meshes' own uv, kept inside the trained tiles
+(:class:`~mtlx2neural.render.udim_view.ClampToTiles`). It has no analytic baseline (the
+UsdPreviewSurface fallback is one map over [0, 1]^2), so no ``preview_flip``; a note says so.
 """
 
 from __future__ import annotations
@@ -49,6 +59,7 @@ from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.in_scene import compare_in_scene, stage_in_scene
 from mtlx2neural.render.renderer import compare_many, save_png
+from mtlx2neural.render.udim_view import ClampToTiles, compare_tiles, model_tiles
 from mtlx2neural.scene import MaterialSource
 from mtlx2neural.textures.footprint import footprint_targets
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
@@ -56,6 +67,7 @@ from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.trainer import Trainer
+from mtlx2neural.train.udim import build_training_stack, draw_uv, is_udim_stack
 
 # ----------------------------------------------------------------------------- the error budget
 
@@ -87,12 +99,13 @@ def choose_decoder(train_and_measure: Callable[[str], float], budget: float,
 
 def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345) -> float:
     """Log-L1 between the neural model at level 0 and the reference averaged over a level-0
-    texel's footprint (the training target, up to 64 points), uv uniform, half/difference
-    directions, on draws the training never saw."""
+    texel's footprint (the training target, up to 64 points), uv uniform (over the trained tiles of
+    a UDIM ``stack``: a uniform tile, then a uniform point in it, as the training draws them),
+    half/difference directions, on draws the training never saw."""
 
     g = torch.Generator().manual_seed(seed)
     wi, wo = half_difference_pairs(n, g)
-    uv = torch.rand(n, 2, generator=g)
+    uv = draw_uv(n, stack.tiles if is_udim_stack(stack) else None, g)
     level = torch.zeros(n, dtype=torch.long)
     with torch.no_grad():
         target = footprint_targets(ref, stack, wi, wo, uv, level, 64, g) if stack.channels else ref.eval(wi, wo)
@@ -153,6 +166,8 @@ def measure_in_scene(ref, models: dict, texels: tuple[int, int], src, folder: Pa
         scene = stage_in_scene(stage_file, src.bound_prims)
         if isinstance(scene, str):
             return {"in_scene": {"measured": False, "why": scene}}
+        # a UDIM model reads the meshes' own uv, kept inside its trained tiles (edge points move)
+        models = {label: ClampToTiles(m, model_tiles(m)) if model_tiles(m) else m for label, m in models.items()}
         results = compare_in_scene(ref, models, texels, scene)
     except (Mtlx2NeuralError, OSError, ValueError, RuntimeError) as exc:  # a measure never fails the training
         return {"in_scene": {"measured": False, "why": f"{type(exc).__name__}: {exc}"}}
@@ -172,6 +187,10 @@ def measure_in_scene(ref, models: dict, texels: tuple[int, int], src, folder: Pa
             save_png(folder / f"in_scene_{label}.png", r[label])
         save_png(folder / "in_scene_flip.png", first["flip_map"], linear=False)
     return out
+
+
+UDIM_PREVIEW_NOTE = ("UDIM material: no analytic baseline is fitted (the UsdPreviewSurface fallback is one "
+                     "map over [0, 1]^2), so the layer has no UsdPreviewSurface fallback for it")
 
 
 def budget_error(summary: dict) -> float:
@@ -213,12 +232,19 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                                 allow_missing_textures=allow_missing_textures, application=application)
     geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
     ref = ReferenceMaterial(compiled)
-    stack = build_parameter_stack(compiled, resolution=resolution or latent_resolution(compiled, cfg))
+    stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                              resolution=resolution or latent_resolution(compiled, cfg))
+    tiles = list(stack.tiles) if is_udim_stack(stack) else None
+    if tiles and preview:
+        preview = False
+        stack_notes = stack_notes + [UDIM_PREVIEW_NOTE]
+        (folder / BASELINE_FILE).unlink(missing_ok=True)
     trainer = Trainer(ref, stack, cfg, folder, device=device)
     if resume:
         trainer.resume()
     if progress:
-        print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid, "
+        print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid"
+              f"{f' per UDIM tile, tiles {tiles}' if tiles else ''}, "
               f"{stack.levels[0].shape[0]} varying channels, decoder {cfg.decoder}, "
               f"{cfg.iterations} steps x {cfg.batch}", flush=True)
     model = trainer.run(progress=progress, listener=_LISTENER)
@@ -227,14 +253,17 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
         both = compare_many(ref, {"neural": model, "analytic": analytic}, texels=tuple(stack.resolution))
         errors, preview_errors = both["neural"], both["analytic"]
+    elif tiles:  # the sphere's uv shifted into each trained tile: the views once per tile
+        errors = compare_tiles(ref, {"neural": model}, tuple(stack.resolution), tiles)["neural"]
     else:  # the same renders as compare(..., label="neural")
         errors = compare_many(ref, {"neural": model}, texels=tuple(stack.resolution))["neural"]
     in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
                                 tuple(stack.resolution), src, folder)
     for i, e in enumerate(errors):
-        save_png(folder / f"view{i}_reference.png", e["reference"])
-        save_png(folder / f"view{i}_neural.png", e["neural"])
-        save_png(folder / f"view{i}_flip.png", e["flip_map"], linear=False)
+        name = f"tile{e['tile']}_view{i % (len(errors) // len(tiles))}" if tiles else f"view{i}"
+        save_png(folder / f"{name}_reference.png", e["reference"])
+        save_png(folder / f"{name}_neural.png", e["neural"])
+        save_png(folder / f"{name}_flip.png", e["flip_map"], linear=False)
     extra = dict(extra or {})
     summary = {"material": src.name, "mtlx_material": src.material, "source": src.source_file,
                "bound_prims": list(src.bound_prims), "source_hash": digest,
@@ -250,7 +279,12 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                "flip_mean": round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
                "relmse_mean": round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
                **in_scene,
-               "notes": list(extra.pop("notes", [])) + list(stack.notes) + ([geometry_note] if geometry_note else [])}
+               "notes": list(extra.pop("notes", [])) + list(stack.notes) + list(stack_notes)
+               + ([geometry_note] if geometry_note else [])}
+    if tiles:
+        summary["udim_tiles"] = tiles
+        summary["flip_per_tile"] = {str(t): round(float(sum(e["flip"] for e in errors if e["tile"] == t))
+                                                  / sum(1 for e in errors if e["tile"] == t), 4) for t in tiles}
     if preview:
         summary.update(preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
     if compiled.reads_application:
@@ -349,7 +383,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
         os.replace(p, folder / p.name)
     shutil.rmtree(folder / BUDGET_FOLDER, ignore_errors=True)
     summary = dict(runs[decoder])
-    if cfg.preview_iterations > 0:
+    if cfg.preview_iterations > 0 and not summary.get("udim_tiles"):
         summary = add_preview(src, folder, device, allow_missing_textures, runs[decoder]["resolution"], cfg.seed,
                               summary, cfg.preview_iterations, application)
     else:
