@@ -6,7 +6,8 @@ constant. At run time only the spatial nodes that the live BSDF program needs
 are evaluated, in topological order, for a batch of texture coordinates.
 
 Geometry (:mod:`mtlx2neural.graph.geometry`): a node that reads ``normal``/``tangent``/``bitangent``
-for anything but building a closure's shading frame is spatial too. When the evaluator has a
+for anything but building a closure's shading frame is spatial too, and so is a ``transform*`` node
+between an object space and world (it reads the bound prims' object-to-world matrix per sample). When the evaluator has a
 ``geometry`` source (:func:`~mtlx2neural.graph.geometry.bind_geometry`), ``run`` samples its maps
 (bilinear, at the source's current grid) at the uv of the batch, only when the nodes run read geometry.
 """
@@ -33,10 +34,15 @@ from mtlx2neural.graph.geometry import (
     frame_read,
     node_space,
     primvar_of,
+    spaces,
+    world_transform,
 )
 from mtlx2neural.graph.ir import CHANNELS, Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS
 from mtlx2neural.graph.spatial import FRAME_AXES, SPATIAL, eval_source
+from mtlx2neural.graph.transforms import CATEGORIES as TRANSFORMS
+from mtlx2neural.graph.transforms import transform_rows
+from mtlx2neural.scene.uv_raster import TRANSFORM_KEY
 
 
 def const_tensor(c: Const, device=None, dtype=torch.float32):
@@ -65,13 +71,15 @@ class GraphEvaluator:
         (then position is (u, v, 0), the frame its axes, primvars their defaults)."""
         self._geo_keys: dict[tuple, list[str]] = {}
         self.frame_bound = frame_bound(graph)
+        self.world_transform = [world_transform(graph, self.frame_bound, i) for i in range(len(graph.nodes))]
+        """Per node: a ``transform*`` between object and world that reads the prims' matrix per sample."""
         self._classify()
         self._fold()
 
     # -- compile time ---------------------------------------------------------------
     def _classify(self):
         for i, node in enumerate(self.graph.nodes):
-            self.spatial[i] = node.category in SPATIAL or any(
+            self.spatial[i] = node.category in SPATIAL or self.world_transform[i] or any(
                 isinstance(v, Ref) and (self.spatial[v.node] or self._geo_frame(i, k, v))
                 for k, v in node.inputs.items())
 
@@ -139,6 +147,8 @@ class GraphEvaluator:
             for i in nodes:
                 node = self.graph[i]
                 reads = [node] if node.category in GEOMETRIC else []
+                if self.world_transform[i]:
+                    keys.append(TRANSFORM_KEY)
                 reads += [self.graph[v.node] for k, v in node.inputs.items() if self._geo_frame(i, k, v)]
                 for n in reads:
                     pv = primvar_of(n) if n.category in ("geomcolor", "geompropvalue") else None
@@ -173,6 +183,9 @@ class GraphEvaluator:
                     for k, v in node.inputs.items()}
             if node.category in SPATIAL:
                 env[(i, "out")] = eval_source(node, args, uv, geometry)
+            elif self.world_transform[i] and TRANSFORM_KEY in (geometry or {}):
+                env[(i, "out")] = transform_rows(args["in"], *spaces(node), TRANSFORMS[node.category],
+                                                 geometry[TRANSFORM_KEY])
             else:
                 self._store(i, self._run_op(i, args), env)
         return env

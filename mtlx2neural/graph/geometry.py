@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from mtlx2neural.graph.ir import Const, IRGraph, IRNode, Ref
 from mtlx2neural.graph.spatial import FRAME_AXES, UV_PRIMVARS
+from mtlx2neural.graph.transforms import CATEGORIES as TRANSFORMS
+from mtlx2neural.graph.transforms import object_world
 from mtlx2neural.scene.uv_raster import GeometrySource
 
 GEOMETRIC = {"position", "geomcolor", "geompropvalue"} | set(FRAME_AXES)
@@ -58,6 +60,23 @@ def frame_read(graph: IRGraph, bound: list[bool], consumer: int, name: str, inp)
             and not frame_use(graph, bound, consumer, name))
 
 
+def spaces(node: IRNode) -> tuple[str, str]:
+    """(fromspace, tospace) of a ``transform*`` node ("" where not a constant string)."""
+    got = []
+    for name in ("fromspace", "tospace"):
+        inp = node.inputs.get(name)
+        got.append(inp.value if isinstance(inp, Const) and isinstance(inp.value, str) else "")
+    return got[0], got[1]
+
+
+def world_transform(graph: IRGraph, bound: list[bool], i: int) -> bool:
+    """Whether node ``i`` is a ``transform*`` node between an object space and world whose value is not
+    only a shading frame (``bound``: :func:`frame_bound`): it reads the bound prims' object-to-world
+    matrix per sample (:mod:`mtlx2neural.graph.transforms`)."""
+    node = graph[i]
+    return node.category in TRANSFORMS and object_world(*spaces(node)) is not None and not bound[i]
+
+
 def node_space(node: IRNode) -> str:
     """``object`` or ``world``: the space a geometric node reads (its ``space`` input, or the space of
     the default geometric property it stands for; ``model`` and unknown names are object space)."""
@@ -78,7 +97,8 @@ def primvar_of(node: IRNode) -> str | None:
 
 def geometry_reads(graph: IRGraph, nodes, bound: list[bool] | None = None) -> list[dict]:
     """The geometric inputs spatial ``nodes`` (indices, e.g. ``CompiledMaterial.spatial_nodes``) read:
-    ``[{"node", "kind", "space" (frame and position nodes) or "primvar"}]``, one per IR node.
+    ``[{"node", "kind", "space" (frame and position nodes; ``"object to world"`` for a transform node that
+    reads the prims' matrix) or "primvar"}]``, one per IR node.
     ``bound``: :func:`frame_bound` of ``graph`` (computed when None)."""
     bound = frame_bound(graph) if bound is None else bound
     seen, out = set(), []
@@ -102,6 +122,9 @@ def geometry_reads(graph: IRGraph, nodes, bound: list[bool] | None = None) -> li
         n = graph[i]
         if n.category in ("position", "geomcolor", "geompropvalue"):
             add(i)
+        if world_transform(graph, bound, i):
+            fromspace, tospace = spaces(n)
+            out.append({"node": n.path, "kind": n.category, "space": f"{fromspace} to {tospace}"})
         for name, v in n.inputs.items():
             if frame_read(graph, bound, i, name, v):
                 add(v.node)
@@ -118,7 +141,7 @@ def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | No
     primvars = sorted({r["primvar"] for r in reads if "primvar" in r})
     if "displayColor" in primvars:
         primvars.append("displayOpacity")
-    source = GeometrySource(stage_file, prims, primvars)
+    source = GeometrySource(stage_file, prims, primvars, transforms=any(r["kind"] in TRANSFORMS for r in reads))
     compiled.evaluator.geometry = source
     kinds = ", ".join(sorted({r["kind"] for r in reads}))
     if source.is_sphere:

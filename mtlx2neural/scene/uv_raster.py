@@ -21,7 +21,13 @@ texel (r, c) centred at uv ((c + 0.5) / W, 1 - (r + 0.5) / H), as the parameter 
   it points along dP/dv (mirrored UVs flip it);
 - ``primvar:NAME`` (1-4): each requested primvar, interpolated like the UVs (constant, uniform,
   vertex/varying, faceVarying); ``geomcolor`` reads ``primvar:displayColor`` (and
-  ``displayOpacity`` as alpha).
+  ``displayOpacity`` as alpha);
+- ``transform:object_to_world`` (16, :data:`TRANSFORM_KEY`; not a map: :meth:`GeometryMaps.sample`
+  gives it per uv from the texel's owner): the local-to-world matrix of the prim that drew the texel
+  (nearest texel, never blended), 4x4 row by row in USD's row-vector convention (world = [p, 1] M),
+  for the object/world ``transform*`` nodes. Where two bound prims with different transforms
+  overlap in UV, the first in binding order owns the texel; when the material reads the matrix
+  (``transforms=True``) a warning names both prims.
 
 Coverage and fill: a texel belongs to a triangle when its centre lies inside it (a top-left rule
 on shared edges, so an edge texel is drawn once). Several meshes bound to one material share the
@@ -54,6 +60,7 @@ from mtlx2neural.imaging.grid_lookup import bilinear_periodic
 FRAME_KEYS = tuple(f"{kind}:{space}" for kind in ("position", "normal", "tangent", "bitangent")
                    for space in ("object", "world"))
 SPHERE = "unit sphere (default mesh)"
+TRANSFORM_KEY = "transform:object_to_world"
 
 
 @dataclass
@@ -69,6 +76,11 @@ class GeometryMaps:
     prims: list[str] = field(default_factory=list)
     """The prims drawn, or [:data:`SPHERE`]."""
     warnings: list[str] = field(default_factory=list)
+    owner: torch.Tensor | None = None
+    """[H, W] int64: per texel, the index into :attr:`transforms` of the prim that drew it (filled
+    like the maps); None: every texel is the identity's."""
+    transforms: torch.Tensor | None = None
+    """[P, 4, 4] float32 local-to-world matrices of :attr:`prims` (row-vector convention); None: identity."""
     _moved: dict = field(default_factory=dict, repr=False, compare=False)
 
     def sample(self, uv: torch.Tensor, keys: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
@@ -76,12 +88,27 @@ class GeometryMaps:
         in ``uv``'s dtype and device. Exact at texel centres."""
         out = {}
         for k in (self.maps if keys is None else keys):
-            if k in self.maps:
+            if k == TRANSFORM_KEY:
+                out[k] = self.object_to_world(uv)
+            elif k in self.maps:
                 grid = self._moved.get((k, uv.device))
                 if grid is None:  # one copy per device, not one transfer per batch
                     grid = self._moved[(k, uv.device)] = self.maps[k].to(uv.device)
                 out[k] = bilinear_periodic(grid, uv).to(uv.dtype)
         return out
+
+
+    def object_to_world(self, uv: torch.Tensor) -> torch.Tensor:
+        """[N, 16] local-to-world matrices (row by row, row-vector convention) of the prims owning the
+        texels ``uv`` [N, 2] falls in (periodic, nearest texel: matrices of two prims are never blended)."""
+        n = uv.shape[0]
+        if self.owner is None or self.transforms is None:
+            return torch.eye(4, dtype=uv.dtype, device=uv.device).reshape(1, 16).expand(n, 16)
+        h, w = self.resolution
+        col = torch.floor(uv[:, 0].detach() * w).long().remainder(w)
+        row = (h - 1) - torch.floor(uv[:, 1].detach() * h).long().remainder(h)  # row 0 at v = 1
+        idx = self.owner.to(uv.device)[row, col]
+        return self.transforms.to(uv.device, uv.dtype)[idx].reshape(n, 16)
 
 
 # ----------------------------------------------------------------------------- the sphere default
@@ -155,16 +182,23 @@ class _Canvas:
         self.h, self.w = resolution
         self.values: dict[str, np.ndarray] = {}
         self.covered = np.zeros((self.h, self.w), dtype=bool)
+        self.owner = np.zeros((self.h, self.w), dtype=np.int64)
+        self.under: set[int] = set()
+        """The owners of texels the last :meth:`draw` found already drawn (other prims it overlaps)."""
 
-    def draw(self, uv: np.ndarray, corners: dict[str, np.ndarray]) -> int:
-        """Draw triangles (``uv`` [T, 3, 2]; ``corners`` key -> [T, 3, C]) where nothing was drawn yet
-        (the lowest-numbered triangle keeps a texel); returns the number of texels two of these
-        triangles both cover (overlapping UVs). Vectorised over batches of triangles of similar size."""
+    def draw(self, uv: np.ndarray, corners: dict[str, np.ndarray], index: int = 0) -> int:
+        """Draw triangles (``uv`` [T, 3, 2]; ``corners`` key -> [T, 3, C]) of prim number ``index`` where
+        nothing was drawn yet (the lowest-numbered triangle keeps a texel); returns the number of texels
+        two of these triangles both cover (overlapping UVs). Vectorised over batches of triangles of
+        similar size."""
         h, w = self.h, self.w
+        self.under = set()
         tri, row, col, wts = _hits(uv[..., 0] * w - 0.5, uv[..., 1] * h - 0.5)  # texel-centre coordinates
         if len(tri) == 0:
             return 0
         texel = (h - 1 - np.mod(row, h)) * w + np.mod(col, w)  # the maps' row 0 is v = 1
+        drawn_before = self.covered.ravel()[texel]
+        self.under = set(np.unique(self.owner.ravel()[texel[drawn_before]]).tolist())
         count = np.bincount(texel, minlength=h * w)
         overlap = int((count > 1).sum())
         best = np.full(h * w, len(uv), dtype=np.int64)
@@ -187,10 +221,12 @@ class _Canvas:
             buf.reshape(h * w, c)[texel] = vals[:, o:o + c]
             o += c
         self.covered.ravel()[texel] = True
+        self.owner.ravel()[texel] = index
         return overlap
 
-    def maps(self, prims, notes) -> GeometryMaps:
-        """The drawn values with every uncovered texel filled from its nearest covered one."""
+    def maps(self, prims, notes, transforms=None) -> GeometryMaps:
+        """The drawn values with every uncovered texel filled from its nearest covered one
+        (``transforms``: [P, 4, 4] local-to-world matrices of ``prims``)."""
         # Local: scipy.ndimage is needed only here, once per drawn layout; importing it at the top
         # would load it for every command, --help included.
         from scipy import ndimage
@@ -199,12 +235,15 @@ class _Canvas:
             _, (ri, ci) = ndimage.distance_transform_edt(~self.covered, return_indices=True)
             for key, buf in self.values.items():
                 self.values[key] = buf[ri, ci]
+            self.owner = self.owner[ri, ci]
         maps = {}
         for key, buf in self.values.items():
             if key.split(":")[0] in ("normal", "tangent", "bitangent"):
                 buf = _normalise(buf)
             maps[key] = torch.from_numpy(np.ascontiguousarray(buf.transpose(2, 0, 1)).astype(np.float32))
-        return GeometryMaps((self.h, self.w), maps, torch.from_numpy(self.covered.copy()), list(prims), notes)
+        xf = None if transforms is None else torch.from_numpy(np.asarray(transforms, dtype=np.float32))
+        return GeometryMaps((self.h, self.w), maps, torch.from_numpy(self.covered.copy()), list(prims), notes,
+                            torch.from_numpy(self.owner.copy()), xf)
 
 
 BATCH_TEXELS = 1 << 21  # candidate texel centres tested per batch (bounds memory to ~100 MB)
@@ -357,15 +396,28 @@ def _mesh_triangles(stage, path: str, primvars: Iterable[str], need_uv: bool = T
     return tuv, corners
 
 
+def _object_to_world(stage, path: str) -> np.ndarray:
+    """The 4x4 local-to-world matrix (row-vector convention) of the mesh at ``path`` (a GeomSubset's parent)
+    at the default time."""
+    # Local: pxr loads its plugins on import; only drawing real meshes needs it.
+    from pxr import Usd, UsdGeom
+
+    prim = stage.GetPrimAtPath(str(path))
+    if prim.IsA(UsdGeom.Subset):
+        prim = prim.GetParent()
+    return np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64)
+
+
 def rasterise_meshes(stage, prim_paths: Iterable[str], resolution: tuple[int, int],
-                     primvars: Iterable[str] = ()) -> GeometryMaps:
+                     primvars: Iterable[str] = (), transforms_read: bool = False) -> GeometryMaps:
     """Draw every mesh (or GeomSubset) of ``prim_paths`` on ``stage`` into one (H, W) UV layout
     (module docstring: keys, spaces, units, overlaps, fill). ``primvars``: the primvar names the
-    material reads (``displayColor`` for ``geomcolor``). Warnings (also issued with
+    material reads (``displayColor`` for ``geomcolor``); ``transforms_read``: the material reads the
+    object-to-world matrix, so prims with different transforms overlapping in UV are warned about. Warnings (also issued with
     :func:`warnings.warn`) name the prims with overlapping or missing UVs; when none can be drawn
     the unit sphere's maps are returned with a warning saying so."""
     canvas = _Canvas(resolution)
-    drawn, notes = [], []
+    drawn, notes, transforms = [], [], []
     primvars = list(dict.fromkeys(primvars))
     for path in prim_paths:
         found = _mesh_triangles(stage, path, primvars)
@@ -373,8 +425,15 @@ def rasterise_meshes(stage, prim_paths: Iterable[str], resolution: tuple[int, in
             notes.append(f"{path}: {found}: left out of the geometry maps")
             continue
         tuv, corners = found
-        overlap = canvas.draw(tuv, corners)
+        xf = _object_to_world(stage, path)
+        overlap = canvas.draw(tuv, corners, len(drawn))
+        differ = [drawn[k] for k in sorted(canvas.under) if not np.allclose(transforms[k], xf, rtol=0, atol=1e-9)]
+        if differ and transforms_read:
+            notes.append(f"{path}: overlaps {', '.join(differ)} in UV with a different object-to-world transform: "
+                         f"the first bound prim's geometry and transform are used there (object/world "
+                         f"transform* nodes included)")
         drawn.append(str(path))
+        transforms.append(xf)
         if overlap:
             notes.append(f"{path}: overlapping UVs ({overlap} texels covered more than once at "
                          f"{resolution[1]}x{resolution[0]}): the first triangle's geometry is used there")
@@ -387,7 +446,7 @@ def rasterise_meshes(stage, prim_paths: Iterable[str], resolution: tuple[int, in
         out = sphere_maps(resolution)
         out.warnings = notes
     else:
-        out = canvas.maps(drawn, notes)
+        out = canvas.maps(drawn, notes, transforms)
     for n in notes:
         warnings.warn(n, stacklevel=2)
     return out
@@ -399,10 +458,13 @@ class GeometrySource:
     :meth:`maps` rasterises (and caches, per resolution) lazily, so a graph that never asks
     costs nothing."""
 
-    def __init__(self, stage_file: str | None = None, prims: Iterable[str] = (), primvars: Iterable[str] = ()):
+    def __init__(self, stage_file: str | None = None, prims: Iterable[str] = (), primvars: Iterable[str] = (),
+                 transforms: bool = False):
         self.stage_file = stage_file
         self.prims = [str(p) for p in prims]
         self.primvars = list(primvars)
+        self.transforms = transforms
+        """Whether the material reads the object-to-world matrix (``transform*`` between object and world)."""
         self._cache: dict[tuple[int, int], GeometryMaps] = {}
         self._stage = None
         self.resolution: tuple[int, int] = (256, 256)
@@ -442,7 +504,7 @@ class GeometrySource:
             if self.is_sphere:
                 self._cache[key] = sphere_maps(key)
             else:
-                self._cache[key] = rasterise_meshes(self.stage(), self.prims, key, self.primvars)
+                self._cache[key] = rasterise_meshes(self.stage(), self.prims, key, self.primvars, self.transforms)
         return self._cache[key]
 
     def current(self) -> GeometryMaps:
