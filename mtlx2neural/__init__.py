@@ -19,19 +19,22 @@ from __future__ import annotations
 from mtlx2neural.version import __version__
 
 
-def load_reference(path, material: str | None = None, device: str = "cpu", allow_missing_textures: bool = False):
+def load_reference(path, material: str | None = None, device: str = "cpu", allow_missing_textures: bool = False,
+                   frame: float = 1.0, fps: float = 24.0):
     """Load ``material`` from a ``.mtlx`` file or a USD stage and compile its reference BRDF.
 
     ``material`` is a USD material prim path (or prim name) or a MaterialX
     surfacematerial name; it may be omitted when the asset selects exactly one.
     ``allow_missing_textures`` substitutes an image node's declared ``default`` for a
-    missing file instead of failing.
+    missing file instead of failing. ``frame``/``fps``: the instant MaterialX's ``frame`` and ``time``
+    nodes fold to (``frame``, and ``frame / fps`` seconds), as ``convert``'s ``--frame``/``--fps``.
     Returns a :class:`mtlx2neural.reference.ReferenceMaterial`.
     """
     # Local: `import mtlx2neural` stays cheap (no torch, USD or MaterialX) until an entry point runs.
+    from mtlx2neural.graph.ops import Application
     from mtlx2neural.reference.loading import load_reference as _load
 
-    return _load(path, material, device, allow_missing_textures)
+    return _load(path, material, device, allow_missing_textures, Application(frame=float(frame), fps=float(fps)))
 
 
 def usd_plugin_path() -> str:

@@ -4,12 +4,23 @@ from __future__ import annotations
 
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
+from mtlx2neural.graph.ops import Application
 from mtlx2neural.reference.material import ReferenceMaterial
 from mtlx2neural.scene import find_material
 
 
+def application_of(summary: dict | None) -> Application | None:
+    """The instant a conversion baked a material's ``time``/``frame`` nodes at, from its ``summary.json``
+    (``{"application": {"frame", "fps", ...}}``, written when the graph reads them); None when it records
+    none (the graph reads neither, or the summary predates the field: frame 1 at 24 fps then)."""
+    app = (summary or {}).get("application")
+    if not isinstance(app, dict) or "frame" not in app or "fps" not in app:
+        return None
+    return Application(frame=float(app["frame"]), fps=float(app["fps"]))
+
+
 def load_reference(path, material: str | None = None, device: str = "cpu",
-                   allow_missing_textures: bool = False) -> ReferenceMaterial:
+                   allow_missing_textures: bool = False, application: Application | None = None) -> ReferenceMaterial:
     """Load ``material`` from a ``.mtlx`` file or a USD stage and compile its reference BRDF.
 
     ``material`` is a USD material prim path (or prim name) or a MaterialX
@@ -17,11 +28,13 @@ def load_reference(path, material: str | None = None, device: str = "cpu",
     ``allow_missing_textures`` substitutes an image node's declared ``default`` for a
     missing file instead of failing. Tensors live on ``device``. A graph that reads geometry (position,
     normal, primvars) reads the bound meshes rasterised into their UV layout, or the unit sphere for
-    ``.mtlx`` input (:func:`mtlx2neural.graph.geometry.bind_geometry`).
+    ``.mtlx`` input (:func:`mtlx2neural.graph.geometry.bind_geometry`). ``application``: the instant
+    ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps; a conversion's ``--frame``/``--fps``,
+    which :func:`application_of` reads back from its ``summary.json``).
     """
     src = find_material(path, material)
     compiled = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures)
+                                allow_missing_textures=allow_missing_textures, application=application)
     compiled.name = src.name
     bind_geometry(compiled, src.stage_file, src.bound_prims)  # position/normal/primvars the graph reads
     return ReferenceMaterial(compiled)

@@ -46,7 +46,7 @@ from mtlx2neural.export.load import _neural_prims, load_neural
 from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.pipeline.plan import DECODERS
-from mtlx2neural.reference.loading import load_reference
+from mtlx2neural.reference.loading import application_of, load_reference
 from mtlx2neural.render.renderer import compare, compare_many, save_png
 from mtlx2neural.report.shader_cost import shader_available, shader_rates
 from mtlx2neural.scene import find_material
@@ -284,7 +284,8 @@ def _load_reference(summary: dict, folder: Path):
     names = [n for n in (summary.get("material"), summary.get("mtlx_material")) if n]
     for i, name in enumerate(names):
         try:
-            return load_reference(summary["source"], name, allow_missing_textures=True)
+            return load_reference(summary["source"], name, allow_missing_textures=True,
+                                  application=application_of(summary))  # the conversion's --frame/--fps
         except InputError:
             if i == len(names) - 1:
                 raise

@@ -63,6 +63,12 @@ class RenderOptions:
     their light samples."""
     allow_missing_textures: bool = False
     """Use an image node's declared default when its file is missing, instead of failing."""
+    frame: float | None = field(default=None, metadata={"metavar": "F"})
+    """The instant the reference's ``frame``/``time`` nodes fold to (as ``convert --frame``); default:
+    the one the asset's conversion used (its ``summary.json``), else frame 1."""
+    fps: float | None = field(default=None, metadata={"metavar": "R"})
+    """Frames per second that turn ``--frame`` into the ``time`` node's seconds; default: the
+    conversion's, else 24."""
 
     def kwargs(self) -> dict:
         """The keyword arguments of :func:`~mtlx2neural.report.views.render_asset` after ``asset``."""

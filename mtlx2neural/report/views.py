@@ -16,6 +16,8 @@ temporary files and renamed into place, so a failed run leaves no partial file.
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
 import time
@@ -30,6 +32,7 @@ from mtlx2neural.export.load import load_neural
 from mtlx2neural.export.usd_writer import LEGACY_DOC_PREFIX, RECORD_KEY, register_schema
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
+from mtlx2neural.graph.ops import Application
 from mtlx2neural.model.checkpoint import load_checkpoint
 from mtlx2neural.pipeline.layout import (
     FOLDER_MARKER,
@@ -42,6 +45,7 @@ from mtlx2neural.pipeline.layout import (
     resolve_output,
 )
 from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.reference.loading import application_of
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
 from mtlx2neural.render.lighting import EnvironmentMap
 from mtlx2neural.render.renderer import render_scene, save_png
@@ -179,11 +183,23 @@ def neural_source(asset, material_name: str) -> tuple[str, Path, str | None]:
     return "checkpoint", default_checkpoint(asset, material_name), None
 
 
+def conversion_application(asset, material_name: str) -> Application | None:
+    """The instant ``mtlx2neural ASSET`` baked ``material_name``'s ``time``/``frame`` nodes at (its
+    ``summary.json`` in the folder of :func:`conversion_outputs`), or None (no conversion, or the graph
+    reads neither)."""
+    path = conversion_outputs(asset).folder / material_folder(material_name) / "summary.json"
+    try:
+        return application_of(json.loads(path.read_text()))
+    except (OSError, ValueError):
+        return None
+
+
 def render_asset(asset, output: str | Path | RenderOptions, material: str | None = None, model: str = "reference",
                  checkpoint=None,
                  geometry: str = "sphere", env: str | None = "sky", res: int = 256, spp: int = 16,
                  azimuth: float = 30.0, elevation: float = 20.0, distance: float = 4.0, fov: float = 30.0,
-                 seed: int = 0, allow_missing_textures: bool = False, mis: str = "own") -> dict:
+                 seed: int = 0, allow_missing_textures: bool = False, mis: str = "own",
+                 frame: float | None = None, fps: float | None = None) -> dict:
     """Render ``material`` of ``asset`` with the reference or neural ``model``; write ``output`` (.exr)
     and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError.
 
@@ -207,6 +223,9 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     the balance heuristic: a sharp coat reflecting the sky converges instead of sparkling. The
     two models then draw different BSDF directions, so their renders share only the light
     samples; ``mis="none"`` (light samples only) keeps every random number common to both.
+
+    ``frame``/``fps`` (the reference only): the instant its ``time``/``frame`` nodes fold to; each
+    left None is the conversion's (:func:`conversion_application`), else frame 1 at 24 fps.
 
     ``render_asset(asset, options)`` takes a :class:`~mtlx2neural.report.options.RenderOptions`
     (``output`` and every argument after it) instead."""
@@ -254,7 +273,12 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
         texels = tuple(int(s) for s in shading.latents.levels[0].shape[1:])
     else:
         src = src or find_material(asset, material)
-        compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures)
+        app = conversion_application(asset, src.name) or Application()
+        app = Application(frame=app.frame if frame is None else float(frame), fps=app.fps if fps is None else float(fps))
+        if not (math.isfinite(app.frame) and math.isfinite(app.fps) and app.fps > 0):
+            raise InputError(f"--frame {app.frame!r} / --fps {app.fps!r}: must be finite, --fps positive")
+        compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
+                                    application=app)
         bind_geometry(compiled, src.stage_file, src.bound_prims)  # as the conversion bakes it
         shading, texels, name = ReferenceMaterial(compiled), (1, 1), src.name
     t0 = time.time()

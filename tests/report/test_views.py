@@ -207,3 +207,28 @@ def test_a_stage_snapshot_finds_its_conversions_layer_and_checkpoint(tmp_path, c
     ck.unlink()  # neither: exit 2 naming the checkpoint it looked for
     code, stdout, err = run_cli(capsys, "render", snapshot, "--model", "neural", "-o", out, *COMMON)
     assert_clean_input_error(code, stdout, err, str(ck))
+
+
+def test_the_reference_renders_at_the_conversions_instant_or_the_given_one(tmp_path, capsys):
+    """A material whose base colour is the ``time`` node: render reads the instant the conversion baked it
+    at from its summary.json (what pipeline.jobs writes), and --frame/--fps override it."""
+    # Local: the shared MaterialX snippets, for this test only.
+    from materials import FOOTER, HEADER, standard_surface
+
+    asset = tmp_path / "clock.mtlx"
+    asset.write_text(HEADER + '  <time name="t" type="float" />\n  <convert name="tc" type="color3">\n'
+                     '    <input name="in" type="float" nodename="t" />\n  </convert>\n'
+                     + standard_surface("Clock", "SR", base=1.0, base_color={"node": "tc"}) + FOOTER)
+    default = render_asset(asset, tmp_path / "default.exr", **KW)["mean"]  # frame 1 at 24 fps: t = 1/24
+    folder = resolve_output(asset).folder / material_folder("Clock")
+    folder.mkdir(parents=True)
+    (folder / "summary.json").write_text(json.dumps(
+        {"material": "Clock", "application": {"frame": 12.0, "fps": 24.0, "time": 0.5, "nodes": ["time"]}}))
+    converted = render_asset(asset, tmp_path / "converted.exr", **KW)["mean"]  # t = 0.5
+    given = render_asset(asset, tmp_path / "given.exr", frame=1.0, **KW)["mean"]  # --frame 1 at the 24 fps
+    # Same seed and light samples: the diffuse part scales 12x with the base colour, the specular part does
+    # not (3.6x in all, measured); rendering the same instant twice is bit-identical.
+    assert converted > 2.0 * default and given == default
+    code, _, err = run_cli(capsys, "render", asset, "-o", tmp_path / "cli.exr", "--frame", "24", "--fps", "48", *COMMON)
+    assert code == 0, err  # t = 24 / 48 = 0.5, as the conversion's: the same image
+    assert np.allclose(pixels(tmp_path / "cli.exr"), pixels(tmp_path / "converted.exr"), rtol=1e-6, atol=0)
