@@ -71,3 +71,23 @@ def test_rotated_sample_is_a_textured_rotation_that_the_stack_keeps(tmp_path):
     assert np.minimum(diff, 180.0 - diff).max() < 0.01
     assert math.isclose(float(np.ptp(np.degrees(np.arctan2(tangent[:, 1], tangent[:, 0])) % 180.0)), 180.0,
                         abs_tol=10.0)  # the circles' tangents take every direction
+
+
+def test_udim_sample_is_the_generators_and_its_mesh_touches_three_of_four_tiles(tmp_path):
+    """samples/make_udim_sample.py: the bundled files are what it writes (small), the material reads a
+    <UDIM> set of four tiles, and the mesh's UVs overlap 1001, 1002 and 1011 only (the tiles a
+    conversion trains; tests/pipeline/test_udim_pipeline.py converts it)."""
+    from mtlx2neural.train.udim import tiles_on_disk, training_tiles
+
+    spec = importlib.util.spec_from_file_location("make_udim_sample", SAMPLES / "make_udim_sample.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    stage = mod.build(tmp_path / "udim")
+    names = ["udim_tiles.usda"] + [f"base.{t}.png" for t in (*mod.TRAINED, mod.UNTOUCHED)]
+    for name in names:  # the committed copies are the generator's output
+        assert (stage.parent / name).read_bytes() == (SAMPLES / "udim" / name).read_bytes(), name
+    assert sum((SAMPLES / "udim" / n).stat().st_size for n in names) < 8192
+    ref = m2n.load_reference(stage, "UdimTiles")
+    assert tiles_on_disk(ref.compiled) == [1001, 1002, 1011, 1012]
+    tiles, _ = training_tiles(ref.compiled, str(stage), [mod.MESH])
+    assert tiles == list(mod.TRAINED)
