@@ -48,7 +48,8 @@ def samples_for_level(level: int, max_samples: int, texel_ratio: tuple[float, fl
 
 def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
                       level: torch.Tensor, max_samples: int = 64,
-                      generator: torch.Generator | None = None, point_eval=None) -> torch.Tensor:
+                      generator: torch.Generator | None = None, point_eval=None,
+                      one_call: bool = False) -> torch.Tensor:
     """Footprint-averaged reference values [N,3] (f * cos, linear RGB) for each query.
 
     ``reference`` is a :class:`~mtlx2neural.reference.ReferenceMaterial` of the same
@@ -57,12 +58,19 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
     stack is at the textures' resolution, else its ``uv`` (the graph itself). ``point_eval(wi, wo,
     at)`` replaces ``reference.eval`` at each point (the trainer passes its cone-mollified value,
     :func:`mtlx2neural.train.mollify.cone_mean`).
+
+    ``one_call``: the points of every level go to ``point_eval`` in one batch instead of one call per
+    level (the same estimator and the same offsets; the random numbers ``point_eval`` draws come in
+    another order). The reference costs a few thousand tensor operations per call whatever its batch,
+    so one call instead of one per level (9 on a 256² grid) takes about half the time (BENCHMARKS.md,
+    "Time to quality").
     """
     point_eval = reference.eval if point_eval is None else point_eval
     n = wi.shape[0]
     h, w = stack.resolution
     native = stack.texel_ratio == (1.0, 1.0)
     out = torch.zeros(n, 3, dtype=wi.dtype, device=wi.device)
+    groups = []  # (rows [m], points per row s, points [m*s, 2])
     for k in torch.unique(level).tolist():
         idx = torch.nonzero(level == k)[:, 0]
         s = samples_for_level(int(k), max_samples, stack.texel_ratio)
@@ -71,10 +79,22 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         sigma = torch.tensor([SIGMA_TEXELS * 2 ** k / w, SIGMA_TEXELS * 2 ** k / h], dtype=uv.dtype, device=uv.device)
         offsets = stratified_gaussian(m, s, generator).to(uv.dtype).to(uv.device) * sigma
         pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
+        if one_call:
+            groups.append((idx, s, pts))
+            continue
         wi_k, wo_k = wi[idx].repeat_interleave(s, 0), wo[idx].repeat_interleave(s, 0)
         at = ShadingPoint(params=stack.sample(pts, 0)) if native else ShadingPoint(uv=pts)
         vals = point_eval(wi_k, wo_k, at)
         out[idx] = vals.view(m, s, 3).mean(1)
+    if groups:
+        rows = torch.cat([idx.repeat_interleave(s) for idx, s, _ in groups])
+        pts = torch.cat([p for _, _, p in groups])
+        at = ShadingPoint(params=stack.sample(pts, 0)) if native else ShadingPoint(uv=pts)
+        vals = point_eval(wi[rows], wo[rows], at)
+        counts = torch.zeros(n, dtype=wi.dtype, device=wi.device)
+        counts.index_add_(0, rows, torch.ones_like(rows, dtype=wi.dtype))
+        out.index_add_(0, rows, vals.to(out.dtype))
+        out = out / counts.clamp_min(1.0)[:, None]
     return out
 
 

@@ -186,9 +186,10 @@ class Trainer:
                     return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, at)
 
                 return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
-                                         point_eval)
+                                         point_eval, one_call=cfg.footprint_one_call)
             wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
-            return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen)
+            return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen,
+                                     one_call=cfg.footprint_one_call)
         if angle <= 0:
             return self._reference_eval(wi, wo)
         if cfg.mollify_mis:
