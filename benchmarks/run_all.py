@@ -23,6 +23,7 @@ BENCHMARKS = {
     "reference": ("bench_reference.py", ["--compiled"], {}),
     "textures": ("bench_textures.py", ["--footprint"], {}),
     "training": ("bench_training.py", ["--steps", "30", "--batch", "16384"], {}),
+    "step_profile": ("bench_step_profile.py", [], {}),
     "sampler": ("bench_sampler.py", [], {}),
     "fidelity": ("bench_fidelity.py", [], {}),
     "ablation": ("bench_fidelity.py", ["--ablation", "--cases", "GlazedCeramic,BrushedMetal"], {}),
