@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
 
     s = render_asset(args.asset, options)
     model = s["model"] if s["neural_source"] is None else f"{s['model']}, from the {s['neural_source']} {s['neural_path']}"
-    print(f"{s['material']} ({model}): {s['geometry']} under {s['env']} (MIS: {s['mis']}), {s['res']}x{s['res']}, "
+    tile = f" as UDIM tile {s['tile']}" if s.get("tile") is not None else ""
+    print(f"{s['material']} ({model}): {s['geometry']}{tile} under {s['env']} (MIS: {s['mis']}), {s['res']}x{s['res']}, "
           f"{s['spp']} spp in {s['seconds']} s; wrote {s['exr']} and {s['png']}")
     return 0

@@ -49,6 +49,7 @@ from mtlx2neural.reference.loading import application_of
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
 from mtlx2neural.render.lighting import EnvironmentMap
 from mtlx2neural.render.renderer import render_scene, save_png
+from mtlx2neural.render.udim_view import TileView, model_tiles
 from mtlx2neural.report.options import RenderOptions
 from mtlx2neural.scene import find_material
 from mtlx2neural.scene.dependencies import canonical
@@ -199,7 +200,7 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
                  geometry: str = "sphere", env: str | None = "sky", res: int = 256, spp: int = 16,
                  azimuth: float = 30.0, elevation: float = 20.0, distance: float = 4.0, fov: float = 30.0,
                  seed: int = 0, allow_missing_textures: bool = False, mis: str = "own",
-                 frame: float | None = None, fps: float | None = None) -> dict:
+                 frame: float | None = None, fps: float | None = None, tile: int | None = None) -> dict:
     """Render ``material`` of ``asset`` with the reference or neural ``model``; write ``output`` (.exr)
     and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError.
 
@@ -226,6 +227,11 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
 
     ``frame``/``fps`` (the reference only): the instant its ``time``/``frame`` nodes fold to; each
     left None is the conversion's (:func:`conversion_application`), else frame 1 at 24 fps.
+
+    ``tile`` (a UDIM number): render the geometry's [0,1]^2 uv as that UDIM tile
+    (:class:`~mtlx2neural.render.udim_view.TileView`, both models); a UDIM neural model without it
+    shows its first trained tile (its other tiles' latents are never read by a [0,1]^2 geometry),
+    a tile it was not trained on is an :class:`InputError`. The summary's ``tile`` says which.
 
     ``render_asset(asset, options)`` takes a :class:`~mtlx2neural.report.options.RenderOptions`
     (``output`` and every argument after it) instead."""
@@ -270,7 +276,14 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
             name = name or shading.usd_info["material"]
         else:
             shading = load_checkpoint(ck)
-        texels = tuple(int(s) for s in shading.latents.levels[0].shape[1:])
+        texels = tuple(int(s) for s in shading.latents.levels[0].shape[-2:])  # per tile for UDIM
+        trained = model_tiles(shading)
+        if trained:
+            tile = trained[0] if tile is None else int(tile)
+            if tile not in trained:
+                raise InputError(f"--tile {tile}: {name} was trained on UDIM tiles {trained} only")
+        elif tile is not None:
+            raise InputError(f"--tile {tile}: {name}'s neural model has no UDIM tiles")
     else:
         src = src or find_material(asset, material)
         app = conversion_application(asset, src.name) or Application()
@@ -281,6 +294,10 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
                                     application=app)
         bind_geometry(compiled, src.stage_file, src.bound_prims)  # as the conversion bakes it
         shading, texels, name = ReferenceMaterial(compiled), (1, 1), src.name
+    if tile is not None:
+        if int(tile) < 1001:
+            raise InputError(f"--tile {tile}: UDIM tiles are numbered from 1001")
+        shading = TileView(shading, int(tile))
     t0 = time.time()
     # mis="own": the material samples its own directions (the reference's lobe mixture, the neural
     # model's learned proxy), through the Material protocol's sample/pdf.
@@ -293,4 +310,4 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     return {"material": name, "model": model, "checkpoint": str(ck) if source == "checkpoint" else None,
             "neural_source": source, "neural_path": str(ck) if ck else None, "exr": str(output),
             "png": str(png), "geometry": geometry, "env": env or "sky", "mis": mis, "res": res, "spp": spp,
-            "seconds": round(seconds, 2), "mean": float(np.mean(img))}
+            "seconds": round(seconds, 2), "mean": float(np.mean(img)), "tile": tile}

@@ -97,3 +97,21 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(tmp_pa
     assert max(rel) < 0.15, rel
     with pytest.raises(ValueError, match=f"UDIM tile {UNTOUCHED}"):  # never trained: no latents there
         _tile_means(neural, [UNTOUCHED], n=1)
+
+    # `mtlx2neural render` of the layer: the sphere shows the first trained tile, or the one asked for;
+    # the green tile's render is greener than the red one's (channel means of a 16 px image).
+    from mtlx2neural.errors import InputError
+    from mtlx2neural.report.views import render_asset
+
+    first = render_asset(layer, tmp_path / "first.exr", model="neural", res=16, spp=1)
+    green = render_asset(layer, tmp_path / "green.exr", model="neural", res=16, spp=1, tile=1002)
+    assert (first["tile"], green["tile"]) == (1001, 1002)
+    import OpenImageIO as oiio
+
+    def rgb(path):
+        return oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT).reshape(-1, 3).mean(0)
+
+    r, g = rgb(tmp_path / "first.exr"), rgb(tmp_path / "green.exr")
+    assert r[0] > r[1] and g[1] > g[0], (r, g)
+    with pytest.raises(InputError, match=f"--tile {UNTOUCHED}: .* trained on UDIM tiles"):
+        render_asset(layer, tmp_path / "none.exr", model="neural", res=16, spp=1, tile=UNTOUCHED)
