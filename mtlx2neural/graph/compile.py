@@ -12,7 +12,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.graph.bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
 from mtlx2neural.graph.evaluator import GraphEvaluator
 from mtlx2neural.graph.expand import expand_material
-from mtlx2neural.graph.geometry import geometry_reads
+from mtlx2neural.graph.geometry import check_texcoord_indices, geometry_reads
 from mtlx2neural.graph.ir import Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS, Application, bake_application
 from mtlx2neural.graph.spatial import (
@@ -147,6 +147,8 @@ def compile_material(document: mx.Document, material: str | None = None, device=
         needed += list(graph[leaf.node].inputs.values())
     spatial_nodes = ev.spatial_closure(needed)
     check_image_modes(source, graph, spatial_nodes)  # before any texture is read
+    name = material or next(n.getName() for n in document.getMaterialNodes())
+    check_texcoord_indices(source, name, graph, spatial_nodes)  # one UV layout per material
     case_fixes = []
     for i in spatial_nodes:
         n = graph[i]
@@ -166,7 +168,6 @@ def compile_material(document: mx.Document, material: str | None = None, device=
                                      f"declared default instead.", node=n.path) from exc
                 n.attrs["missing"] = "1"
                 program.notes.append(f"texture '{f.value}' of '{n.path}' is missing: its declared default is used")
-    name = material or next(n.getName() for n in document.getMaterialNodes())
     if reads:
         program.notes.append(application_note(name, reads, application))
     return CompiledMaterial(name, source, graph, ev, program, spatial_nodes, case_fixes=case_fixes,

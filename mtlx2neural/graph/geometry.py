@@ -15,10 +15,19 @@ frame, through any maths on the way: standard_surface rotates ``Tworld`` about `
 are the axes of the local shading frame, z, x and y, since the BSDF is evaluated in that frame.
 Where their value goes anywhere else (a ``dotproduct`` masking up-facing surfaces, a triplanar
 blend), they are the surface's vectors from the geometry, in the space the node asks for.
+
+UV sets: a material is baked into one UV layout, the one its bound meshes are drawn in (``st``, else a
+mesh's first texCoord2 primvar; the sphere's for ``.mtlx`` input), and its latents are read with it.
+Texture coordinates from another UV set are not kept apart, so reading one is an input error naming
+the material and the sets (:func:`check_texcoord_indices` at compile time: a ``texcoord`` node with an
+``index`` other than 0; :func:`check_uv_sets` when meshes are bound: a vector2 ``geompropvalue`` feeding
+a texture's ``texcoord`` whose primvar is not the layout's). A vector2 primvar that *is* the layout's
+reads the layout's uv directly.
 """
 
 from __future__ import annotations
 
+from mtlx2neural.errors import InputError
 from mtlx2neural.graph.ir import Const, IRGraph, IRNode, Ref
 from mtlx2neural.graph.spatial import FRAME_AXES, UV_PRIMVARS
 from mtlx2neural.graph.transforms import CATEGORIES as TRANSFORMS
@@ -131,10 +140,80 @@ def geometry_reads(graph: IRGraph, nodes, bound: list[bool] | None = None) -> li
     return out
 
 
+DEFAULT_UV_SET = "st (texcoord index 0)"
+
+
+def _index(node: IRNode) -> int:
+    inp = node.inputs.get("index")
+    return int(inp.value[0]) if isinstance(inp, Const) and isinstance(inp.value, tuple) and inp.value else 0
+
+
+def check_texcoord_indices(source: str, material: str, graph: IRGraph, nodes) -> None:
+    """InputError when a live ``texcoord`` node among ``nodes`` reads a UV set other than index 0 (module
+    docstring: one UV layout per material), naming the material, the sets and the node."""
+    others = [graph[i] for i in nodes if graph[i].category == "texcoord" and _index(graph[i]) != 0]
+    if not others:
+        return
+    sets = sorted({f"texcoord index {_index(n)}" for n in others})
+    defaults = [graph[i].path for i in nodes if graph[i].category == "texcoord" and _index(graph[i]) == 0]
+    read = f"both {DEFAULT_UV_SET} (node '{defaults[0]}') and " if defaults else ""
+    raise InputError(
+        f"{source}: material '{material}' reads {read}UV set {', '.join(sets)} (node '{others[0].path}'): "
+        f"mtlx2neural bakes a material into one UV layout, the default set {DEFAULT_UV_SET}, and does not keep "
+        f"other UV sets apart. Read the textures through texcoord index 0 (the mesh's st), or move the UV set "
+        f"into st.", node=others[0].path)
+
+
+def image_uv_primvars(graph: IRGraph, nodes) -> list[tuple[int, str]]:
+    """(node, primvar) of every vector2 ``geompropvalue`` among ``nodes`` whose value reaches a node's
+    ``texcoord`` input (through any maths) and whose primvar is not one of the default UV names."""
+    live = set(nodes)
+    seen, stack = set(), [graph[i].inputs["texcoord"].node for i in nodes
+                          if isinstance(graph[i].inputs.get("texcoord"), Ref)]
+    found = []
+    while stack:
+        i = stack.pop()
+        if i in seen or i not in live:
+            continue
+        seen.add(i)
+        n = graph[i]
+        gp = n.inputs.get("geomprop")
+        if n.category == "geompropvalue" and n.type == "vector2" and isinstance(gp, Const) \
+                and isinstance(gp.value, str) and gp.value not in UV_PRIMVARS:
+            found.append((i, gp.value))
+        stack.extend(v.node for v in n.inputs.values() if isinstance(v, Ref))
+    return sorted(found)
+
+
+def check_uv_sets(compiled, source) -> None:
+    """Check the UV sets ``compiled``'s textures read against the layout of the bound meshes
+    (``source``, a :class:`~mtlx2neural.scene.uv_raster.GeometrySource`; module docstring): a texture
+    coordinate primvar that is the layout's set reads the layout's uv (``attrs["layout_uv"]``); any other
+    is an InputError naming the material, the two sets and the node."""
+    graph = compiled.graph
+    reads = image_uv_primvars(graph, compiled.spatial_nodes)
+    if not reads:
+        return
+    layout = sorted({v for v in source.uv_sets().values() if v})
+    for i, primvar in reads:
+        if primvar in layout:
+            graph[i].attrs["layout_uv"] = "1"
+            continue
+        where = (f"the bound meshes' UV layout, {' / '.join(layout)}" if layout else
+                 "the unit sphere's UV layout (no mesh: it has no primvars)" if source.is_sphere else
+                 "the bound meshes' UV layout (they have no UVs)")
+        raise InputError(
+            f"{compiled.source}: material '{compiled.name}' reads its texture coordinates from the primvar "
+            f"'{primvar}' (node '{graph[i].path}'), another UV set than {where}: mtlx2neural bakes a material "
+            f"into one UV layout and does not keep UV sets apart. Read the textures through that set (texcoord "
+            f"index 0), or make '{primvar}' the meshes' st.", node=graph[i].path)
+
+
 def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | None:
     """Give ``compiled``'s evaluator the geometry its graph reads: the meshes ``prims`` of the USD stage
     ``stage_file``, or the unit sphere when there are none (``.mtlx`` input). Returns a one-line note
-    (also added to the program's notes), or None when the graph reads no geometry (nothing is bound)."""
+    (also added to the program's notes), or None when the graph reads no geometry (nothing is bound).
+    InputError when a texture reads its coordinates from another UV set than the layout's (:func:`check_uv_sets`)."""
     reads = geometry_reads(compiled.graph, compiled.spatial_nodes, compiled.evaluator.frame_bound)
     if not reads:
         return None
@@ -142,6 +221,7 @@ def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | No
     if "displayColor" in primvars:
         primvars.append("displayOpacity")
     source = GeometrySource(stage_file, prims, primvars, transforms=any(r["kind"] in TRANSFORMS for r in reads))
+    check_uv_sets(compiled, source)
     compiled.evaluator.geometry = source
     kinds = ", ".join(sorted({r["kind"] for r in reads}))
     if source.is_sphere:

@@ -82,8 +82,8 @@ def eval_source(node, args: dict, uv: torch.Tensor, geometry: dict | None = None
         return _fit(torch.cat([_fit(c, 3), alpha[:, :1]], -1) if CHANNELS[node.type] == 4 else c,
                     CHANNELS[node.type])
     if cat == "geompropvalue":
-        if node.type == "vector2" and args.get("geomprop") in UV_PRIMVARS:
-            return uv
+        if node.type == "vector2" and (args.get("geomprop") in UV_PRIMVARS or node.attrs.get("layout_uv")):
+            return uv  # the UV set the layout is drawn from (graph.geometry.check_uv_sets)
         got = geo.get(f"primvar:{args.get('geomprop')}")
         if got is not None:
             return _fit(got, CHANNELS[node.type])

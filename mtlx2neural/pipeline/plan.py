@@ -255,6 +255,8 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         try:
             compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
                                         strict_case=strict, application=application)
+            # A texture reading another UV set than the meshes' layout fails here (graph.geometry.check_uv_sets).
+            bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
         except InputError as exc:
             if failures is None:
                 raise
@@ -262,7 +264,6 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
             continue
         surface = implied = None
         notes = []
-        bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
         geo = geometry_tag(compiled) + application_tag(compiled)
         if compiled.reads_application:
             notes.append(application_note(src.name, compiled.reads_application, compiled.application))

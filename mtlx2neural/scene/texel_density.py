@@ -186,9 +186,10 @@ def _get(attr):
     return attr.Get(Usd.TimeCode.EarliestTime()) if value is None else value
 
 
-def _texcoords(mesh):
-    """(flattened [N, 2] float64 texture coordinates, interpolation) or (None, why not)."""
-    from pxr import Sdf, Usd, UsdGeom
+def uv_primvar(mesh):
+    """The primvar a mesh's UV layout is read from (the UV set every tool here uses): ``st`` when it has a
+    value, else the first ``texCoord2[fdh][]`` primvar with one; None when there is none."""
+    from pxr import Sdf, UsdGeom
 
     api = UsdGeom.PrimvarsAPI(mesh)
     pv = api.GetPrimvar("st")
@@ -196,8 +197,16 @@ def _texcoords(mesh):
         uv_types = (Sdf.ValueTypeNames.TexCoord2fArray, Sdf.ValueTypeNames.TexCoord2dArray,
                     Sdf.ValueTypeNames.TexCoord2hArray)
         pv = next((p for p in api.GetPrimvarsWithValues() if p.GetTypeName() in uv_types), None)
-        if pv is None:
-            return None, "no st primvar (nor any texCoord2f[] primvar)"
+    return pv
+
+
+def _texcoords(mesh):
+    """(flattened [N, 2] float64 texture coordinates, interpolation) of :func:`uv_primvar`, or (None, why not)."""
+    from pxr import Usd, UsdGeom
+
+    pv = uv_primvar(mesh)
+    if pv is None:
+        return None, "no st primvar (nor any texCoord2f[] primvar)"
     name = pv.GetPrimvarName()
     how = pv.GetInterpolation()
     if how not in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying, UsdGeom.Tokens.faceVarying):

@@ -488,6 +488,26 @@ class GeometrySource:
 
         return mesh_digest(self.stage(), self.prims, self.primvars)
 
+    def uv_sets(self) -> dict[str, str | None]:
+        """{bound prim: the primvar its UV layout is drawn from (``st``, else its first texCoord2 primvar;
+        None: no UVs)}; empty for the sphere (one layout, no primvars)."""
+        if self.is_sphere:
+            return {}
+        # Local: pxr loads its plugins on import; only real meshes need it.
+        from pxr import UsdGeom
+
+        # Local: the UV-set rule lives beside the texel-density measure, which shares it.
+        from mtlx2neural.scene.texel_density import uv_primvar
+
+        out = {}
+        for path in self.prims:
+            prim = self.stage().GetPrimAtPath(path)
+            if prim and prim.IsA(UsdGeom.Subset):
+                prim = prim.GetParent()
+            pv = uv_primvar(UsdGeom.Mesh(prim)) if prim and prim.IsA(UsdGeom.Mesh) else None
+            out[path] = None if pv is None else str(pv.GetPrimvarName())
+        return out
+
     def stage(self):
         """The USD stage of :attr:`stage_file` (opened once)."""
         # Local: opening a stage pulls in pxr's file format plugins; a sphere never needs them.

@@ -14,13 +14,16 @@ from materials import document, standard_surface
 
 pytest.importorskip("pxr", reason="usd-core is needed to build the test stages")
 
+from mtlx2neural.errors import InputError  # noqa: E402
 from mtlx2neural.graph import compile_material  # noqa: E402
 from mtlx2neural.graph.geometry import bind_geometry, geometry_reads  # noqa: E402
 from mtlx2neural.graph.ir import Ref  # noqa: E402
+from mtlx2neural.pipeline.plan import plan_materials  # noqa: E402
 from mtlx2neural.reference.loading import load_reference  # noqa: E402
-from mtlx2neural.scene import find_material  # noqa: E402
+from mtlx2neural.scene import find_material, load_asset  # noqa: E402
 from mtlx2neural.scene.uv_raster import SPHERE  # noqa: E402
 from mtlx2neural.textures.parameter_stack import build_parameter_stack  # noqa: E402
+from mtlx2neural.train.config import preset  # noqa: E402
 
 QUAD = """    def Mesh "Quad" (prepend apiSchemas = ["MaterialBindingAPI"])
     {
@@ -256,3 +259,91 @@ def test_compiled_output_reads_a_given_normal():
     uv = torch.rand(16, 2, generator=g)
     assert torch.allclose(out(uv, normal=n)[:, 0], n[:, 1], atol=1e-6)  # a float32 dot product
     assert torch.allclose(out(uv)[:, 0], torch.zeros(16))  # default +z: no y component
+
+
+# ---------------------------------------------------------------- UV sets: one layout per material
+
+def uv_image_stage(tmp_path, reader: str, primvars: str) -> str:
+    """A quad with the texCoord2f primvars ``primvars`` bound to a material whose base colour is an image
+    (a u ramp) read at the texture coordinates of ``reader`` (shader "UV")."""
+    w = 16
+    ramp = ((np.arange(w) + 0.5) / w).astype(np.float32)
+    write_float_image(tmp_path / "ramp.exr", np.repeat(np.tile(ramp[None, :, None], (2, 1, 1)), 3, axis=2))
+    mesh = QUAD.replace('        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")\n',
+                        primvars)
+    shaders = (reader + '            def Shader "I"\n            {\n'
+               '                uniform token info:id = "ND_image_color3"\n'
+               f'                asset inputs:file = @{tmp_path / "ramp.exr"}@\n'
+               '                float2 inputs:texcoord.connect = </World/Looks/M/UV.outputs:out>\n'
+               '                color3f outputs:out\n            }\n')
+    return stage_text(mesh, shaders, "I.outputs:out")
+
+
+def primvar_reader(name: str) -> str:
+    return ('            def Shader "UV"\n            {\n'
+            '                uniform token info:id = "ND_geompropvalue_vector2"\n'
+            f'                string inputs:geomprop = "{name}"\n                float2 outputs:out\n            }}\n')
+
+
+def texcoord_reader(index: int) -> str:
+    return ('            def Shader "UV"\n            {\n'
+            '                uniform token info:id = "ND_texcoord_vector2"\n'
+            f'                int inputs:index = {index}\n                float2 outputs:out\n            }}\n')
+
+
+ST = '        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")\n'
+ST1 = '        texCoord2f[] primvars:st1 = [(0, 0), (0.5, 0), (0.5, 1), (0, 1)] (interpolation = "vertex")\n'
+UVMAP = ST.replace("primvars:st ", "primvars:UVMap ")
+
+
+def test_a_texcoord_index_other_than_0_is_an_error_naming_the_material_and_sets(tmp_path):
+    path = tmp_path / "idx.usda"
+    path.write_text(uv_image_stage(tmp_path, texcoord_reader(1), ST + ST1))
+    src = find_material(str(path))
+    with pytest.raises(InputError) as err:
+        compile_material(src.document, src.material)
+    text = str(err.value)
+    assert "material 'M'" in text and "texcoord index 1" in text and "st (texcoord index 0)" in text
+    assert err.value.node == "UV" or "UV" in (err.value.node or "")
+
+
+def test_a_primvar_uv_set_other_than_the_layouts_is_an_error_and_a_partial_failure(tmp_path):
+    path = tmp_path / "st1.usda"
+    path.write_text(uv_image_stage(tmp_path, primvar_reader("st1"), ST + ST1))
+    src = find_material(str(path))
+    compiled = compile_material(src.document, src.material)
+    with pytest.raises(InputError) as err:
+        bind_geometry(compiled, src.stage_file, src.bound_prims)
+    text = str(err.value)
+    assert "'st1'" in text and "UV layout, st" in text and "material 'M'" in text
+    failures = []
+    plans = plan_materials(load_asset(str(path)).materials, preset("fast"), failures=failures)
+    assert plans == [] and len(failures) == 1 and failures[0].material == "/World/Looks/M"
+    assert "st1" in failures[0].reason
+
+
+def test_a_primvar_that_is_the_layouts_uv_set_reads_the_layout(tmp_path):
+    # The mesh has only UVMap (no st): its layout is drawn from UVMap, so reading UVMap is reading uv.
+    by_name, by_index = tmp_path / "a", tmp_path / "b"
+    by_name.mkdir(), by_index.mkdir()
+    texels = []
+    for folder, reader in ((by_name, primvar_reader("UVMap")), (by_index, texcoord_reader(0))):
+        path = folder / "uvmap.usda"
+        path.write_text(uv_image_stage(folder, reader, UVMAP))
+        src = find_material(str(path))
+        compiled = compile_material(src.document, src.material)
+        bind_geometry(compiled, src.stage_file, src.bound_prims)
+        texels.append(base_color_texels(compiled, (2, 8)))
+    u, _ = texel_grid(2, 8)
+    assert np.allclose(texels[0], texels[1], atol=0) and np.allclose(texels[0][:, 0], u, atol=1e-6)
+
+
+def test_a_mtlx_graph_reading_a_uv_primvar_fails_on_the_sphere(tmp_path):
+    doc = document('  <geompropvalue name="UV" type="vector2">\n    <input name="geomprop" type="string" value="st1" />\n'
+                   '  </geompropvalue>\n  <image name="I" type="color3">\n'
+                   '    <input name="texcoord" type="vector2" nodename="UV" />\n  </image>\n',
+                   standard_surface("M", "SR", base=1.0, base_color={"node": "I"}))
+    path = tmp_path / "st1.mtlx"
+    path.write_text(doc)
+    with pytest.raises(InputError, match="unit sphere"):
+        load_reference(str(path))
