@@ -87,12 +87,9 @@ class CompiledMaterial:
                 textures.append({"node": n.path, "file": f.value if isinstance(f, Const) else None,
                                  "colorspace": cs or "raw", "working_space": working,
                                  "converted": needs_conversion(cs, working)})
-            elif n.category in SPATIAL:
+            elif n.category in SPATIAL or self.evaluator.world_transform[i]:
                 spatial_inputs.append({"node": n.path, "kind": n.category})
-                idx = n.inputs.get("index")
-                if n.category == "texcoord" and isinstance(idx, Const) and idx.value and idx.value[0] != 0:
-                    notes.append(f"'{n.path}' reads UV set {int(idx.value[0])}: the material is baked over one "
-                                 f"UV set, so every set reads the same coordinates")
+                # (A texcoord index other than 0 never gets here: graph.geometry.check_texcoord_indices.)
                 gp = n.inputs.get("geomprop")
                 if (n.category == "geompropvalue" and isinstance(gp, Const) and gp.value not in UV_PRIMVARS
                         and self.evaluator.geometry is None):
