@@ -48,18 +48,20 @@ class _UvRewrite:
     def __init__(self, material):
         self.material = material
 
-    def _point(self, at, rows: int) -> ShadingPoint:
+    def _point(self, at, rows: int, uv=None, params=None) -> ShadingPoint:
+        """``at`` (or the reference's legacy ``uv=``/``params=`` keywords) with its uv rewritten."""
         p = as_point(at)
-        return ShadingPoint(self._uv(p.uv, rows), p.lod, p.u_level, p.params)
+        uv = p.uv if uv is None else uv
+        return ShadingPoint(self._uv(uv, rows), p.lod, p.u_level, p.params if params is None else params)
 
-    def eval(self, wi, wo, at=None):
-        return self.material.eval(wi, wo, self._point(at, len(wi)))
+    def eval(self, wi, wo, at=None, *, uv=None, params=None):
+        return self.material.eval(wi, wo, self._point(at, len(wi), uv, params))
 
-    def sample(self, wi, u, at=None):
-        return self.material.sample(wi, u, self._point(at, len(wi)))
+    def sample(self, wi, u, at=None, *, uv=None, params=None):
+        return self.material.sample(wi, u, self._point(at, len(wi), uv, params))
 
-    def pdf(self, wi, wo, at=None):
-        return self.material.pdf(wi, wo, self._point(at, len(wi)))
+    def pdf(self, wi, wo, at=None, *, uv=None, params=None):
+        return self.material.pdf(wi, wo, self._point(at, len(wi), uv, params))
 
     def albedo(self, wi, at=None, samples: int = 256, seed: int = 0):
         return self.material.albedo(wi, self._point(at, len(wi)), samples=samples, seed=seed)

@@ -20,6 +20,13 @@ exported files) the report compares three models against the MaterialX reference
   min-max normalised) and the memory footprint: latent bytes at FP16 (all MIP levels, 4
   channels per EXR) and ``weights.bin``'s size.
 
+A UDIM material (a neural model with trained tiles) is reported tile by tile: the analytic
+baseline is fitted per trained tile (one [0,1]^2 map each, on that tile's stack), the renders show
+each tile on the sphere (:class:`~mtlx2neural.render.udim_view.TileView`; FLIP is the mean over
+tiles and views), the polar plots default to each trained tile's centre (``--texel`` takes true uv,
+inside a trained tile), the latent previews show every tile's files, and the shader cost is timed on
+a one-tile stand-in with the same decoder (the tile lookup is a few integer operations more).
+
 Plots are inline SVG written here (no plotting library needed); images are PNGs in the
 report folder, next to ``index.html``. The folder is written into a temporary sibling and
 swapped in whole, so an interrupted run leaves the previous report (or none).
@@ -45,9 +52,12 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.export.load import _neural_prims, load_neural
 from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.imaging.mip_chain import read_mip_chain
+from mtlx2neural.imaging.udim import tile_of_udim
+from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.pipeline.plan import DECODERS
 from mtlx2neural.reference.loading import application_of, load_reference
-from mtlx2neural.render.renderer import compare, compare_many, save_png
+from mtlx2neural.render.renderer import VIEWS, compare, compare_many, save_png
+from mtlx2neural.render.udim_view import TileView, compare_tiles, model_tiles
 from mtlx2neural.report.shader_cost import shader_available, shader_rates
 from mtlx2neural.scene import find_material
 from mtlx2neural.staging import Staging
@@ -55,6 +65,7 @@ from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.trainer import Trainer
+from mtlx2neural.train.udim import build_tiled_stack
 
 COLOURS = {"reference": "#222222", "analytic": "#d95f02", "neural": "#1b9e77", "reference sampler": "#7570b3",
            "analytic sampler": "#e7298a", "neural sampler": "#1b9e77"}
@@ -181,6 +192,24 @@ def _mtlx_source(summary: dict):
     return None
 
 
+def one_tile_stand_in(neural):
+    """``neural`` itself, or for a UDIM model a model without tiles holding its first tile's latents
+    and the same decoder and sampler weights: what :func:`cost_table` times (a lookup at uv in
+    [0,1]^2 would miss a UDIM model's tiles; the cost per evaluation does not depend on the tile)."""
+    if not model_tiles(neural):
+        return neural
+    dec = neural.decoder
+    one = NeuralMaterial(tuple(neural.latents.levels[0].shape[-2:]), in_dim=0, latent_dim=dec.latent_dim,
+                         frames=dec.frames, decoder=tuple(dec.hidden),
+                         albedo_head=dec.albedo is not None, analytic_cosine=dec.analytic_cosine)
+    state = {k: v for k, v in neural.state_dict().items() if k.startswith(("decoder.", "sampler."))}
+    one.load_state_dict(state, strict=False)
+    with torch.no_grad():
+        for a, b in zip(one.latents.levels, neural.latents.levels):
+            a.copy_(b[0])
+    return one.train(False)
+
+
 def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: dict, train_sizes=None) -> dict:
     """Rows (model, mean HDR FLIP or None, evals/s or None, note) for the reference, the analytic
     baseline and every decoder size of the error budget, with the harness used.
@@ -193,10 +222,12 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
     decoder -> (model, FLIP)), trained for the report with the conversion's settings; else unknown."""
 
     budget = (summary.get("budget") or {}).get("flip_by_decoder", {})
+    neural = one_tile_stand_in(neural)  # costs only: a UDIM model is timed as one tile
     sizes, fresh = {trained: neural}, {}
     for d in DECODERS:
         if d != trained and d not in budget and train_sizes is not None:
-            sizes[d], fresh[d] = train_sizes(d)
+            model, fresh[d] = train_sizes(d)
+            sizes[d] = one_tile_stand_in(model)
         elif d != trained:
             torch.manual_seed(0)
             sizes[d] = type(neural)(tuple(neural.latents.levels[0].shape[1:]), in_dim=0,
@@ -293,8 +324,9 @@ def _load_reference(summary: dict, folder: Path):
 
 
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,
-                     spp: int, seed: int, texels_at=((0.5, 0.5),), train_sizes: bool = False) -> tuple[str, dict]:
-    """HTML of one material's report (images written into ``out``) and its numbers."""
+                     spp: int, seed: int, texels_at=None, train_sizes: bool = False) -> tuple[str, dict]:
+    """HTML of one material's report (images written into ``out``) and its numbers. ``texels_at``: the
+    polar plots' uv (None: (0.5, 0.5), or each trained tile's centre for a UDIM material)."""
 
     neural = load_neural(layer, prim)
     weights = Path(neural.usd_info["weights"])
@@ -305,12 +337,27 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     summary = json.loads((folder / "summary.json").read_text())
     reference = _load_reference(summary, folder)
     texels = tuple(summary.get("resolution", (1, 1)))
-    stack = build_parameter_stack(reference.compiled, resolution=texels)
+    tiles = model_tiles(neural)
     t0 = time.time()
-    analytic = fit_analytic(reference, stack, iterations=analytic_iterations, batch=2048, seed=seed)
+    if tiles:  # one analytic fit per trained tile, on that tile's stack; the sphere shows each tile
+        tiled = build_tiled_stack(reference.compiled, tiles, texels)
+        stack = tiled
+        analytics = {t: fit_analytic(TileView(reference, t), st, iterations=analytic_iterations, batch=2048,
+                                     seed=seed) for t, st in zip(tiles, tiled.stacks)}
+        analytic = analytics[tiles[0]]
+        renders = {"neural": [], "analytic": []}
+        for t in tiles:
+            per = compare_many(TileView(reference, t), {"neural": TileView(neural, t), "analytic": analytics[t]},
+                               texels, res=res, spp=spp)
+            for k in renders:
+                renders[k] += [{**r, "tile": t} for r in per[k]]
+    else:
+        stack = build_parameter_stack(reference.compiled, resolution=texels)
+        analytic = fit_analytic(reference, stack, iterations=analytic_iterations, batch=2048, seed=seed)
+        analytics = None
+        renders = compare_many(reference, {"neural": neural, "analytic": analytic}, texels, res=res, spp=spp)
     fit_seconds = time.time() - t0
     p = f"m{index}_"
-    renders = compare_many(reference, {"neural": neural, "analytic": analytic}, texels, res=res, spp=spp)
     res_n, res_a = renders["neural"], renders["analytic"]
     rows = []
     for i, (en, ea) in enumerate(zip(res_n, res_a)):
@@ -322,7 +369,8 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
         figs = [("reference", "reference"), ("analytic", f"analytic, FLIP {ea['flip']:.4f}"),
                 ("neural", f"neural, FLIP {en['flip']:.4f}"), ("analytic_flip", "analytic FLIP map"),
                 ("neural_flip", "neural FLIP map")]
-        rows.append("".join(f'<figure><img src="{p}view{i}_{k}.png" alt="{k} view {i}"><figcaption>view {i}: '
+        view = f"tile {en['tile']}, view {i % len(VIEWS)}" if tiles else f"view {i}"
+        rows.append("".join(f'<figure><img src="{p}view{i}_{k}.png" alt="{k} {view}"><figcaption>{view}: '
                             f"{c}</figcaption></figure>" for k, c in figs))
     flip = {"analytic": float(np.mean([e["flip"] for e in res_a])), "neural": float(np.mean([e["flip"] for e in res_n])),
             "reference": 0.0}
@@ -336,13 +384,27 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
         cfg = TrainConfig(**{**summary["config"], "decoder": decoder, "compile": False})
         with tempfile.TemporaryDirectory(prefix="m2n_report_") as tmp_dir:
             model = Trainer(reference, stack, cfg, tmp_dir).run(progress=False)
-        return model, float(np.mean([e["flip"] for e in compare(reference, model, texels, res=res, spp=spp)]))
+        if tiles:
+            errs = compare_tiles(reference, {"neural": model}, texels, tiles, res=res, spp=spp)["neural"]
+        else:
+            errs = compare(reference, model, texels, res=res, spp=spp)
+        return model, float(np.mean([e["flip"] for e in errs]))
 
     cost = cost_table(summary, reference, analytic, neural, trained, flip,
                       train_size if train_sizes and "config" in summary else None)
     polar = []
+    if texels_at is None:
+        texels_at = [(tu + 0.5, tv + 0.5) for tu, tv in map(tile_of_udim, tiles)] if tiles else [(0.5, 0.5)]
     for u, v in texels_at:
-        theta, brdf, pdf = polar_slices(reference, analytic, neural, uv=(u, v))
+        if tiles:  # the tile holding (u, v): its analytic fit at local uv, the others at true uv
+            t = 1001 + int(math.floor(u)) + 10 * int(math.floor(v))
+            if not (0 <= u < 10 and v >= 0 and t in tiles):
+                raise InputError(f"--texel {u:g},{v:g}: not in a UDIM tile {prim} was trained on ({tiles})")
+            tu, tv = tile_of_udim(t)
+            theta, brdf, pdf = polar_slices(TileView(reference, t), analytics[t], TileView(neural, t),
+                                            uv=(u - tu, v - tv))
+        else:
+            theta, brdf, pdf = polar_slices(reference, analytic, neural, uv=(u, v))
         polar.append(f'<p class="note">uv ({u:g}, {v:g})</p><div class="plots">'
                      f'{svg_polar({k: (theta, x) for k, x in brdf.items()}, "f*cos (luminance)")}\n'
                      f'{svg_polar({k: (theta, x) for k, x in pdf.items()}, "sampling pdf (1/sr)")}</div>')
@@ -357,30 +419,36 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
             curves_svg = svg_lines({c: (steps, [float(r[c]) for r in recs]) for c in cols}, "step", "loss",
                                    logy=True)
     latents, latent_bytes = [], 0
-    for j, tex in enumerate(neural.usd_info["latent_textures"]):
+    files = [(f"{j}", tex) for j, tex in enumerate(neural.usd_info["latent_textures"])]
+    if tiles:  # the <UDIM> pattern: every trained tile's file
+        files = [(f"{j}_{t}", tex.replace("<UDIM>", str(t))) for j, tex in files for t in tiles]
+    for key, tex in files:
+        j = int(key.split("_")[0])
         chain = read_mip_chain(tex)
         latent_bytes += sum(int(np.prod(lv.shape)) * 2 for lv in chain)
-        save_png(out / f"{p}latents_{j}.png", _normalised(chain[0][..., :3]), linear=False)
-        latents.append(f'<figure style="display:inline-block"><img src="{p}latents_{j}.png" '
-                       f'alt="latents {j}"><figcaption>{html.escape(Path(tex).name)}: channels '
+        save_png(out / f"{p}latents_{key}.png", _normalised(chain[0][..., :3]), linear=False)
+        latents.append(f'<figure style="display:inline-block"><img src="{p}latents_{key}.png" '
+                       f'alt="latents {key}"><figcaption>{html.escape(Path(tex).name)}: channels '
                        f"{4 * j}-{4 * j + 2}, {chain[0].shape[1]}x{chain[0].shape[0]}, "
                        f"{len(chain)} levels</figcaption></figure>")
     weight_bytes = weights.stat().st_size
     e = html.escape
     numbers = {"material": prim, "flip": flip, "cost": cost, "latent_bytes": latent_bytes,
                "weight_bytes": weight_bytes, "analytic_fit_seconds": round(fit_seconds, 2),
-               "analytic_final_loss": analytic.final_loss}
+               "analytic_final_loss": analytic.final_loss, "udim_tiles": tiles}
     cost_rows = "".join(_cost_row(r) for r in cost["rows"])
     points = [(r["model"], r["rate"], r["flip"]) for r in cost["rows"] if r["rate"] and r["flip"] is not None]
+    udim_note = (f" per UDIM tile, tiles {', '.join(map(str, tiles))} (the analytic baseline is fitted per tile; costs "
+                 f"are timed on one tile)") if tiles else ""
     body = f"""
 <h2 id="material-{index}">{e(summary.get('material', prim))} <small>({e(prim)})</small></h2>
 <p class="note">Source {e(str(summary.get('source')))}; decoder {e(str(summary.get('decoder')))}, {summary.get('steps')}
 steps in {summary.get('train_seconds', summary.get('seconds'))} s on {e(str(summary.get('device_name', '')))};
-latent grid {texels[1]}x{texels[0]}. Analytic baseline: {analytic_iterations} Adam steps in {fit_seconds:.1f} s,
-final log-L1 {analytic.final_loss:.4f}.</p>
+latent grid {texels[1]}x{texels[0]}{udim_note}. Analytic baseline: {analytic_iterations} Adam steps in {fit_seconds:.1f} s,
+final log-L1 {analytic.final_loss:.4f}{' (first tile)' if tiles else ''}.</p>
 <h3>Renders</h3>
 <p class="note">Orthographic sphere, one directional light per view, {res}x{res} px, {spp} spp; FLIP is HDR FLIP
-against the reference render.</p>
+against the reference render{'; each trained UDIM tile on the sphere (its uv shifted to the tile), mean over tiles and views' if tiles else ''}.</p>
 <div class="grid">{''.join(rows)}</div>
 <h3>Error versus cost</h3>
 <p class="note">{e(cost["how"])}</p>
@@ -432,7 +500,7 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
         bodies, numbers = [], []
         for i, prim in enumerate(prims):
             b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed,
-                                    tuple(texels_at or ((0.5, 0.5),)), train_sizes)
+                                    tuple(texels_at) if texels_at else None, train_sizes)
             bodies.append(b)
             numbers.append(n)
         template = string.Template(resources.files(__package__).joinpath("report_template.html").read_text())

@@ -30,12 +30,20 @@ ITERATIONS = 120
 CFG = preset("fast", iterations=ITERATIONS, batch=256, decoder="2x32", preview_iterations=0, seed=0)
 
 
-def _small_renders(monkeypatch) -> None:
-    """Per-tile views and the in-scene render at 32 px and 4 samples (the defaults take ~10x longer on
-    2 shared cores; this test checks the tiles, not the figures' precision)."""
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory):
+    """(summary, asset, layer) of the UDIM sample converted once in a temporary copy; per-tile views and
+    the in-scene render at 32 px and 4 samples (the defaults take ~10x longer on 2 shared cores; these
+    tests check the tiles, not the figures' precision)."""
+    asset_dir = tmp_path_factory.mktemp("udim_pipeline") / "udim"
+    shutil.copytree(SAMPLE, asset_dir)
+    asset = asset_dir / "udim_tiles.usda"
     tiles, in_scene = jobs.compare_tiles, jobs.compare_in_scene
-    monkeypatch.setattr(jobs, "compare_tiles", lambda *a, **k: tiles(*a, **k, res=32, spp=4))
-    monkeypatch.setattr(jobs, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(jobs, "compare_tiles", lambda *a, **k: tiles(*a, **k, res=32, spp=4))
+        mp.setattr(jobs, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
+        (s,) = convert_asset(asset, ConvertOptions(train=CFG, progress=False, device="cpu", workers=1))
+    return s, asset, asset_dir / "udim_tiles_neural.usda"
 
 
 def _tile_means(material, tiles, n: int = 6) -> torch.Tensor:
@@ -55,19 +63,16 @@ def _tile_means(material, tiles, n: int = 6) -> torch.Tensor:
 
 
 @pytest.mark.slow
-def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(tmp_path, monkeypatch):
-    asset_dir = tmp_path / "udim"
-    shutil.copytree(SAMPLE, asset_dir)
-    asset = asset_dir / "udim_tiles.usda"
-    _small_renders(monkeypatch)
-    (s,) = convert_asset(asset, ConvertOptions(train=CFG, progress=False, device="cpu", workers=1))
+def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(converted, tmp_path):
+    s, asset, layer = converted
+    asset_dir = asset.parent
 
     # Only the tiles the mesh overlaps trained; 1012 is on disk but untouched.
     assert (asset_dir / f"base.{UNTOUCHED}.png").is_file()
     assert s["udim_tiles"] == TRAINED and f"UDIM tiles trained: {TRAINED}" in s["notes"]
     assert sorted(map(int, s["flip_per_tile"])) == TRAINED and len(s["flip_per_view"]) == 3 * len(TRAINED)
     assert math.isfinite(s["held_out_log_l1"]) and s["in_scene"]["measured"] and 0 < s["flip_in_scene"] < 1
-    folder = tmp_path / "udim" / "udim_tiles_neural" / "World.Looks.UdimTiles"
+    folder = asset_dir / "udim_tiles_neural" / "World.Looks.UdimTiles"
     assert json.loads((folder / "summary.json").read_text())["udim_tiles"] == TRAINED
     assert all((folder / f"tile{t}_view0_neural.png").is_file() for t in TRAINED)
     assert not (folder / "analytic_baseline.pt").exists()  # no [0,1]^2 preview map for a UDIM material
@@ -77,7 +82,6 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(tmp_pa
     # The layer references the latents by the <UDIM> pattern and lists the trained tiles.
     from pxr import Usd
 
-    layer = tmp_path / "udim" / "udim_tiles_neural.usda"
     stage = Usd.Stage.Open(str(layer))
     prim = next(p for p in stage.Traverse() if p.GetAttribute("neural:latentTextures"))
     assets = prim.GetAttribute("neural:latentTextures").Get()
@@ -115,3 +119,32 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(tmp_pa
     assert r[0] > r[1] and g[1] > g[0], (r, g)
     with pytest.raises(InputError, match=f"--tile {UNTOUCHED}: .* trained on UDIM tiles"):
         render_asset(layer, tmp_path / "none.exr", model="neural", res=16, spp=1, tile=UNTOUCHED)
+
+
+@pytest.mark.slow
+def test_report_of_a_udim_layer_goes_tile_by_tile(converted, tmp_path, monkeypatch):
+    """``mtlx2neural report`` of the UDIM layer: renders of every trained tile, one analytic fit per tile,
+    polar plots at each tile's centre, every tile's latent previews; a --texel outside the trained
+    tiles is an InputError. 10 analytic steps and 16 px renders: the structure, not the figures. Costs
+    are timed with torch (the slangpy harness compiles four shaders: ~30 s more on 2 shared cores),
+    on the one-tile stand-in either way."""
+    from mtlx2neural.errors import InputError
+    from mtlx2neural.report import html_report
+    from mtlx2neural.report.html_report import write_report
+
+    monkeypatch.setattr(html_report, "shader_available", lambda: (False, "not timed in this test"))
+
+    _, _, layer = converted
+    out = write_report(layer, tmp_path / "report", analytic_iterations=10, res=16, spp=1)
+    (numbers,) = out["materials"]
+    assert numbers["udim_tiles"] == TRAINED
+    assert 0 < numbers["flip"]["neural"] < 1 and 0 < numbers["flip"]["analytic"] < 1
+    rates = {r["model"]: r["rate"] for r in numbers["cost"]["rows"]}
+    assert rates["neural 2x32"] > 0  # the one-tile stand-in answers uv in [0,1]^2
+    page = out["html"].read_text()
+    assert all(f"tile {t}, view 0" in page for t in TRAINED) and "uv (1.5, 0.5)" in page
+    names = {p.name for p in (tmp_path / "report").iterdir()}
+    assert {f"m0_latents_{j}_{t}.png" for j in (0, 1) for t in TRAINED} <= names
+    assert f"m0_view{3 * len(TRAINED) - 1}_neural.png" in names
+    with pytest.raises(InputError, match="--texel 3.5,0.5: not in a UDIM tile"):
+        write_report(layer, tmp_path / "bad", analytic_iterations=1, res=8, spp=1, texels_at=[(3.5, 0.5)])
