@@ -102,7 +102,8 @@ def print_summaries(summaries) -> None:
         else:
             how = f"{s['steps']} steps in {s['seconds']} s"
         print(f"{s['material']}: {how}, decoder {s.get('decoder', s['config']['decoder'])}, held-out log-L1 "
-              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} (views {s['flip_per_view']})"
+              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} "
+              + (f"(UDIM tiles {s['flip_per_tile']})" if s.get("flip_per_tile") else f"(views {s['flip_per_view']})")
               + (f", in scene {s['flip_in_scene']:.4f}" if s.get("flip_in_scene") is not None else ""))
         budget = s.get("budget")
         if budget:
