@@ -68,6 +68,14 @@ class CompiledMaterial:
         self._parameters = out
         return out
 
+    def refresh_spatial(self) -> None:
+        """Recompute :attr:`spatial_nodes` after the evaluator's classification changed
+        (:meth:`~mtlx2neural.graph.evaluator.GraphEvaluator.fix_object_to_world`)."""
+        needed = list(self.program.inputs())
+        for leaf in self.program.leaves():
+            needed += list(self.graph[leaf.node].inputs.values())
+        self.spatial_nodes = self.evaluator.spatial_closure(needed)
+
     def varying_parameters(self) -> list[tuple[str, Input, str]]:
         """The parameters that depend on the spatial sub-graph (texture coordinates, images...)."""
         return [(k, i, t) for k, i, t in self.parameters() if isinstance(i, Ref) and self.evaluator.spatial[i.node]]

@@ -71,8 +71,13 @@ class GraphEvaluator:
         (then position is (u, v, 0), the frame its axes, primvars their defaults)."""
         self._geo_keys: dict[tuple, list[str]] = {}
         self.frame_bound = frame_bound(graph)
-        self.world_transform = [world_transform(graph, self.frame_bound, i) for i in range(len(graph.nodes))]
-        """Per node: a ``transform*`` between object and world that reads the prims' matrix per sample."""
+        self.object_world = [world_transform(graph, self.frame_bound, i) for i in range(len(graph.nodes))]
+        """Per node: a ``transform*`` between object and world (not only a shading frame)."""
+        self.world_transform = list(self.object_world)
+        """Per node: such a transform that reads the prims' matrix per sample (spatial); none once
+        :meth:`fix_object_to_world` gave one matrix for the material."""
+        self.object_to_world: torch.Tensor | None = None
+        """[1, 16] the material's one object-to-world matrix (row-vector convention), or None."""
         self._classify()
         self._fold()
 
@@ -98,8 +103,25 @@ class GraphEvaluator:
             args = {k: self.value(v, {}) for k, v in node.inputs.items()}
             self._store(i, self._run_op(i, args), self.const)
 
-    def _run_op(self, i, args):
+    def fix_object_to_world(self, object_to_world: torch.Tensor) -> None:
+        """Give the object/world ``transform*`` nodes one matrix for the whole material (``object_to_world`` [1, 16]
+        or [16], row-vector convention: all bound prims share it, or the sphere's identity): they stop
+        being spatial, and what only they made vary folds to constants again (classification and
+        folding are redone; :meth:`CompiledMaterial.refresh_spatial` updates the live spatial nodes)."""
+        self.object_to_world = object_to_world.reshape(1, 16).to(self.device, self.dtype)
+        self.world_transform = [False] * len(self.graph.nodes)
+        self.spatial = [False] * len(self.graph.nodes)
+        self.const = {}
+        self._geo_keys = {}
+        self._classify()
+        self._fold()
+
+    def _run_op(self, i, args, geometry: dict | None = None):
         node = self.graph[i]
+        if self.object_world[i]:  # the prims' matrix: per sample, or the material's one
+            matrix = (geometry or {}).get(TRANSFORM_KEY) if self.world_transform[i] else self.object_to_world
+            if matrix is not None:
+                return transform_rows(args["in"], *spaces(node), TRANSFORMS[node.category], matrix)
         try:
             return OPS[node.category](args, node)
         except KeyError as exc:
@@ -183,11 +205,8 @@ class GraphEvaluator:
                     for k, v in node.inputs.items()}
             if node.category in SPATIAL:
                 env[(i, "out")] = eval_source(node, args, uv, geometry)
-            elif self.world_transform[i] and TRANSFORM_KEY in (geometry or {}):
-                env[(i, "out")] = transform_rows(args["in"], *spaces(node), TRANSFORMS[node.category],
-                                                 geometry[TRANSFORM_KEY])
             else:
-                self._store(i, self._run_op(i, args), env)
+                self._store(i, self._run_op(i, args, geometry), env)
         return env
 
     def _frame_value(self, inp: Ref, n: int, geometry: dict | None) -> torch.Tensor:

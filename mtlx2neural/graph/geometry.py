@@ -223,6 +223,12 @@ def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | No
     source = GeometrySource(stage_file, prims, primvars, transforms=any(r["kind"] in TRANSFORMS for r in reads))
     check_uv_sets(compiled, source)
     compiled.evaluator.geometry = source
+    shared = None
+    if any(compiled.evaluator.world_transform):
+        shared = source.common_transform()
+        if shared is not None:  # one matrix for the whole material: what it alone made vary folds again
+            compiled.evaluator.fix_object_to_world(shared)
+            compiled.refresh_spatial()
     kinds = ", ".join(sorted({r["kind"] for r in reads}))
     if source.is_sphere:
         why = ("the stage has no file to read its meshes from (in memory)" if list(prims)
@@ -231,6 +237,8 @@ def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | No
                 f"spherical UV layout, provides them (give a USD stage file to use the real meshes)")
     else:
         note = f"the graph reads {kinds}, rasterised from the bound meshes' UV layout ({', '.join(source.prims)})"
+        if shared is not None:
+            note += "; their one object-to-world matrix is folded into the transform nodes"
     if note not in compiled.program.notes:
         compiled.program.notes.append(note)
     return note

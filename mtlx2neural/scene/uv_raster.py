@@ -488,6 +488,23 @@ class GeometrySource:
 
         return mesh_digest(self.stage(), self.prims, self.primvars)
 
+    def common_transform(self) -> torch.Tensor | None:
+        """[16] the object-to-world matrix (row by row, row-vector convention) every bound mesh shares
+        (the identity for the sphere), or None when they differ (then it is read per texel)."""
+        if self.is_sphere:
+            return torch.eye(4).reshape(16)
+        # Local: pxr loads its plugins on import; only real meshes need it.
+        from pxr import UsdGeom
+
+        found = []
+        for path in self.prims:
+            prim = self.stage().GetPrimAtPath(path)
+            if prim and (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.Subset)):
+                found.append(_object_to_world(self.stage(), path))
+        if not found or any(not np.allclose(m, found[0], rtol=0, atol=1e-9) for m in found[1:]):
+            return None
+        return torch.from_numpy(found[0].astype(np.float32)).reshape(16)
+
     def uv_sets(self) -> dict[str, str | None]:
         """{bound prim: the primvar its UV layout is drawn from (``st``, else its first texCoord2 primvar;
         None: no UVs)}; empty for the sphere (one layout, no primvars)."""

@@ -147,8 +147,8 @@ def transformed(path, res=(4, 4)) -> tuple[np.ndarray, object]:
     h, w = res
     u, v = np.meshgrid((np.arange(w) + 0.5) / w, 1.0 - (np.arange(h) + 0.5) / h)
     uv = torch.tensor(np.stack([u.ravel(), v.ravel()], -1), dtype=torch.float32)
-    out = ev.run(ev.spatial_closure([Ref(i, "out")]), uv)[(i, "out")]
-    return out.expand(h * w, 3).numpy(), compiled
+    env = ev.run(ev.spatial_closure([Ref(i, "out")]), uv)
+    return ev.value(Ref(i, "out"), env).expand(h * w, 3).numpy(), compiled  # folded when one matrix
 
 
 @pytest.mark.parametrize("category, fromspace, tospace", [
@@ -173,14 +173,17 @@ def test_object_and_world_use_the_bound_meshs_transform(tmp_path, category, from
     # float32 maps and matrices of values up to ~10: 1e-5 absolute.
     assert np.allclose(got, want[None], atol=1e-5), (got[0], want)
     assert not np.allclose(want, v / (np.linalg.norm(v) if category == "transformnormal" else 1.0), atol=0.1)
-    reads = compiled.describe()["geometry_inputs"]
-    assert [r["kind"] for r in reads] == [category] and reads[0]["space"] == f"{fromspace} to {tospace}"
+    # One bound mesh, one matrix: folded into the node, so the material is uniform again (1x1 latents).
+    assert compiled.varying_parameters() == [] and compiled.evaluator.world_transform == [False] * len(
+        compiled.graph.nodes)
+    assert any("object-to-world matrix is folded" in a for a in compiled.describe()["approximations"])
 
 
 def test_mtlx_input_keeps_object_space_as_world_space(tmp_path):
-    # Local: the MaterialX documents and the reference loader, for this test only.
+    # Local: the MaterialX documents, the IR and the reference loader, for this test only.
     from materials import document, standard_surface
 
+    from mtlx2neural.graph.ir import Ref
     from mtlx2neural.reference.loading import load_reference
 
     doc = document('  <transformpoint name="X" type="vector3">\n'
@@ -193,9 +196,12 @@ def test_mtlx_input_keeps_object_space_as_world_space(tmp_path):
     path.write_text(doc)
     ref = load_reference(str(path))
     assert any("unit sphere" in a for a in ref.describe()["approximations"])
-    (value,) = ref.parameters_at(torch.tensor([[0.3, 0.6], [0.9, 0.1]])).values()
-    # The sphere's matrix is the identity (a base colour: the value is positive, colours are clamped at 0).
-    assert torch.allclose(value, torch.tensor([[0.5, 1.0, 0.25]] * 2), atol=1e-6)
+    # The sphere's matrix is the identity, folded: the material stays uniform and the node its input.
+    compiled = ref.compiled
+    assert compiled.varying_parameters() == []
+    (i,) = [k for k, n in enumerate(compiled.graph.nodes) if n.category == "transformpoint"]
+    value = compiled.evaluator.value(Ref(i, "out"), {})
+    assert torch.allclose(value, torch.tensor([[0.5, 1.0, 0.25]]), atol=1e-6)
 
 
 def test_overlapping_prims_with_different_transforms_warn_and_the_first_is_used(tmp_path):
@@ -220,8 +226,12 @@ def test_prims_side_by_side_in_uv_each_use_their_own_transform(tmp_path):
     path.write_text(transform_stage("transformpoint", "object", "world", meshes))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # side by side: no overlap warning
-        got, _ = transformed(path, res=(2, 4))
+        got, compiled = transformed(path, res=(2, 4))
     lin, _ = object_to_world_rows()
     p = np.array(VALUE) @ lin
     left, right = got.reshape(2, 4, 3)[:, :2], got.reshape(2, 4, 3)[:, 2:]
     assert np.allclose(left, p + SHIFT, atol=1e-5) and np.allclose(right, p + np.array([7.0, 7.0, 7.0]), atol=1e-5)
+    # Two matrices: read per sample, so the node is spatial and inspect lists what it reads.
+    reads = compiled.describe()["geometry_inputs"]
+    assert [(r["kind"], r["space"]) for r in reads] == [("transformpoint", "object to world")]
+    assert compiled.varying_parameters() != []
