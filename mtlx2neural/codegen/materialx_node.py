@@ -257,8 +257,12 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     tiles = _udim_tiles(model_or_export)
     if tiles:
         raise InputError(f"material {name} has UDIM latents (tiles {tiles}): the MaterialX node reads one latent "
-                         f"atlas over uv [0,1]^2 and does not support UDIM tiles yet; use the Slang module "
-                         f"(NeuralMaterial_<name>.slang, its tile table) or the USD layer's <UDIM> textures")
+                         f"atlas over uv [0,1]^2 with its own texel addressing, and MaterialX's image node "
+                         f"cannot stand in (in hardware shading it reads a <UDIM> set only as one atlas the "
+                         f"host builds over the set's bounding box), so no node is written: a MaterialX viewer "
+                         f"keeps the original material in the layer's neural variant. The tiles are in the "
+                         f"Slang module (NeuralMaterial_<name>.slang, its tile table) and the USD layer's "
+                         f"<UDIM> latent textures")
     if latent_files is None:
         if isinstance(model_or_export, (str, Path)):
             base = Path(model_or_export)

