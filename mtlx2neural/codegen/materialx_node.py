@@ -29,10 +29,18 @@ ones. So each chain is also written, beside the document, as one single-level at
 (``latent_atlas_<k>.exr``: every level a rectangle, :func:`.materialx_shader.atlas_layout`), and the
 node's latent inputs name the atlases; the shader reads each level's rectangle itself. Every level
 is then exact in any viewer.
+
+A UDIM material (tiles in the manifest's ``udim_tiles``) reads ``latents_<k>.<UDIM>.exr`` per tile;
+each atlas then holds the tiles' pyramids side by side (tile k's block k pyramid widths from the
+left), and the shader picks the block from floor(uv) (its tile table; a tile it was not trained on
+shades black, as the Slang module), reads frac(uv) in it and clamps at the tile's edges. MaterialX's
+own UDIM handling (an image node over a host-built atlas normalised to the set's bounding box) is
+not involved: the node addresses its atlas itself.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -114,12 +122,25 @@ def _latent_chain(path: Path) -> list[np.ndarray]:
 
 def latent_atlas(chain: list[np.ndarray]) -> np.ndarray:
     """One [H, W, 4] float16 image holding every level of ``chain`` at its
-    :func:`.materialx_shader.atlas_layout` rectangle (rows from the top; unused texels 0)."""
+    :func:`.materialx_shader.atlas_layout` rectangle (rows from the top; unused texels 0). A list of
+    chains (a UDIM material's tiles, in slot order, all of one layout) gives their atlases side by
+    side, tile k's block k atlas widths from the left."""
+    if chain and isinstance(chain[0], (list, tuple)):
+        return np.concatenate([latent_atlas(c) for c in chain], axis=1)
     rects, (height, width) = atlas_layout([level.shape[:2] for level in chain])
     atlas = np.zeros((height, width, 4), np.float16)
     for (x, y, w, h), level in zip(rects, chain):
         atlas[y:y + h, x:x + w] = level
     return atlas
+
+
+def _tile_file(path, tile: int) -> Path:
+    """The file of UDIM ``tile`` for ``path``: its ``<UDIM>`` token replaced, else ``latents_<k>.exr`` ->
+    ``latents_<k>.<tile>.exr`` (the export's names)."""
+    path = Path(path)
+    if "<UDIM>" in path.name:
+        return path.with_name(path.name.replace("<UDIM>", str(tile)))
+    return path.with_name(f"{path.stem}.{tile}{path.suffix}")
 
 
 def write_latent_atlas(chain: list[np.ndarray], path: Path) -> Path:
@@ -131,7 +152,11 @@ def write_latent_atlas(chain: list[np.ndarray], path: Path) -> Path:
     spec = oiio.ImageSpec(atlas.shape[1], atlas.shape[0], 4, "half")
     spec.attribute("compression", "zip")
     spec.attribute("oiio:ColorSpace", "raw")
-    spec.attribute("mtlx2neural:atlasLevels", json.dumps(atlas_layout([lv.shape[:2] for lv in chain])[0]))
+    nested = bool(chain) and isinstance(chain[0], (list, tuple))
+    first = chain[0] if nested else chain
+    spec.attribute("mtlx2neural:atlasLevels", json.dumps(atlas_layout([lv.shape[:2] for lv in first])[0]))
+    if nested and len(chain) > 1:  # UDIM: one block per tile, this many side by side
+        spec.attribute("mtlx2neural:atlasTiles", len(chain))
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(path))
         if out is None or not out.open(str(tmp), spec):
@@ -180,7 +205,7 @@ def _expected_latents(model_or_export) -> tuple[tuple[int, int] | None, int | No
         return (tuple(reversed(res)) if res else None), arch.get("levels")
     latents = getattr(model_or_export, "latents", None)
     if latents is not None and hasattr(latents, "levels"):
-        return tuple(latents.levels[0].shape[1:]), int(latents.num_levels)
+        return tuple(latents.levels[0].shape[-2:]), int(latents.num_levels)  # per tile for UDIM
     return None, None
 
 
@@ -255,14 +280,6 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     folder = Path(folder)
     spec = as_spec(model_or_export)
     tiles = _udim_tiles(model_or_export)
-    if tiles:
-        raise InputError(f"material {name} has UDIM latents (tiles {tiles}): the MaterialX node reads one latent "
-                         f"atlas over uv [0,1]^2 with its own texel addressing, and MaterialX's image node "
-                         f"cannot stand in (in hardware shading it reads a <UDIM> set only as one atlas the "
-                         f"host builds over the set's bounding box), so no node is written: a MaterialX viewer "
-                         f"keeps the original material in the layer's neural variant. The tiles are in the "
-                         f"Slang module (NeuralMaterial_<name>.slang, its tile table) and the USD layer's "
-                         f"<UDIM> latent textures")
     if latent_files is None:
         if isinstance(model_or_export, (str, Path)):
             base = Path(model_or_export)
@@ -271,7 +288,14 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
             base = folder
         latent_files = [base / f for f in latent_file_names(spec.latent_channels)]
     resolution, levels = _expected_latents(model_or_export)
-    layout, chains = read_latent_files(latent_files, spec.latent_channels, resolution, levels)
+    if tiles:  # every tile's files (the <UDIM> pattern, or the export's latents_<k>.<UDIM>.exr names)
+        per_tile = [read_latent_files([_tile_file(f, t) for f in latent_files], spec.latent_channels, resolution,
+                                      levels) for t in tiles]
+        layout = dataclasses.replace(per_tile[0][0], tiles=tuple(int(t) for t in tiles))
+        chains = [[tile_chains[g] for _, tile_chains in per_tile] for g in range(layout.groups)]
+    else:
+        layout, chains = read_latent_files(latent_files, spec.latent_channels, resolution, levels)
+        chains = [[chain] for chain in chains]
     names = node_names(name)
     folder.mkdir(parents=True, exist_ok=True)
     atlases = atlas_file_names(layout.groups)
@@ -283,8 +307,8 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
              names.slang: node_source(spec, name, layout, "genslang", file=names.slang, nodedef=names.nodedef,
                                       version=version, source=source),
              names.mtlx: mx.writeToXmlString(doc)}
-    for chain, atlas in zip(chains, atlases):
-        write_latent_atlas(chain, folder / atlas)
+    for tile_chains, atlas in zip(chains, atlases):
+        write_latent_atlas(tile_chains, folder / atlas)
     for file, text in texts.items():  # the document last: it names the other files
         with atomic_path(folder / file) as tmp:
             tmp.write_text(text)

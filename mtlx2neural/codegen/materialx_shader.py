@@ -47,7 +47,10 @@ class LatentLayout:
     """The latent textures as the node reads them: ``groups`` RGBA files holding ``channels``
     channels, ``width`` x ``height`` texels at level 0 and ``levels`` MIP levels; ``shapes``: each
     level's (height, width), finest first (empty: halved and rounded up from level 0, as the
-    export's EXRs and :func:`mtlx2neural.model.latent.level_shapes` size them)."""
+    export's EXRs and :func:`mtlx2neural.model.latent.level_shapes` size them). ``tiles``: the UDIM
+    tiles of a UDIM material (sorted UDIM numbers; empty: one periodic pyramid over [0,1]^2), whose
+    pyramids sit side by side in the atlas, tile k's block ``k`` block widths from the left
+    (:func:`udim_atlas_width`), read at frac(uv) with clamp addressing."""
 
     channels: int
     groups: int
@@ -55,6 +58,7 @@ class LatentLayout:
     height: int
     levels: int
     shapes: tuple = ()
+    tiles: tuple = ()
 
     def level_shapes(self) -> list[tuple[int, int]]:
         if self.shapes:
@@ -81,6 +85,27 @@ def atlas_layout(shapes) -> tuple[list[tuple[int, int, int, int]], tuple[int, in
         y += h
     width = w0 + max((w for _, w in shapes[1:]), default=0)
     return rects, (max(h0, y), width)
+
+
+def udim_atlas_width(layout: LatentLayout) -> int:
+    """Width in texels of one tile's block in a UDIM material's atlas (one pyramid's atlas width)."""
+    return atlas_layout(layout.level_shapes())[1][1]
+
+
+def _udim_function(layout: LatentLayout, lang: str, p: str) -> str:
+    """``<p>_udimSlot(texcoord)``: the atlas block of the UDIM tile under ``texcoord`` (-1: no trained tile)."""
+    if not layout.tiles:
+        return ""
+    vec2 = LANGUAGES[lang][1]["vec2"]
+    lines = ["// The trained UDIM tile under texcoord: its block in the atlas (slot k = the k-th tile of",
+             f"// {', '.join(map(str, layout.tiles))}), -1 for a tile the material was not trained on.",
+             f"int {p}_udimSlot({vec2} texcoord)", "{",
+             "    int tu = int(floor(texcoord.x));", "    int tv = int(floor(texcoord.y));",
+             "    if (tu < 0 || tu > 9 || tv < 0)", "        return -1;",
+             "    int udim = 1001 + tu + 10 * tv;"]
+    lines += [f"    if (udim == {t}) return {k};" for k, t in enumerate(layout.tiles)]
+    lines += ["    return -1;", "}"]
+    return "\n".join(lines)
 
 
 def prefix(name: str) -> str:
@@ -177,8 +202,13 @@ def _fetch_function(layout: LatentLayout, lang: str, p: str) -> str:
     params = ", ".join(f"{sampler} latent{g}" for g in range(layout.groups))
     lines = ["// The latent code at texcoord: one level of the pyramid (chosen with u), bilinear within it.",
              f"void {p}_fetch({params}, {t['vec2']} texcoord, float lod, float u, out float lat[{layout.channels}])",
-             "{", f"    {t['vec2']} st = mx_transform_uv(texcoord, {t['vec2']}(1.0, 1.0), {t['vec2']}(0.0, 0.0));",
-             f"    int level = {p}_chooseLevel(lod, u);"]
+             "{"]
+    if layout.tiles:  # frac(uv) in the tile's block; the level argument carries the slot (levelRect)
+        lines += [f"    {t['vec2']} st = mx_transform_uv(fract(texcoord), {t['vec2']}(1.0, 1.0), {t['vec2']}(0.0, 0.0));",
+                  f"    int level = {p}_chooseLevel(lod, u) + {layout.levels} * max({p}_udimSlot(texcoord), 0);"]
+    else:
+        lines += [f"    {t['vec2']} st = mx_transform_uv(texcoord, {t['vec2']}(1.0, 1.0), {t['vec2']}(0.0, 0.0));",
+                  f"    int level = {p}_chooseLevel(lod, u);"]
     for g in range(layout.groups):
         lines.append(f"    {t['vec4']} t{g} = {p}_bilinear(latent{g}, st, level);")
         for j in range(min(4, layout.channels - 4 * g)):
@@ -194,9 +224,14 @@ def _level_rect_function(layout: LatentLayout, lang: str, p: str) -> str:
     lines = ["// The atlas rectangle (x, y, width, height) of MIP level `level`, in the texture's rows: counted",
              "// from the file's top row when the generator flips V (fileTextureVerticalFlip: texture row 0",
              "// holds the file's top row), else from its bottom row.",
-             f"{ivec4} {p}_levelRect(int level)", "{", f"    {ivec4} r = {ivec4}({', '.join(map(str, rects[0]))});"]
+             f"{ivec4} {p}_levelRect(int level)", "{"]
+    if layout.tiles:  # level = MIP level + levels * UDIM slot: the slot's block, udim_atlas_width apart
+        lines += [f"    int slot = level / {layout.levels};", f"    level -= slot * {layout.levels};"]
+    lines.append(f"    {ivec4} r = {ivec4}({', '.join(map(str, rects[0]))});")
     for j, rect in enumerate(rects[1:], 1):
         lines.append(f"    if (level == {j}) r = {ivec4}({', '.join(map(str, rect))});")
+    if layout.tiles:
+        lines.append(f"    r.x += slot * {udim_atlas_width(layout)};")
     lines += [f"    if (mx_transform_uv({vec2}(0.0, 0.0), {vec2}(1.0, 1.0), {vec2}(0.0, 0.0)).y < 0.5)",
               f"        r.y = {height} - r.y - r.w;", "    return r;", "}"]
     return "\n".join(lines)
@@ -228,8 +263,16 @@ def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str,
         "sampler_arch": "x".join(map(str, spec.sampler_hidden)) or "linear", "output_activation": activation,
         "network_shapes": "\n".join(nets), "network_functions": _network_functions(spec, target, p, P),
         "fetch_function": _fetch_function(layout, target, p),
+        "udim_function": _udim_function(layout, target, p),
+        "udim_guard": (f"if ({p}_udimSlot(texcoord) < 0)  // no trained UDIM tile here: black, as the Slang module\n"
+                       f"        return;") if layout.tiles else "// one periodic latent pyramid: every uv reads it",
+        "texel_x": "clamp(x, 0, r.z - 1)" if layout.tiles else "((x % r.z) + r.z) % r.z",
+        "texel_y": "clamp(y, 0, r.w - 1)" if layout.tiles else "((y % r.w) + r.w) % r.w",
+        "addressing": "clamped to its edges (a UDIM tile)" if layout.tiles else "wrapping periodically",
         "level_rect_function": _level_rect_function(layout, target, p),
-        "level_rects": "atlas " + " x ".join(map(str, reversed(atlas_layout(layout.level_shapes())[1]))) + " texels",
+        "level_rects": "atlas " + " x ".join(map(str, reversed(atlas_layout(layout.level_shapes())[1]))) + " texels"
+        + (f" per UDIM tile, {len(layout.tiles)} tiles ({', '.join(map(str, layout.tiles))}) side by side"
+           if layout.tiles else ""),
         "latent_params": ", ".join(f"{LANGUAGES[target][2]} latent{g}" for g in range(layout.groups)),
         "latent_args": ", ".join(f"latent{g}" for g in range(layout.groups)),
     }

