@@ -78,6 +78,7 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(conver
     assert not (folder / "analytic_baseline.pt").exists()  # no [0,1]^2 preview map for a UDIM material
     exported = folder / "neural"
     assert sorted(p.name for p in exported.glob("latents_0.*.exr")) == [f"latents_0.{t}.exr" for t in TRAINED]
+    assert (exported / "materialx" / "NeuralMaterial_UdimTiles.mtlx").is_file()  # the node reads every tile
 
     # The layer references the latents by the <UDIM> pattern and lists the trained tiles.
     from pxr import Usd
