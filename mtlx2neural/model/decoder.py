@@ -18,6 +18,15 @@ cosine fell off too slowly at grazing light (3-4x too bright at 89 degrees, the
 terminator; docs/history/BENCHMARKS-2026-12-01.md). ``analytic_cosine=False`` is the original form, where
 the network learns f * cos itself; checkpoints and exports made before the option
 read as that.
+
+``albedo_head`` adds a separate small MLP (one hidden layer as wide as the decoder's last) from
+(``wi`` in the learned frames, latent) to the directional albedo at ``wi``: f * cos integrated over
+``wo``, linear RGB, through exp(x - 3), no cosine factor. It takes no ``wo``, so the albedo does not
+depend on the integrated direction by construction. The paper instead makes the albedo 3 more outputs
+of the BRDF decoder MLP. Measured on the quality guard's material (seeds 1-4,
+docs/history/paper-choices-2026-12-03.md), those outputs fit the albedo 2-6x worse (mean absolute
+error 0.05-0.21 against 0.03-0.07) and the BRDF trains worse with them (HDR FLIP 0.15-0.44 against
+0.11-0.28), so the separate head is kept.
 """
 
 from __future__ import annotations
@@ -71,6 +80,8 @@ class BrdfDecoder(nn.Module):
         return y * wo[:, 2:3].clamp_min(0.0) if self.analytic_cosine else y
 
     def predict_albedo(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
+        """Directional albedo [N,3] at ``wi`` (local frame; f * cos integrated over wo, linear RGB) from
+        the separate albedo head; no ``wo`` input. RuntimeError without an albedo head."""
         if self.albedo is None:
             raise RuntimeError("this decoder was built without an albedo head")
         x = torch.cat([*self._directions(latent, wi), latent], -1)

@@ -49,6 +49,25 @@ def test_decoder_and_sampler_are_finite_at_extremes():
     assert bool(torch.isfinite(wo).all()) and bool(torch.isfinite(pdf).all())
 
 
+def test_albedo_head_depends_on_latent_and_wi_only():
+    """The albedo head maps (wi in the learned frames, latent) to RGB [N,3] > 0; it has no wo input, and the
+    BRDF network's weights do not move it (a separate MLP; the decoder-output layout measured worse,
+    docs/history/paper-choices-2026-12-03.md)."""
+    torch.manual_seed(0)
+    dec = BrdfDecoder(frames=2, hidden="2x16", albedo_head=True)
+    assert dec.net[-1].out_features == 3 and dec.albedo[0].in_features == 6 + 8
+    latent, wi = torch.randn(7, 8), random_dirs(7, 1)
+    a = dec.predict_albedo(latent, wi)
+    assert a.shape == (7, 3) and bool((a > 0).all())
+    with torch.no_grad():
+        for m in dec.net:
+            if isinstance(m, torch.nn.Linear):
+                m.weight.add_(1.0)
+    torch.testing.assert_close(dec.predict_albedo(latent, wi), a)
+    other = torch.randn(7, 8)
+    assert not torch.allclose(dec.predict_albedo(other, wi), a)
+
+
 def test_latent_pyramid_fetch_and_level_choice():
     assert level_shapes(6, 4) == [(6, 4), (3, 2), (2, 1), (1, 1)]
     pyr = LatentPyramid(4, 4, channels=2)
@@ -138,3 +157,4 @@ def test_analytic_cosine_is_exact_at_the_horizon():
     g = grazing_directions(4096, 0.25, torch.Generator().manual_seed(1))
     assert torch.allclose(g.norm(dim=-1), torch.ones(4096), atol=1e-6)
     assert g[:, 2].min() > 0 and g[:, 2].max() <= 0.25 and abs(float(g[:, 2].mean()) - 0.125) < 0.01
+
