@@ -91,3 +91,9 @@ def test_udim_sample_is_the_generators_and_its_mesh_touches_three_of_four_tiles(
     assert tiles_on_disk(ref.compiled) == [1001, 1002, 1011, 1012]
     tiles, _ = training_tiles(ref.compiled, str(stage), [mod.MESH])
     assert tiles == list(mod.TRAINED)
+    # inspect says which tiles a conversion trains
+    from mtlx2neural.pipeline.inspection import format_report, inspect_asset
+
+    report = inspect_asset(stage)
+    assert report["materials"][0]["udim_tiles"] == list(mod.TRAINED)
+    assert "UDIM tiles trained: 1001, 1002, 1011" in format_report(report)

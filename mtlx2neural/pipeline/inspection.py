@@ -19,6 +19,7 @@ from mtlx2neural.pipeline.options import InspectOptions
 from mtlx2neural.pipeline.plan import plan_materials
 from mtlx2neural.scene import load_asset
 from mtlx2neural.train.config import preset
+from mtlx2neural.train.udim import training_tiles
 
 
 def inspect_asset(path, material: str | InspectOptions | None = None, allow_missing_textures: bool = False,
@@ -61,6 +62,9 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
         info["source_hash"], info["content_hash"] = plan.digest, plan.content
         info["identical_to"] = plan.shared_with
         info["warnings"] = list(plan.warnings)
+        # the UDIM tiles a conversion trains (None: no UDIM set), with why, as train.udim decides them
+        info["udim_tiles"], info["udim_notes"] = training_tiles(plan.compiled, getattr(src, "stage_file", None),
+                                                                src.bound_prims)
         report["materials"].append(info)
     if material and not report["materials"] and not any(
             material in (name, name.rsplit("/", 1)[-1]) for name, _ in scene.skipped):
@@ -99,6 +103,10 @@ def format_report(report: dict) -> str:
                       f"  from {g['source']}" for g in m["geometry_inputs"]]
         if "latent" in m:
             lines.append(f"  latent grid: {m['latent']['text']}")
+            if m.get("udim_tiles"):
+                lines.append(f"  UDIM tiles trained: {', '.join(map(str, m['udim_tiles']))} (one latent grid each; "
+                             f"the bound meshes' tiles, else every tile on disk)")
+                lines += [f"    note: {n}" for n in m.get("udim_notes", [])]
             lines += _density_lines(m["latent"])
             lines.append(f"  source hash: {m['source_hash'][:12]}  (content {m['content_hash'][:12]})")
             if m["identical_to"]:
