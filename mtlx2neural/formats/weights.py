@@ -65,6 +65,11 @@ def _hidden(seq: nn.Sequential | None) -> list[int]:
 def exported_tensors(model) -> list[tuple[str, torch.Tensor]]:
     """(state-dict name, tensor) of every exported tensor, in file order."""
     state = model.state_dict()
+    left = [k for k in state if k.startswith(("decoder.", "sampler.")) and not k.startswith(PREFIXES)]
+    if left or getattr(getattr(model, "sampler", None), "isotropic", False):
+        raise ValueError(f"an ablation model (tensors {left}, isotropic sampler "
+                         f"{getattr(model.sampler, 'isotropic', False)}) cannot be exported: the shaders "
+                         f"do not implement it")
     return [(k, state[k]) for p in PREFIXES for k in state if k.startswith(p)]
 
 

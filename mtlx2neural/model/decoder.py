@@ -8,7 +8,13 @@ projected on (t, b, n) of every frame, and the projections plus the latent feed
 an MLP with ReLU hidden layers whose 3 outputs pass through exp(x - 3).
 
 ``frames=0`` is the ablation without learned frames (the paper's Table 2):
-the MLP sees ``wi`` and ``wo`` in the local frame as they are.
+the MLP sees ``wi`` and ``wo`` in the local frame as they are. The paper gives those variants "an extra
+first layer with 8 neurons to roughly match the number of parameters of the full model" (its Figure 8);
+``NO_FRAME_LATENT_LAYER`` (measurement only, 0 by default) is that layer here: ``latent_layer``, a Linear
++ ReLU from the latent to that many units whose outputs join the MLP's input beside the latent, in place
+of the frame layer, which also reads only the latent. (Appended rather than replacing the latent, it
+matches the full 3x64 decoder's parameter count to 1%: 10059 against 9955, 9475 without it; the
+paper does not say which.) Such a model is not exportable (``formats.weights`` refuses it).
 
 ``forward`` returns f(wi, wo) * cos(wo) in linear RGB, for directions in the
 local frame (z the geometric normal, as the reference's ``eval``). With
@@ -37,6 +43,9 @@ from torch import nn
 from mtlx2neural.formats.weights import OUTPUT_OFFSET
 from mtlx2neural.model.mlp import mlp, parse_hidden
 
+NO_FRAME_LATENT_LAYER = 0
+"""Measurement only (ablation): units of the extra latent layer of a ``frames=0`` decoder, 0 for none."""
+
 
 class BrdfDecoder(nn.Module):
     def __init__(self, latent_dim: int = 8, frames: int = 2, hidden="2x32", albedo_head: bool = False,
@@ -47,7 +56,9 @@ class BrdfDecoder(nn.Module):
         self.hidden = parse_hidden(hidden)
         self.frame_layer = nn.Linear(latent_dim, 6 * frames, bias=False) if frames > 0 else None
         per_dir = 3 * max(frames, 1)  # frames=0: the raw local direction
-        self.net = mlp(2 * per_dir + latent_dim, self.hidden, 3)
+        extra = NO_FRAME_LATENT_LAYER if frames == 0 else 0
+        self.latent_layer = nn.Sequential(nn.Linear(latent_dim, extra), nn.ReLU()) if extra else None
+        self.net = mlp(2 * per_dir + latent_dim + extra, self.hidden, 3)
         # Optional albedo head: directional albedo from (latent, wi in the learned frames).
         self.albedo = mlp(per_dir + latent_dim, (self.hidden[-1],), 3) if albedo_head else None
 
@@ -76,6 +87,8 @@ class BrdfDecoder(nn.Module):
     def forward(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """f(wi, wo) * max(0, wo.z) [N,3] (no horizon test on ``wi``: ``NeuralMaterial.eval`` applies it)."""
         x = torch.cat([*self._directions(latent, wi, wo), latent], -1)
+        if self.latent_layer is not None:  # the ablation's parameter-matching layer
+            x = torch.cat([x, self.latent_layer(latent)], -1)
         y = torch.exp(self.net(x).clamp(max=30.0) - OUTPUT_OFFSET)
         return y * wo[:, 2:3].clamp_min(0.0) if self.analytic_cosine else y
 

@@ -8,6 +8,11 @@ from torch import nn
 from mtlx2neural.model import proxy
 from mtlx2neural.model.mlp import mlp
 
+ISOTROPIC_SAMPLER = False
+"""Measurement only (the paper's isotropic-sampler ablation, its Figure 11): SamplerNets built while it is
+True restrict the proxy to an isotropic, centred specular lobe (alpha_y = alpha_x, rho = 0, zero mean
+slope) and an untilted diffuse lobe; only the roughness and the lobe weights are learned. Not exportable."""
+
 
 class Encoder(nn.Module):
     """MLP (3x64, ReLU) from the varying parameter channels of one texel/level to a latent code.
@@ -32,9 +37,14 @@ class SamplerNet(nn.Module):
     def __init__(self, latent_dim: int = 8, hidden=(32, 32, 32)):
         super().__init__()
         self.net = mlp(3 + latent_dim, hidden, 9)
+        self.isotropic = bool(ISOTROPIC_SAMPLER)
 
     def forward(self, wi: torch.Tensor, latent: torch.Tensor) -> proxy.ProxyParams:
-        return proxy.ProxyParams.from_network(self.net(torch.cat([wi, latent], -1)))
+        p = proxy.ProxyParams.from_network(self.net(torch.cat([wi, latent], -1)))
+        if self.isotropic:  # the ablation: roughness alpha_x and the lobe weights only
+            zero = torch.zeros_like(p.slope_spec)
+            p = proxy.ProxyParams(p.alpha[:, :1].expand_as(p.alpha), torch.zeros_like(p.rho), zero, zero, p.w_spec)
+        return p
 
     def sample(self, wi, latent, u):
         p = self(wi, latent)

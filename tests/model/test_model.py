@@ -158,3 +158,38 @@ def test_analytic_cosine_is_exact_at_the_horizon():
     assert torch.allclose(g.norm(dim=-1), torch.ones(4096), atol=1e-6)
     assert g[:, 2].min() > 0 and g[:, 2].max() <= 0.25 and abs(float(g[:, 2].mean()) - 0.125) < 0.01
 
+
+def test_ablation_switches_match_parameters_and_restrict_the_sampler(monkeypatch):
+    """The ablation's measurement-only switches (benchmarks/bench_fidelity.py --ablation): a frameless 3x64
+    decoder with the paper's extra 8-unit layer has the full decoder's parameter count within 2% (10059
+    against 9955; 9475 without it), and an isotropic sampler gives alpha_y = alpha_x, rho = 0, zero slopes,
+    with pdf still consistent with its samples; neither model can be exported."""
+    import pytest
+
+    import mtlx2neural.model.decoder as decoder_module
+    import mtlx2neural.model.networks as networks_module
+    from mtlx2neural.formats.weights import exported_tensors
+
+    def count(m):
+        return sum(p.numel() for p in m.parameters())
+
+    full = count(NeuralMaterial((4, 4), 3, 8, 2, "3x64").decoder)
+    bare = count(NeuralMaterial((4, 4), 3, 8, 0, "3x64").decoder)
+    monkeypatch.setattr(decoder_module, "NO_FRAME_LATENT_LAYER", 8)
+    matched = NeuralMaterial((4, 4), 3, 8, 0, "3x64")
+    assert (full, bare, count(matched.decoder)) == (9955, 9475, 10059)
+    latent, wi, wo = torch.randn(6, 8), random_dirs(6, 1), random_dirs(6, 2)
+    assert matched.decoder(latent, wi, wo).shape == (6, 3)
+    with pytest.raises(ValueError, match="ablation"):
+        exported_tensors(matched)
+    monkeypatch.setattr(decoder_module, "NO_FRAME_LATENT_LAYER", 0)
+    monkeypatch.setattr(networks_module, "ISOTROPIC_SAMPLER", True)
+    torch.manual_seed(1)
+    iso = NeuralMaterial((4, 4), 3, 8, 2, "3x64")
+    p = iso.sampler(wi, latent)
+    assert torch.equal(p.alpha[:, 0], p.alpha[:, 1]) and not p.rho.any() and not p.slope_spec.any()
+    assert not p.slope_diff.any()
+    wo_s, pdf = iso.sampler.sample(wi, latent, torch.rand(6, 2))
+    torch.testing.assert_close(iso.sampler.pdf(wi, wo_s, latent), pdf)
+    with pytest.raises(ValueError, match="isotropic sampler True"):
+        exported_tensors(iso)
