@@ -33,6 +33,11 @@ The channels are a texture pyramid (:class:`~mtlx2neural.model.latent.LatentPyra
 1x1 for a uniform material, else the latent grid (``stack.resolution``) halved down
 to 1x1; every level is fitted (queries draw levels like the neural training), and
 a render picks levels stochastically from its level of detail, as the neural model.
+
+A UDIM material (a :class:`~mtlx2neural.train.udim.TiledStack`) gets one such pyramid per trained tile
+(``tiles``, the neural model's addressing: floor(uv) picks the tile, frac(uv) is read in it with
+clamp); its UsdPreviewSurface maps are then one file per tile, ``<input>.<UDIM number>.exr``,
+referenced as ``<input>.<UDIM>.exr``.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ from mtlx2neural.staging import Staging
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
+from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
 CHANNELS = ("base_r", "base_g", "base_b", "roughness", "metalness", "specular", "slope_x", "slope_y")
 MIN_ROUGHNESS = 0.02
@@ -114,15 +120,22 @@ class AnalyticMaterial(nn.Module):
     is 0 at or below the horizon; results in the model's dtype. ``at``: a ShadingPoint (``uv`` [N,2],
     default (0, 0); ``lod`` [N] in finest-level texels, log2; ``u_level`` [N] uniform, choosing between
     the two nearest levels; no named ``params``) or a [N,2] uv tensor. Sampling:
-    :mod:`.analytic_sampling`."""
+    :mod:`.analytic_sampling`. ``tiles``: the UDIM tiles of a UDIM material (one pyramid each; a uv
+    outside them is a ``ValueError``, as for the neural model)."""
 
-    def __init__(self, resolution: tuple[int, int] = (1, 1)):
+    def __init__(self, resolution: tuple[int, int] = (1, 1), tiles=None):
         super().__init__()
-        self.maps = LatentPyramid(*resolution, channels=len(CHANNELS))
+        self.maps = LatentPyramid(*resolution, channels=len(CHANNELS), tiles=tiles)
 
     @property
     def resolution(self) -> tuple[int, int]:
-        return tuple(self.maps.levels[0].shape[1:])
+        """(H, W) of level 0 (per tile for a UDIM material)."""
+        return tuple(self.maps.levels[0].shape[-2:])
+
+    @property
+    def tiles(self) -> list[int] | None:
+        """The UDIM tiles (sorted UDIM numbers), or None for one map over [0,1]^2."""
+        return self.maps.tile_list
 
     @property
     def dtype(self) -> torch.dtype:
@@ -198,18 +211,22 @@ class AnalyticMaterial(nn.Module):
                 "final_loss": None if loss is None or math.isnan(loss) else float(loss), "mean": mean,
                 "dtype": str(self.dtype).removeprefix("torch."), "device": str(self.device)}
 
-    def level_maps(self, level: int = 0) -> dict:
-        """Decoded maps of ``level`` as [H, W, C] numpy arrays (row 0 = top, v = 1)."""
+    def level_maps(self, level: int = 0, tile: int = 0) -> dict:
+        """Decoded maps of ``level`` as [H, W, C] numpy arrays (row 0 = top, v = 1); of the ``tile``-th
+        trained tile for a UDIM material."""
         lv = self.maps.levels[level].detach()
+        lv = lv[tile] if self.tiles else lv
         c, h, w = lv.shape
         p = decode(lv.reshape(c, -1).T)
         return {k: v.reshape(h, w, -1).cpu().numpy().astype(np.float32) for k, v in p.items()}
 
 
 def _initial_raw(reference, stack) -> torch.Tensor:
-    """Level-0 initial channels [8, H, W]: base colour from the reference's off-specular response
+    """Level-0 initial channels [8, H, W] ([T, 8, H, W] for a UDIM stack, tile by tile): base colour from the reference's off-specular response
     (pi * f*cos / cos at wi = normal, wo 60 degrees off), roughness 0.5, metalness 0.1, specular 0.5,
     flat normal."""
+    if is_udim_stack(stack):  # each tile's stack holds its own texels (params override the uv)
+        return torch.stack([_initial_raw(reference, tile_stack) for tile_stack in stack.stacks])
     h, w = stack.resolution
     n = h * w
     wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3)
@@ -232,25 +249,28 @@ def fit_analytic(reference, stack, iterations: int = 300, batch: int = 4096, see
                  lr: float = 3e-2, max_samples: int = 16) -> AnalyticMaterial:
     """Fit an :class:`AnalyticMaterial` to ``reference`` on ``stack``'s grid with Adam.
 
-    Each step draws ``batch`` (wi, wo) pairs uniform in half/difference angles, uv uniform and
+    Each step draws ``batch`` (wi, wo) pairs uniform in half/difference angles, uv uniform (over the
+    trained tiles of a UDIM ``stack``, which gives the model one pyramid per tile) and
     MIP levels favouring fine ones; targets are the footprint-averaged reference (``max_samples``
     points at most per query), the loss the neural training's log-L1. The learning rate decays
     on a cosine from ``lr`` to ``lr/10``. Coarser levels start as box-averages of level 0.
     """
 
     g = torch.Generator().manual_seed(seed)
-    model = AnalyticMaterial(stack.resolution)
+    tiles = list(stack.tiles) if is_udim_stack(stack) else None
+    model = AnalyticMaterial(stack.resolution, tiles)
     init = _initial_raw(reference, stack)
     with torch.no_grad():
         for k, lv in enumerate(model.maps.levels):
-            src = init if k == 0 else torch.nn.functional.adaptive_avg_pool2d(init[None], lv.shape[1:])[0]
-            lv.copy_(src)
+            batched = init if tiles else init[None]
+            src = batched if k == 0 else torch.nn.functional.adaptive_avg_pool2d(batched, lv.shape[-2:])
+            lv.copy_(src if tiles else src[0])
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, iterations), eta_min=lr / 10)
     levels = model.maps.num_levels
     for _ in range(iterations):
         wi, wo = half_difference_pairs(batch, g)
-        uv = torch.rand(batch, 2, generator=g)
+        uv = draw_uv(batch, tiles, g)  # uniform in [0,1]^2, or over the trained tiles (true uv)
         level = sample_levels(batch, levels, generator=g)
         with torch.no_grad():
             if stack.channels:
@@ -350,21 +370,24 @@ def write_preview_textures(model: AnalyticMaterial, folder) -> dict:
 
     Half-float EXR, linear (``sourceColorSpace = raw``), row 0 the top (v = 1): ``diffuseColor.exr``
     (base colour), ``roughness.exr`` (perceptual), ``metallic.exr``, ``normal.exr`` (tangent-space
-    n * 0.5 + 0.5: x tangent, z the geometric normal). UsdPreviewSurface has no per-texel dielectric
+    n * 0.5 + 0.5: x tangent, z the geometric normal); for a UDIM material one file per tile
+    (``diffuseColor.1001.exr`` ...), returned as the ``<UDIM>`` pattern. UsdPreviewSurface has no per-texel dielectric
     F0, so the mean ``specular`` becomes its uniform ``ior`` (F0 = ((ior - 1)/(ior + 1))^2 = 0.08
     specular). Returns ``{"textures": {input: Path}, "ior": float}``.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    maps = model.level_maps(0)
-    images = {"diffuseColor": maps["base"], "roughness": maps["roughness"], "metallic": maps["metalness"],
-              "normal": maps["normal"] * 0.5 + 0.5}
-    f0 = float(np.clip(0.08 * maps["specular"].mean(), 1e-4, 0.5))
+    tiles = model.tiles or [None]
+    per_tile = [model.level_maps(0, k) for k in range(len(tiles))]
+    f0 = float(np.clip(0.08 * np.mean([maps["specular"].mean() for maps in per_tile]), 1e-4, 0.5))
     ior = (1 + math.sqrt(f0)) / (1 - math.sqrt(f0))
     files = {}
-    for name in PREVIEW_TEXTURES:
-        files[name] = folder / f"{name}.exr"
-        _write_image(files[name], images[name])
+    for tile, maps in zip(tiles, per_tile):
+        images = {"diffuseColor": maps["base"], "roughness": maps["roughness"], "metallic": maps["metalness"],
+                  "normal": maps["normal"] * 0.5 + 0.5}
+        for name in PREVIEW_TEXTURES:  # a UDIM material: <input>.<tile>.exr, referenced as <input>.<UDIM>.exr
+            files[name] = folder / (f"{name}.exr" if tile is None else f"{name}.<UDIM>.exr")
+            _write_image(folder / (f"{name}.exr" if tile is None else f"{name}.{tile}.exr"), images[name])
     return {"textures": files, "ior": ior}
 
 
@@ -391,7 +414,7 @@ def save_analytic(model: AnalyticMaterial, path) -> Path:
     """Save a fitted ``model`` (its maps, resolution and final loss) to ``path`` (torch format)
     atomically; :func:`load_analytic` reads it back."""
     path = Path(path)
-    state = {"format": 1, "resolution": list(model.resolution),
+    state = {"format": 1, "resolution": list(model.resolution), "tiles": model.tiles,
              "levels": [lv.detach().cpu().float() for lv in model.maps.levels],
              "final_loss": getattr(model, "final_loss", math.nan)}
     with atomic_path(path) as tmp:
@@ -404,7 +427,7 @@ def load_analytic(path) -> AnalyticMaterial:
     ``ValueError`` naming the file when it is not one."""
     try:
         state = torch.load(Path(path), map_location="cpu", weights_only=True)
-        model = AnalyticMaterial(tuple(state["resolution"]))
+        model = AnalyticMaterial(tuple(state["resolution"]), state.get("tiles"))
         with torch.no_grad():
             if len(state["levels"]) != model.maps.num_levels:
                 raise ValueError(f"{len(state['levels'])} levels, expected {model.maps.num_levels}")

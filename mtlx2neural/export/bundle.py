@@ -106,9 +106,6 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
             raise Mtlx2NeuralError(f"material {name}: cannot bake its UsdPreviewSurface fallback: {exc}") from exc
         preview = {"textures": {k: final / PREVIEW_FOLDER / p.name for k, p in baked["textures"].items()},
                    "ior": baked["ior"]}
-    elif model.latents.tile_list:  # pipeline.jobs fits no baseline for a UDIM material
-        pnotes.append(f"{name}: UDIM material: no analytic baseline (one [0,1]^2 map cannot hold its tiles); the "
-                      f"layer has no UsdPreviewSurface fallback for it")
     elif (summary.get("config") or {}).get("preview_iterations") == 0:
         pnotes.append(f"{name}: preview_iterations = 0: the layer has no UsdPreviewSurface fallback for it")
     else:

@@ -24,8 +24,8 @@ the trained tiles, the analytic views are rendered once per trained tile (the sp
 the tile, :func:`mtlx2neural.render.udim_view.compare_tiles`; ``flip_per_view`` runs tile by tile,
 ``flip_per_tile`` holds each tile's mean, the PNGs are ``tile<UDIM>_view<i>_*.png``) and the in-scene
 render reads the meshes' own uv, kept inside the trained tiles
-(:class:`~mtlx2neural.render.udim_view.ClampToTiles`). It has no analytic baseline (the
-UsdPreviewSurface fallback is one map over [0, 1]^2), so no ``preview_flip``; a note says so.
+(:class:`~mtlx2neural.render.udim_view.ClampToTiles`). Its analytic baseline (the UsdPreviewSurface
+fallback) has one map per trained tile too.
 """
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ from mtlx2neural.render.renderer import compare_many, save_png
 from mtlx2neural.render.udim_view import ClampToTiles, compare_tiles, model_tiles
 from mtlx2neural.scene import MaterialSource
 from mtlx2neural.textures.footprint import footprint_targets
-from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
@@ -189,10 +188,6 @@ def measure_in_scene(ref, models: dict, texels: tuple[int, int], src, folder: Pa
     return out
 
 
-UDIM_PREVIEW_NOTE = ("UDIM material: no analytic baseline is fitted (the UsdPreviewSurface fallback is one "
-                     "map over [0, 1]^2), so the layer has no UsdPreviewSurface fallback for it")
-
-
 def budget_error(summary: dict) -> float:
     """The HDR FLIP an error budget (``--max-error``) is checked against: ``flip_in_scene`` when the
     summary has one (a USD source bound to meshes), else ``flip_mean`` (the analytic views)."""
@@ -235,10 +230,6 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
                                               resolution=resolution or latent_resolution(compiled, cfg))
     tiles = list(stack.tiles) if is_udim_stack(stack) else None
-    if tiles and preview:
-        preview = False
-        stack_notes = stack_notes + [UDIM_PREVIEW_NOTE]
-        (folder / BASELINE_FILE).unlink(missing_ok=True)
     trainer = Trainer(ref, stack, cfg, folder, device=device)
     if resume:
         trainer.resume()
@@ -249,14 +240,15 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
               f"{cfg.iterations} steps x {cfg.batch}", flush=True)
     model = trainer.run(progress=progress, listener=_LISTENER)
     train_seconds = time.time() - t0
-    if preview:
+    models = {"neural": model}
+    if preview:  # a UDIM stack gives the baseline one map per tile too
         analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
-        both = compare_many(ref, {"neural": model, "analytic": analytic}, texels=tuple(stack.resolution))
-        errors, preview_errors = both["neural"], both["analytic"]
-    elif tiles:  # the sphere's uv shifted into each trained tile: the views once per tile
-        errors = compare_tiles(ref, {"neural": model}, tuple(stack.resolution), tiles)["neural"]
-    else:  # the same renders as compare(..., label="neural")
-        errors = compare_many(ref, {"neural": model}, texels=tuple(stack.resolution))["neural"]
+        models["analytic"] = analytic
+    if tiles:  # the sphere's uv shifted into each trained tile: the views once per tile
+        renders = compare_tiles(ref, models, tuple(stack.resolution), tiles)
+    else:  # without the baseline, the same renders as compare(..., label="neural")
+        renders = compare_many(ref, models, texels=tuple(stack.resolution))
+    errors, preview_errors = renders["neural"], renders.get("analytic")
     in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
                                 tuple(stack.resolution), src, folder)
     for i, e in enumerate(errors):
@@ -335,9 +327,13 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
                                 allow_missing_textures=allow_missing_textures, application=application)
     bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
     ref = ReferenceMaterial(compiled)
-    stack = build_parameter_stack(compiled, resolution=tuple(resolution))
+    stack, _ = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                    resolution=tuple(resolution))
     analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
-    errors = compare_many(ref, {"analytic": analytic}, texels=tuple(stack.resolution))["analytic"]
+    if is_udim_stack(stack):
+        errors = compare_tiles(ref, {"analytic": analytic}, tuple(stack.resolution), list(stack.tiles))["analytic"]
+    else:
+        errors = compare_many(ref, {"analytic": analytic}, texels=tuple(stack.resolution))["analytic"]
     scene = measure_in_scene(ref, {"analytic": analytic}, tuple(stack.resolution), src)
     extra = {"preview_flip_in_scene": scene["preview_flip_in_scene"]} if "preview_flip_in_scene" in scene else {}
     return {**summary, **preview_record(errors, seconds, iterations), **extra}
@@ -383,7 +379,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
         os.replace(p, folder / p.name)
     shutil.rmtree(folder / BUDGET_FOLDER, ignore_errors=True)
     summary = dict(runs[decoder])
-    if cfg.preview_iterations > 0 and not summary.get("udim_tiles"):
+    if cfg.preview_iterations > 0:
         summary = add_preview(src, folder, device, allow_missing_textures, runs[decoder]["resolution"], cfg.seed,
                               summary, cfg.preview_iterations, application)
     else:

@@ -36,10 +36,13 @@ u = 10 (9.5e-7), so ``floor`` keeps the tile."""
 
 
 def model_tiles(material) -> list[int] | None:
-    """The trained UDIM tiles of a neural material (``material.latents.tile_list``), None for any other
-    material (not UDIM, the reference, the analytic baseline)."""
-    latents = getattr(material, "latents", None)
-    return getattr(latents, "tile_list", None) if latents is not None else None
+    """The trained UDIM tiles of a neural material (``material.latents.tile_list``) or an analytic
+    baseline (``material.maps.tile_list``); None for any other material (not UDIM, the reference)."""
+    for attr in ("latents", "maps"):
+        pyramid = getattr(material, attr, None)
+        if pyramid is not None and hasattr(pyramid, "tile_list"):
+            return pyramid.tile_list
+    return None
 
 
 class _UvRewrite:

@@ -2,7 +2,7 @@
 mesh over tiles 1001, 1002 and 1011 of a ``base.<UDIM>.png`` set, tile 1012 on disk but untouched),
 then the exported layer read back with ``load_neural``: each tile's uv region shows that tile's
 colour, the layer's latent asset paths hold ``<UDIM>``, and the untouched tile was not trained.
-A short training (``ITERATIONS`` steps of 256 samples, 2x32 decoder, no preview fit) and small
+A short training (``ITERATIONS`` steps of 256 samples, 2x32 decoder, a 20-step preview fit) and small
 renders (32 px, 4 samples): the wiring and the tiles' colours are checked, not the fidelity; about
 30 s on 2 shared cores (one torch thread), hence slow."""
 
@@ -27,7 +27,7 @@ pytest.importorskip("pxr", reason="usd-core is needed for a USD stage")
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "udim"
 TRAINED, UNTOUCHED = [1001, 1002, 1011], 1012
 ITERATIONS = 120
-CFG = preset("fast", iterations=ITERATIONS, batch=256, decoder="2x32", preview_iterations=0, seed=0)
+CFG = preset("fast", iterations=ITERATIONS, batch=256, decoder="2x32", preview_iterations=20, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +75,7 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(conver
     folder = asset_dir / "udim_tiles_neural" / "World.Looks.UdimTiles"
     assert json.loads((folder / "summary.json").read_text())["udim_tiles"] == TRAINED
     assert all((folder / f"tile{t}_view0_neural.png").is_file() for t in TRAINED)
-    assert not (folder / "analytic_baseline.pt").exists()  # no [0,1]^2 preview map for a UDIM material
+    assert (folder / "analytic_baseline.pt").is_file() and 0 < s["preview_flip"] < 1  # one map per tile
     exported = folder / "neural"
     assert sorted(p.name for p in exported.glob("latents_0.*.exr")) == [f"latents_0.{t}.exr" for t in TRAINED]
     assert (exported / "materialx" / "NeuralMaterial_UdimTiles.mtlx").is_file()  # the node reads every tile
@@ -88,6 +88,11 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(conver
     assets = prim.GetAttribute("neural:latentTextures").Get()
     assert len(assets) == 2 and all("<UDIM>" in a.path for a in assets)
     assert list(prim.GetAttribute("neural:udimTiles").Get()) == TRAINED
+    # the UsdPreviewSurface fallback reads one baked map per tile through <UDIM>
+    diffuse = next(p for p in stage.Traverse() if p.GetName().endswith("diffuseColorTexture"))
+    assert diffuse.GetAttribute("inputs:file").Get().path.endswith("diffuseColor.<UDIM>.exr")
+    preview = asset_dir / "udim_tiles_neural" / "World.Looks.UdimTiles" / "neural" / "preview"
+    assert sorted(p.name for p in preview.glob("diffuseColor.*.exr")) == [f"diffuseColor.{t}.exr" for t in TRAINED]
 
     # Read back from the layer: each tile's uv region shows its own tile's colour.
     neural = m2n.load_neural(layer, "UdimTiles")
