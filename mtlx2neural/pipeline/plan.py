@@ -52,6 +52,7 @@ from mtlx2neural.scene.texel_density import (
 )
 from mtlx2neural.textures.parameter_stack import texture_resolution
 from mtlx2neural.train.config import TrainConfig
+from mtlx2neural.train.udim import training_tiles
 
 DECODERS = ("2x16", "2x32", "3x64")
 """Decoder sizes an error budget escalates through, smallest first."""
@@ -114,6 +115,14 @@ def geometry_tag(compiled) -> str:
     mesh never retrains a material that reads no geometry."""
     geo = compiled.evaluator.geometry
     return "" if geo is None else f"\0geometry={geo.stage_file or ''}|{geo.describe()}|{geo.digest()}"
+
+
+def udim_tag(compiled, source) -> str:
+    """What the hashes add for a UDIM material: the tiles it trains (:func:`~mtlx2neural.train.udim.training_tiles`:
+    the bound meshes' tiles), so moving a mesh's UVs onto another tile retrains, and two materials with
+    one graph on meshes over different tiles do not share a training; "" for any other material."""
+    tiles, _ = training_tiles(compiled, getattr(source, "stage_file", None), source.bound_prims)
+    return "" if tiles is None else f"\0udim_tiles={','.join(map(str, tiles))}"
 
 
 def budget_tag(max_error: float | None) -> str:
@@ -264,7 +273,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
             continue
         surface = implied = None
         notes = []
-        geo = geometry_tag(compiled) + application_tag(compiled)
+        geo = geometry_tag(compiled) + application_tag(compiled) + udim_tag(compiled, src)
         if compiled.reads_application:
             notes.append(application_note(src.name, compiled.reads_application, compiled.application))
         if texel_density and compiled.varying_parameters():

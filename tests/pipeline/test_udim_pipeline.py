@@ -30,6 +30,28 @@ ITERATIONS = 120
 CFG = preset("fast", iterations=ITERATIONS, batch=256, decoder="2x32", preview_iterations=20, seed=0)
 
 
+def test_the_cache_key_follows_the_tiles_the_meshes_touch(tmp_path):
+    """Moving the third quad's UVs from tile 1011 onto 1002 changes the trained tiles, so the cache key
+    and the content hash change (the material retrains; two such materials would not share a training)."""
+    from mtlx2neural.pipeline.plan import plan_materials
+    from mtlx2neural.scene import load_asset
+
+    def plan(folder: Path):
+        scene = load_asset(folder / "udim_tiles.usda")
+        (p,) = plan_materials(scene.materials, CFG, False, asset=scene.asset)
+        return p
+
+    shutil.copytree(SAMPLE, tmp_path / "udim")
+    before = plan(tmp_path / "udim")
+    assert plan(tmp_path / "udim").digest == before.digest  # planned again, unchanged: the same key
+    stage = tmp_path / "udim" / "udim_tiles.usda"
+    text = stage.read_text()
+    assert text.count("(0, 1), (1, 1), (1, 2), (0, 2)") == 1
+    stage.write_text(text.replace("(0, 1), (1, 1), (1, 2), (0, 2)", "(1, 0), (2, 0), (2, 1), (1, 1)"))
+    after = plan(tmp_path / "udim")
+    assert after.digest != before.digest and after.content != before.content
+
+
 @pytest.fixture(scope="module")
 def converted(tmp_path_factory):
     """(summary, asset, layer) of the UDIM sample converted once in a temporary copy; per-tile views and
