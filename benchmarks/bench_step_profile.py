@@ -71,7 +71,7 @@ PARTS = [  # (key, label) in the table's order
     ("targets_rest", "targets: footprint offsets, grouping, means"),
     ("latent", "encoder forward (phase 1) / latent fetch (phase 2)"),
     ("decoder", "decoder forward (BRDF loss + KL weights)"),
-    ("sampler", "sampler forward + KL loss"),
+    ("sampler", "sampler forward, proxy sampling, KL and log-L1 losses"),
     ("backward", "backward (encoder, decoder, sampler)"),
     ("optim", "optimiser (grad clip + Adam)"),
     ("other", "rest of the step (Python, bookkeeping)"),
@@ -344,7 +344,7 @@ def main():
         emit(f"| {label} | " + " | ".join(cells) + f" | {mix('flops', 'flops', key) / 1e6:.1f} M "
              f"({mix('flops', 'mm_flops', key) / 1e6:.1f} M) | {mix('flops', 'ops', key):.0f} | "
              f"{mix(base, 'ms', key) / mix(base, 'total'):.0%} |")
-    fl_total = mix("flops", "flops", None) if False else sum(mix("flops", "flops", p) for p, _ in PARTS)
+    fl_total = sum(mix("flops", "flops", p) for p, _ in PARTS)
     mm_total = sum(mix("flops", "mm_flops", p) for p, _ in PARTS)
     ops_total = sum(mix("flops", "ops", p) for p, _ in PARTS)
     cells = [f"**{mix(k, 'total'):.1f}** ({mix(k, 'cpu_total'):.1f})" for k in threads]
