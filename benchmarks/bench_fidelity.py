@@ -137,6 +137,7 @@ def main():
     ap.add_argument("--iterations", type=int)
     ap.add_argument("--ablation", action="store_true")
     ap.add_argument("--seeds", default="0", help="--ablation: comma-separated training seeds")
+    ap.add_argument("--variants", help="--ablation: comma-separated row numbers of ABLATION (0 = full), default all")
     args = ap.parse_args()
     if not TEXTURED.exists():
         subprocess.run([sys.executable, str(ROOT / "samples/make_textured_sample.py")], check=True)
@@ -148,7 +149,9 @@ def main():
               "HDR FLIP (3 views) | mean | sampler rel. variance |")
         print("|---|---|---|---|---|---|---|---|---|")
         for name in cases:
-            for label, (over, latent_layer, isotropic) in ABLATION.items():
+            rows = list(ABLATION.items())
+            picked = [rows[int(i)] for i in args.variants.split(",")] if args.variants else rows
+            for label, (over, latent_layer, isotropic) in picked:
                 for seed in (int(s) for s in args.seeds.split(",")):
                     cfg = dataclasses.replace(preset(args.preset, decoder="3x64", iterations=args.iterations,
                                                      seed=seed), **over)
