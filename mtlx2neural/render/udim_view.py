@@ -9,10 +9,12 @@ only rewrite ``at.uv`` and pass everything else (directions, ``lod``, ``u_level`
 through, so the reference, the neural and the analytic material are wrapped alike and common
 random numbers still hold:
 
-- :class:`TileView` shows **one tile** on geometry whose uv spans [0, 1]^2: uv is clamped to
-  ``[0, 1 - EDGE]`` (a sphere's seam and poles reach u = 1 and v = 1 exactly, which ``floor`` would
-  put in the next tile) and shifted by the tile's origin ``(tu, tv)``. :func:`compare_tiles` renders
-  the analytic views (:func:`.renderer.compare_many`) once per trained tile this way.
+- :class:`TileView` shows **one tile** on geometry whose uv is not UDIM uv (the sphere's [0, 1]^2,
+  the plane's [0, 2]^2): uv is wrapped into the tile, ``frac(uv)`` kept at most ``1 - EDGE`` (a
+  rounding error of frac would otherwise land on the next tile), and shifted by the tile's origin
+  ``(tu, tv)``; the tile repeats as a plain texture would (a sphere's seam at u = 1 reads u = 0, the
+  same column of a periodic map, the tile's left edge here). :func:`compare_tiles` renders the
+  analytic views (:func:`.renderer.compare_many`) once per trained tile this way.
 - :class:`ClampToTiles` serves geometry whose uv is already the true, multi-tile uv (a stage's
   meshes, :mod:`.in_scene`): each uv goes to the trained tile holding it, or, when it falls outside
   every trained tile (a mesh touching an untrained tile only along an edge, where interpolation
@@ -80,7 +82,7 @@ class _UvRewrite:
 
 class TileView(_UvRewrite):
     """``material`` on geometry with uv in [0, 1]^2 as UDIM tile ``tile`` sees it (module docstring):
-    uv -> clamp(uv, 0, 1 - EDGE) + (tu, tv); no uv (``None``) -> the tile's centre."""
+    uv -> min(frac(uv), 1 - EDGE) + (tu, tv); no uv (``None``) -> the tile's centre."""
 
     def __init__(self, material, tile: int):
         super().__init__(material)
@@ -91,7 +93,7 @@ class TileView(_UvRewrite):
         if uv is None:
             return torch.tensor([[self.origin[0] + 0.5, self.origin[1] + 0.5]]).expand(rows, 2)
         uv = torch.as_tensor(uv)
-        return uv.clamp(0.0, 1.0 - EDGE) + uv.new_tensor(self.origin)
+        return (uv - torch.floor(uv)).clamp(0.0, 1.0 - EDGE) + uv.new_tensor(self.origin)
 
 
 class ClampToTiles(_UvRewrite):

@@ -70,9 +70,9 @@ class RenderOptions:
     """Frames per second that turn ``--frame`` into the ``time`` node's seconds; default: the
     conversion's, else 24."""
     tile: int | None = field(default=None, metadata={"metavar": "UDIM"})
-    """UDIM tile (1001, 1002, ...) the geometry's [0,1]^2 uv shows, its uv shifted by the tile's
-    origin: for a UDIM material. Default: the neural model's first trained tile; the reference reads
-    the geometry's own uv (tile 1001)."""
+    """UDIM tile (1001, 1002, ...) the geometry shows, its uv wrapped into the tile (frac(uv) plus the
+    tile's origin): for a UDIM material. Default: the neural model's first trained tile; the reference
+    reads the geometry's own uv (tile 1001)."""
 
     def kwargs(self) -> dict:
         """The keyword arguments of :func:`~mtlx2neural.report.views.render_asset` after ``asset``."""

@@ -228,7 +228,7 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     ``frame``/``fps`` (the reference only): the instant its ``time``/``frame`` nodes fold to; each
     left None is the conversion's (:func:`conversion_application`), else frame 1 at 24 fps.
 
-    ``tile`` (a UDIM number): render the geometry's [0,1]^2 uv as that UDIM tile
+    ``tile`` (a UDIM number): render the geometry's uv wrapped into that UDIM tile
     (:class:`~mtlx2neural.render.udim_view.TileView`, both models); a UDIM neural model without it
     shows its first trained tile (its other tiles' latents are never read by a [0,1]^2 geometry),
     a tile it was not trained on is an :class:`InputError`. The summary's ``tile`` says which.

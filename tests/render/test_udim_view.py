@@ -1,5 +1,5 @@
-"""render.udim_view: a UDIM model rendered through TileView reads only its tile (the sphere's seam and
-poles at u = 1 / v = 1 included), ClampToTiles keeps edge uv inside the trained tiles, and
+"""render.udim_view: a UDIM model rendered through TileView reads only its tile, wrapped into it (the
+sphere's seam and poles at u = 1 / v = 1 and the plane's [0, 2]^2 included), ClampToTiles keeps edge uv inside the trained tiles, and
 compare_tiles renders the views once per tile. Seeded random two-tile models; no training."""
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def _dirs(n: int):
     return wi, wo
 
 
-def test_tile_view_shifts_uv_into_its_tile_and_clamps_the_upper_edges():
+def test_tile_view_wraps_uv_into_its_tile():
     model = udim_model()
     assert model_tiles(model) == TILES and model_tiles(object()) is None
     local = torch.tensor([[0.25, 0.5], [0.0, 0.0], [1.0, 1.0], [0.999, 0.3]])
@@ -47,7 +47,8 @@ def test_tile_view_shifts_uv_into_its_tile_and_clamps_the_upper_edges():
     for tile, origin in ((1002, (1.0, 0.0)), (1011, (0.0, 1.0))):
         view = TileView(model, tile)
         got = view.eval(wi, wo, ShadingPoint(uv=local))
-        want = model.eval(wi, wo, local.clamp(0, 1 - EDGE) + torch.tensor(origin))
+        # wrapped into the tile: (1, 1) reads the tile's (0, 0), as a repeated texture would
+        want = model.eval(wi, wo, torch.tensor([[0.25, 0.5], [0.0, 0.0], [0.0, 0.0], [0.999, 0.3]]) + torch.tensor(origin))
         # the same latents read at the same uv: bit-identical
         assert torch.equal(got, want)
     # the two tiles hold different random latents, so the views differ
