@@ -11,6 +11,14 @@ from pathlib import Path
 import pytest
 import torch
 
+# Under pytest-xdist (README's test command runs one worker per core) each worker gets an equal
+# share of the cores for torch and for the subprocesses it starts, so that the workers do not
+# oversubscribe a 2-core machine with torch threads.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    _share = max(1, (os.cpu_count() or 1) // max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
+    os.environ.setdefault("OMP_NUM_THREADS", str(_share))
+    torch.set_num_threads(_share)
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 MTLX_RES = SHARED / "assets" / "materialx" / "resources"
 USD_ASSETS = SHARED / "assets" / "usd" / "test_assets"
