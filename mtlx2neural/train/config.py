@@ -63,10 +63,11 @@ class TrainConfig:
     takes one pair per footprint point)."""
     footprint_samples: int = 16
     """Cap on reference samples per footprint-filtered target."""
-    footprint_one_call: bool = False
+    footprint_one_call: bool = True
     """Evaluate a textured material's footprint points of every level in one reference call per step
     instead of one per level: the same targets' estimator, about half the data time on a 256² grid
-    (BENCHMARKS.md, "Time to quality")."""
+    (BENCHMARKS.md, "Time to quality"). On by default since 2026-12-03 (the `fast` preset on every
+    sample, both ways, in BENCHMARKS.md); False is the per-level loop, kept for that comparison."""
     level_rate: float = 1.0
     """Level distribution P(k) ~ exp(-rate k): larger favours fine levels more."""
     albedo_head: bool = False
