@@ -24,8 +24,8 @@ the unchanged conversions. For each material:
     (``EnvironmentMap.sky``, turned so MaterialX shows it as the torch renderer does) with its
     irradiance map (``glsl_render.irradiance_map``).
 
-Comparison frames: GlslRenderer at 256² (``--compare-size``), compared box-filtered to 128² with
-torch's 128²; mean HDR FLIP over the whole frame (background included, as the tool's own summary
+Comparison frames: GlslRenderer at 256² (``--compare-size``; ``--gl-supersample 4``: 512²), compared
+box-filtered to 128² with torch's 128² (16 samples per pixel); mean HDR FLIP over the whole frame (background included, as the tool's own summary
 FLIP; the JSON also has the mean over the sphere's pixels, and a diagnosis against the project's
 reference BSDF of the original, :func:`diagnose`). Frame time: (a) and (c) at 512² in the same
 GlslRenderer process, light rig plus the sky at 16 directions (MaterialXView's default count), the
@@ -182,14 +182,14 @@ def sphere_flip(ref: np.ndarray, test: np.ndarray, covered: np.ndarray) -> float
     return float(values[covered].mean())
 
 
-def diagnose(d: dict, model, texels, b: np.ndarray, gl: dict, size: int) -> dict:
+def diagnose(d: dict, model, texels, b: np.ndarray, gl: dict, size: int, supersample: int = 2) -> dict:
     """Where FLIP (a)-(c) comes from: the project's reference BSDF of the original material (the
     one the model was trained on) rendered by the torch renderer, against (c) MaterialX's GLSL of
     the original (their difference is MaterialX's GLSL code and its environment method, not the
     neural model) and against the torch renders of the neural model (the model's own error in this
     view). Directional at ``size`` / 2 (16 spp), environment at ``size`` / 4 (64 spp, light and BSDF
-    samples by MIS; each material samples by its own sampler), GlslRenderer frames (``size``)
-    box-filtered to match."""
+    samples by MIS; each material samples by its own sampler), GlslRenderer frames (``size`` / 2 x
+    ``supersample``) box-filtered to match."""
     src = d["source"]
     ref = ReferenceMaterial(compile_material(src.document, src.material))
     cam, sphere = Camera(0.0, 0.0, 3.0, 45.0), Sphere()
@@ -202,11 +202,11 @@ def diagnose(d: dict, model, texels, b: np.ndarray, gl: dict, size: int) -> dict
                                   footprint=1.0)
         save_png(d["folder"] / f"torch_{label}_environment.png", env[label])
     save_png(d["folder"] / "torch_reference_directional.png", ref_dir)
-    c_dir = downsample(gl[("directional", "original")])[..., :3]
-    a_env = downsample(gl[("environment", "neural")], 4)[..., :3]
-    c_env = downsample(gl[("environment", "original")], 4)[..., :3]
+    c_dir = downsample(gl[("directional", "original")], supersample)[..., :3]
+    a_env = downsample(gl[("environment", "neural")], 2 * supersample)[..., :3]
+    c_env = downsample(gl[("environment", "original")], 2 * supersample)[..., :3]
 
-    mask = downsample(gl[("environment", "original")], 4)[..., 3] > 0.999  # sphere pixels at this size
+    mask = downsample(gl[("environment", "original")], 2 * supersample)[..., 3] > 0.999  # sphere pixels here
 
     def f(x, y):
         return round(image_errors(x, y)["flip"], 4)
@@ -246,7 +246,8 @@ def run(args) -> dict:
             for label in ("neural", "original"):
                 mat = d["original_material"] if label == "original" else None
                 jobs.append({**extra, "mtlx": str(d[label]), "material": mat,
-                             "out": str(d["folder"] / f"gl_{light}_{label}.exr"), "size": args.compare_size,
+                             "out": str(d["folder"] / f"gl_{light}_{label}.exr"),
+                             "size": args.compare_size // 2 * args.gl_supersample,
                              "frames": 0})
                 keys.append((m, light, label))
     for r in range(args.rounds):
@@ -273,11 +274,12 @@ def run(args) -> dict:
         d, conv, o = docs[m], convs[m], out[m]
         model = load_neural(conv["layer"], conv["summary"]["material"])
         texels = tuple(model.latents.levels[0].shape[1:])
-        # footprint 0.5: the level of detail of one sample of the GlslRenderer frame (twice the size).
+        # footprint 1 / supersample: the level of detail of one sample of the GlslRenderer frame.
         b = render_scene(model, Sphere(), Camera(0.0, 0.0, 3.0, 45.0), [DirectionalLight(LIGHT, INTENSITY)],
-                         res=args.compare_size // 2, spp=16, texels=texels, seed=1, footprint=0.5)
-        diag = diagnose(d, model, texels, b, o, args.compare_size)
-        imgs = {k: downsample(v) for k, v in o.items() if isinstance(k, tuple)}
+                         res=args.compare_size // 2, spp=16, texels=texels, seed=1,
+                         footprint=1.0 / args.gl_supersample)
+        diag = diagnose(d, model, texels, b, o, args.compare_size, args.gl_supersample)
+        imgs = {k: downsample(v, args.gl_supersample) for k, v in o.items() if isinstance(k, tuple)}
         covered = imgs[("directional", "neural")][..., 3] > 0.5
         rgb = {k: v[..., :3] for k, v in imgs.items()}
         ab = image_errors(b, rgb[("directional", "neural")])  # torch as the reference, as the test
@@ -319,7 +321,7 @@ def run(args) -> dict:
             save_png(args.screenshot, side)
     return {"rows": rows, "machine": machine(results.get("renderer")), "gl_seconds": round(gl_seconds, 1),
             "settings": {"timing_size": SIZE, "compare_size": args.compare_size,
-                         "compared_at": args.compare_size // 2, "light_towards": LIGHT, "intensity": INTENSITY,
+                         "compared_at": args.compare_size // 2, "gl_supersample": args.gl_supersample, "light_towards": LIGHT, "intensity": INTENSITY,
                          "environment": "EnvironmentMap.sky(128, 256), FIS", "compare_env_samples": args.compare_samples,
                          "timing": f"{SIZE}² light rig + sky at {TIMING_SAMPLES} directions, median of "
                                    f"{args.frames} frames after a warm-up, {args.rounds} rounds",
@@ -365,6 +367,10 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds of (a) and (c)")
     ap.add_argument("--compare-size", type=int, default=COMPARE_SIZE,
                     help="GlslRenderer frame size of the comparisons (compared box-filtered to half)")
+    ap.add_argument("--gl-supersample", type=int, default=2,
+                    help="GlslRenderer samples per compared pixel along each axis: its comparison frames are "
+                         "compare-size / 2 x this, box-filtered to compare-size / 2 (2: 4 per pixel; 4: 16, "
+                         "as many as the torch frame's)")
     ap.add_argument("--compare-samples", type=int, default=COMPARE_SAMPLES,
                     help="environment directions per pixel in the comparison frames")
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "viewer.json"))
