@@ -12,7 +12,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.graph.bsdf_program import CLOSURE_NODES, BsdfProgram, build_program
 from mtlx2neural.graph.evaluator import GraphEvaluator
 from mtlx2neural.graph.expand import expand_material
-from mtlx2neural.graph.geometry import check_texcoord_indices, geometry_reads
+from mtlx2neural.graph.geometry import geometry_reads
 from mtlx2neural.graph.ir import Const, Input, IRGraph, Ref
 from mtlx2neural.graph.ops import OPS, Application, bake_application
 from mtlx2neural.graph.spatial import (
@@ -97,7 +97,6 @@ class CompiledMaterial:
                                  "converted": needs_conversion(cs, working)})
             elif n.category in SPATIAL or self.evaluator.world_transform[i]:
                 spatial_inputs.append({"node": n.path, "kind": n.category})
-                # (A texcoord index other than 0 never gets here: graph.geometry.check_texcoord_indices.)
                 gp = n.inputs.get("geomprop")
                 if (n.category == "geompropvalue" and isinstance(gp, Const) and gp.value not in UV_PRIMVARS
                         and self.evaluator.geometry is None):
@@ -153,7 +152,6 @@ def compile_material(document: mx.Document, material: str | None = None, device=
     spatial_nodes = ev.spatial_closure(needed)
     check_image_modes(source, graph, spatial_nodes)  # before any texture is read
     name = material or next(n.getName() for n in document.getMaterialNodes())
-    check_texcoord_indices(source, name, graph, spatial_nodes)  # one UV layout per material
     case_fixes = []
     for i in spatial_nodes:
         n = graph[i]

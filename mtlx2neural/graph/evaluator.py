@@ -168,15 +168,15 @@ class GraphEvaluator:
             keys = []
             for i in nodes:
                 node = self.graph[i]
-                reads = [node] if node.category in GEOMETRIC else []
+                reads = [node] if node.category in GEOMETRIC or primvar_of(node) else []
                 if self.world_transform[i]:
                     keys.append(TRANSFORM_KEY)
                 reads += [self.graph[v.node] for k, v in node.inputs.items() if self._geo_frame(i, k, v)]
                 for n in reads:
-                    pv = primvar_of(n) if n.category in ("geomcolor", "geompropvalue") else None
+                    pv = primvar_of(n) if n.category in ("geomcolor", "geompropvalue", "texcoord") else None
                     if pv:
                         keys += [f"primvar:{pv}"] + (["primvar:displayOpacity"] if pv == "displayColor" else [])
-                    elif n.category not in ("geomcolor", "geompropvalue"):
+                    elif n.category not in ("geomcolor", "geompropvalue", "texcoord"):
                         keys.append(f"{n.category}:{node_space(n)}")
             self._geo_keys[key] = sorted(set(keys))
         return self._geo_keys[key]

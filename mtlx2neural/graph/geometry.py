@@ -18,18 +18,23 @@ blend), they are the surface's vectors from the geometry, in the space the node 
 
 UV sets: a material is baked into one UV layout, the one its bound meshes are drawn in (``st``, else a
 mesh's first texCoord2 primvar; the sphere's for ``.mtlx`` input), and its latents are read with it.
-Texture coordinates from another UV set are not kept apart, so reading one is an input error naming
-the material and the sets (:func:`check_texcoord_indices` at compile time: a ``texcoord`` node with an
-``index`` other than 0; :func:`check_uv_sets` when meshes are bound: a vector2 ``geompropvalue`` feeding
-a texture's ``texcoord`` whose primvar is not the layout's). A vector2 primvar that *is* the layout's
-reads the layout's uv directly.
+A texture read through another UV set is kept apart, not merged: that set is a primvar of the bound
+meshes, rasterised into the layout like any primvar, so each latent texel holds the material at the
+surface point it covers, with the textures read at that point's coordinates in the other set
+(:func:`check_uv_sets` binds them). A ``texcoord`` node with ``index`` k > 0 reads the first of
+``st<k>``, ``uv<k>``, ``UV<k>``, ``map<k+1>`` (the names USD exporters give extra sets) that every
+bound mesh carries; a vector2 ``geompropvalue`` reads its named primvar. A set that is the layout's
+reads the layout's uv directly. Errors, naming the material, the node and the set: the ``.mtlx``
+sphere (one UV set) and a mesh without the set; a UDIM texture read through another set (UDIM
+tiles are chosen from the layout's UVs). The other set's detail is resampled at the latent grid's
+resolution in the layout, so a set that tiles much more densely than the layout loses detail.
 """
 
 from __future__ import annotations
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.graph.ir import Const, IRGraph, IRNode, Ref
-from mtlx2neural.graph.spatial import FRAME_AXES, UV_PRIMVARS
+from mtlx2neural.graph.spatial import FRAME_AXES, UV_PRIMVARS, texcoord_index
 from mtlx2neural.graph.transforms import CATEGORIES as TRANSFORMS
 from mtlx2neural.graph.transforms import object_world
 from mtlx2neural.scene.uv_raster import GeometrySource
@@ -95,9 +100,14 @@ def node_space(node: IRNode) -> str:
 
 
 def primvar_of(node: IRNode) -> str | None:
-    """The primvar a ``geomcolor``/``geompropvalue`` node reads (None: a UV primvar or not constant)."""
+    """The primvar a ``geomcolor``/``geompropvalue`` node, or a ``texcoord`` node bound to another UV set,
+    reads (None: the layout's UV set or not constant)."""
     if node.category == "geomcolor":
         return "displayColor"
+    if node.attrs.get("layout_uv"):
+        return None  # the layout's own UV set: the uv itself
+    if node.category == "texcoord":
+        return node.attrs.get("primvar")  # another UV set, once bound (check_uv_sets)
     gp = node.inputs.get("geomprop")
     if node.category == "geompropvalue" and isinstance(gp, Const) and isinstance(gp.value, str):
         return None if (node.type == "vector2" and gp.value in UV_PRIMVARS) else gp.value
@@ -129,7 +139,7 @@ def geometry_reads(graph: IRGraph, nodes, bound: list[bool] | None = None) -> li
 
     for i in nodes:
         n = graph[i]
-        if n.category in ("position", "geomcolor", "geompropvalue"):
+        if n.category in ("position", "geomcolor", "geompropvalue") or (n.category == "texcoord" and primvar_of(n)):
             add(i)
         if world_transform(graph, bound, i):
             fromspace, tospace = spaces(n)
@@ -140,88 +150,102 @@ def geometry_reads(graph: IRGraph, nodes, bound: list[bool] | None = None) -> li
     return out
 
 
-DEFAULT_UV_SET = "st (texcoord index 0)"
+def texcoord_set_names(index: int) -> tuple[str, ...]:
+    """The primvar names a ``texcoord`` node of ``index`` > 0 may read, in the order they are tried."""
+    return (f"st{index}", f"uv{index}", f"UV{index}", f"map{index + 1}")
 
 
-def _index(node: IRNode) -> int:
-    inp = node.inputs.get("index")
-    return int(inp.value[0]) if isinstance(inp, Const) and isinstance(inp.value, tuple) and inp.value else 0
+def secondary_texcoords(graph: IRGraph, nodes) -> list[int]:
+    """The live ``texcoord`` nodes among ``nodes`` that read a UV set other than index 0."""
+    return [i for i in nodes if graph[i].category == "texcoord" and texcoord_index(graph[i]) != 0]
 
 
-def check_texcoord_indices(source: str, material: str, graph: IRGraph, nodes) -> None:
-    """InputError when a live ``texcoord`` node among ``nodes`` reads a UV set other than index 0 (module
-    docstring: one UV layout per material), naming the material, the sets and the node."""
-    others = [graph[i] for i in nodes if graph[i].category == "texcoord" and _index(graph[i]) != 0]
-    if not others:
-        return
-    sets = sorted({f"texcoord index {_index(n)}" for n in others})
-    defaults = [graph[i].path for i in nodes if graph[i].category == "texcoord" and _index(graph[i]) == 0]
-    read = f"both {DEFAULT_UV_SET} (node '{defaults[0]}') and " if defaults else ""
-    raise InputError(
-        f"{source}: material '{material}' reads {read}UV set {', '.join(sets)} (node '{others[0].path}'): "
-        f"mtlx2neural bakes a material into one UV layout, the default set {DEFAULT_UV_SET}, and does not keep "
-        f"other UV sets apart. Read the textures through texcoord index 0 (the mesh's st), or move the UV set "
-        f"into st.", node=others[0].path)
-
-
-def image_uv_primvars(graph: IRGraph, nodes) -> list[tuple[int, str]]:
-    """(node, primvar) of every vector2 ``geompropvalue`` among ``nodes`` whose value reaches a node's
-    ``texcoord`` input (through any maths) and whose primvar is not one of the default UV names."""
-    live = set(nodes)
-    seen, stack = set(), [graph[i].inputs["texcoord"].node for i in nodes
-                          if isinstance(graph[i].inputs.get("texcoord"), Ref)]
-    found = []
-    while stack:
-        i = stack.pop()
-        if i in seen or i not in live:
-            continue
-        seen.add(i)
-        n = graph[i]
-        gp = n.inputs.get("geomprop")
-        if n.category == "geompropvalue" and n.type == "vector2" and isinstance(gp, Const) \
-                and isinstance(gp.value, str) and gp.value not in UV_PRIMVARS:
-            found.append((i, gp.value))
-        stack.extend(v.node for v in n.inputs.values() if isinstance(v, Ref))
+def image_uv_readers(graph: IRGraph, nodes) -> list[tuple[int, int]]:
+    """(consumer, reader) for every node among ``nodes`` with a ``texcoord`` input whose value comes (through
+    any maths) from a ``texcoord`` node of index > 0 or a vector2 ``geompropvalue`` of a primvar that is not
+    one of the default UV names."""
+    live, found = set(nodes), []
+    for c in nodes:
+        root = graph[c].inputs.get("texcoord")
+        seen, stack = set(), [root.node] if isinstance(root, Ref) else []
+        while stack:
+            i = stack.pop()
+            if i in seen or i not in live:
+                continue
+            seen.add(i)
+            n = graph[i]
+            gp = n.inputs.get("geomprop")
+            if (n.category == "texcoord" and texcoord_index(n) != 0) or (
+                    n.category == "geompropvalue" and n.type == "vector2" and isinstance(gp, Const)
+                    and isinstance(gp.value, str) and gp.value not in UV_PRIMVARS):
+                found.append((c, i))
+            stack.extend(v.node for v in n.inputs.values() if isinstance(v, Ref))
     return sorted(found)
 
 
+def _uv_set_error(compiled, node: IRNode, what: str, why: str) -> InputError:
+    return InputError(f"{compiled.source}: material '{compiled.name}' reads {what} (node '{node.path}'): {why}",
+                      node=node.path)
+
+
 def check_uv_sets(compiled, source) -> None:
-    """Check the UV sets ``compiled``'s textures read against the layout of the bound meshes
-    (``source``, a :class:`~mtlx2neural.scene.uv_raster.GeometrySource`; module docstring): a texture
-    coordinate primvar that is the layout's set reads the layout's uv (``attrs["layout_uv"]``); any other
-    is an InputError naming the material, the two sets and the node."""
-    graph = compiled.graph
-    reads = image_uv_primvars(graph, compiled.spatial_nodes)
-    if not reads:
+    """Bind the UV sets other than the layout's that ``compiled`` reads to the bound meshes' primvars
+    (``source``, a :class:`~mtlx2neural.scene.uv_raster.GeometrySource`; module docstring): a ``texcoord``
+    node of index k > 0 gets ``attrs["primvar"]``, the first of :func:`texcoord_set_names` every mesh
+    carries; a set that is the layout's gets ``attrs["layout_uv"]`` (it reads the layout's uv). InputError,
+    naming the material, the node and the set, on the sphere, for a set a mesh lacks, and for a UDIM
+    texture read through another set."""
+    graph, nodes = compiled.graph, compiled.spatial_nodes
+    readers = sorted(set(secondary_texcoords(graph, nodes)) | {r for _, r in image_uv_readers(graph, nodes)})
+    if not readers:
         return
     layout = sorted({v for v in source.uv_sets().values() if v})
-    for i, primvar in reads:
+    names = source.primvar_names()
+    for i in readers:
+        node = graph[i]
+        index = texcoord_index(node) if node.category == "texcoord" else None
+        what = f"UV set texcoord index {index}" if index is not None else \
+            f"its texture coordinates from the primvar '{node.inputs['geomprop'].value}'"
+        if source.is_sphere:
+            raise _uv_set_error(compiled, node, what, (
+                "a second UV set, which the unit sphere standing in for the geometry of a .mtlx file does not "
+                "have (one UV layout, no primvars). Convert a USD stage whose meshes carry that set."))
+        wanted = texcoord_set_names(index) if index is not None else (node.inputs["geomprop"].value,)
+        primvar = next((w for w in wanted if all(w in have for have in names.values())), None)
+        if primvar is None:
+            lacking = sorted(p for p, have in names.items() if not any(w in have for w in wanted))
+            raise _uv_set_error(compiled, node, what, (
+                f"bound mesh{'es' if len(lacking) > 1 else ''} {', '.join(lacking or sorted(names))} "
+                f"{'have' if len(lacking) > 1 else 'has'} no primvar {' / '.join(wanted)}. Add that UV set to "
+                f"every mesh bound to the material, or read the textures through the layout's set "
+                f"({' / '.join(layout) or 'st'})."))
+        node.attrs["primvar"] = primvar
         if primvar in layout:
-            graph[i].attrs["layout_uv"] = "1"
-            continue
-        where = (f"the bound meshes' UV layout, {' / '.join(layout)}" if layout else
-                 "the unit sphere's UV layout (no mesh: it has no primvars)" if source.is_sphere else
-                 "the bound meshes' UV layout (they have no UVs)")
-        raise InputError(
-            f"{compiled.source}: material '{compiled.name}' reads its texture coordinates from the primvar "
-            f"'{primvar}' (node '{graph[i].path}'), another UV set than {where}: mtlx2neural bakes a material "
-            f"into one UV layout and does not keep UV sets apart. Read the textures through that set (texcoord "
-            f"index 0), or make '{primvar}' the meshes' st.", node=graph[i].path)
+            node.attrs["layout_uv"] = "1"
+    for c, i in image_uv_readers(graph, nodes):
+        f = graph[c].inputs.get("file")
+        if not graph[i].attrs.get("layout_uv") and isinstance(f, Const) and "<UDIM>" in str(f.value):
+            raise _uv_set_error(compiled, graph[i], f"UV set '{graph[i].attrs['primvar']}'", (
+                f"the UDIM texture '{f.value}' of node '{graph[c].path}' is read through it, but UDIM tiles are "
+                f"chosen from the layout's UVs ({' / '.join(layout)}). Read UDIM textures through the layout's set."))
 
 
 def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | None:
     """Give ``compiled``'s evaluator the geometry its graph reads: the meshes ``prims`` of the USD stage
     ``stage_file``, or the unit sphere when there are none (``.mtlx`` input). Returns a one-line note
     (also added to the program's notes), or None when the graph reads no geometry (nothing is bound).
-    InputError when a texture reads its coordinates from another UV set than the layout's (:func:`check_uv_sets`)."""
+    InputError when another UV set a texture reads cannot be bound (:func:`check_uv_sets`)."""
+    source = GeometrySource(stage_file, prims)
+    if secondary_texcoords(compiled.graph, compiled.spatial_nodes) or image_uv_readers(compiled.graph,
+                                                                                       compiled.spatial_nodes):
+        check_uv_sets(compiled, source)  # binds the texcoord nodes of other UV sets to their primvars
     reads = geometry_reads(compiled.graph, compiled.spatial_nodes, compiled.evaluator.frame_bound)
     if not reads:
         return None
     primvars = sorted({r["primvar"] for r in reads if "primvar" in r})
     if "displayColor" in primvars:
         primvars.append("displayOpacity")
-    source = GeometrySource(stage_file, prims, primvars, transforms=any(r["kind"] in TRANSFORMS for r in reads))
-    check_uv_sets(compiled, source)
+    source.primvars, source.transforms = primvars, any(r["kind"] in TRANSFORMS for r in reads)
     compiled.evaluator.geometry = source
     shared = None
     if any(compiled.evaluator.world_transform):

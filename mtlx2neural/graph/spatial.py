@@ -15,6 +15,7 @@ import functools
 
 import torch
 
+from mtlx2neural.errors import InputError
 from mtlx2neural.graph.ir import CHANNELS
 from mtlx2neural.graph.validate import ADDRESS_ALIASES
 from mtlx2neural.imaging.colour import canonical_colorspace, convert_torch, is_data
@@ -22,6 +23,13 @@ from mtlx2neural.imaging.image_io import Texture
 from mtlx2neural.imaging.texel_lookup import conform_channels
 
 SPATIAL = {"texcoord", "position", "geomcolor", "geompropvalue", "image"}
+
+
+def texcoord_index(node) -> int:
+    """The UV set a ``texcoord`` node reads (its constant ``index`` input; 0 when absent)."""
+    inp = node.inputs.get("index")
+    value = getattr(inp, "value", None)
+    return int(value[0]) if isinstance(value, tuple) and value else int(value) if isinstance(value, (int, float)) else 0
 FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
 UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
 
@@ -63,9 +71,21 @@ def eval_source(node, args: dict, uv: torch.Tensor, geometry: dict | None = None
     cat = node.category
     geo = geometry or {}
     if cat == "texcoord":
+        coords = uv
+        primvar = node.attrs.get("primvar")  # another UV set, bound to a mesh primvar (graph.geometry)
+        if primvar and not node.attrs.get("layout_uv"):
+            coords = geo.get(f"primvar:{primvar}")
+            if coords is None:
+                raise InputError(f"'{node.path}' reads UV set '{primvar}', which the evaluator was given no "
+                                 f"samples of: bind the meshes first (graph.geometry.bind_geometry)", node=node.path)
+            coords = _fit(coords, 2)
+        elif texcoord_index(node) != 0 and not node.attrs.get("layout_uv"):
+            raise InputError(f"'{node.path}' reads texcoord index {texcoord_index(node)}, a second UV set, which "
+                             f"only bound meshes provide (graph.geometry.bind_geometry); nothing is bound",
+                             node=node.path)
         if CHANNELS.get(node.type, 2) == 3:  # a vector3 texture coordinate: (u, v, 0), as MaterialX's vertex data
-            return torch.cat([uv, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
-        return uv
+            return torch.cat([coords, torch.zeros(n, 1, dtype=uv.dtype, device=uv.device)], -1)
+        return coords
     if cat == "position":
         space = args.get("space") if isinstance(args.get("space"), str) else node.attrs.get("space", "")
         got = geo.get("position:world" if space == "world" else "position:object")

@@ -525,6 +525,23 @@ class GeometrySource:
             out[path] = None if pv is None else str(pv.GetPrimvarName())
         return out
 
+    def primvar_names(self) -> dict[str, set[str]]:
+        """{bound prim: the names of its primvars that have a value} (a GeomSubset's are its mesh's);
+        empty for the sphere, which has none."""
+        if self.is_sphere:
+            return {}
+        # Local: pxr loads its plugins on import; only real meshes need it.
+        from pxr import UsdGeom
+
+        out = {}
+        for path in self.prims:
+            prim = self.stage().GetPrimAtPath(path)
+            if prim and prim.IsA(UsdGeom.Subset):
+                prim = prim.GetParent()
+            api = UsdGeom.PrimvarsAPI(prim) if prim else None
+            out[path] = {str(p.GetPrimvarName()) for p in api.GetPrimvarsWithValues()} if api else set()
+        return out
+
     def stage(self):
         """The USD stage of :attr:`stage_file` (opened once)."""
         # Local: opening a stage pulls in pxr's file format plugins; a sphere never needs them.

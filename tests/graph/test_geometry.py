@@ -261,7 +261,7 @@ def test_compiled_output_reads_a_given_normal():
     assert torch.allclose(out(uv)[:, 0], torch.zeros(16))  # default +z: no y component
 
 
-# ---------------------------------------------------------------- UV sets: one layout per material
+# ---------------------------------------------------------------- UV sets: one layout, other sets as primvars
 
 def uv_image_stage(tmp_path, reader: str, primvars: str) -> str:
     """A quad with the texCoord2f primvars ``primvars`` bound to a material whose base colour is an image
@@ -296,30 +296,58 @@ ST1 = '        texCoord2f[] primvars:st1 = [(0, 0), (0.5, 0), (0.5, 1), (0, 1)] 
 UVMAP = ST.replace("primvars:st ", "primvars:UVMap ")
 
 
-def test_a_texcoord_index_other_than_0_is_an_error_naming_the_material_and_sets(tmp_path):
-    path = tmp_path / "idx.usda"
-    path.write_text(uv_image_stage(tmp_path, texcoord_reader(1), ST + ST1))
-    src = find_material(str(path))
-    with pytest.raises(InputError) as err:
-        compile_material(src.document, src.material)
-    text = str(err.value)
-    assert "material 'M'" in text and "texcoord index 1" in text and "st (texcoord index 0)" in text
-    assert err.value.node == "UV" or "UV" in (err.value.node or "")
-
-
-def test_a_primvar_uv_set_other_than_the_layouts_is_an_error_and_a_partial_failure(tmp_path):
+@pytest.mark.parametrize("reader", [texcoord_reader(1), primvar_reader("st1")], ids=["texcoord_index_1", "primvar_st1"])
+def test_another_uv_set_is_read_from_its_own_primvar(tmp_path, reader):
+    """st1 maps the quad onto the left half of the ramp (u1 = u / 2): a texture read through texcoord index 1
+    or the primvar st1 shows u / 2 at every texel of the st layout, where st (index 0) shows u."""
     path = tmp_path / "st1.usda"
-    path.write_text(uv_image_stage(tmp_path, primvar_reader("st1"), ST + ST1))
+    path.write_text(uv_image_stage(tmp_path, reader, ST + ST1))
+    src = find_material(str(path))
+    compiled = compile_material(src.document, src.material)
+    bind_geometry(compiled, src.stage_file, src.bound_prims)
+    assert compiled.graph[next(i for i in compiled.spatial_nodes
+                               if compiled.graph[i].path.endswith("UV"))].attrs["primvar"] == "st1"
+    texels = base_color_texels(compiled, (2, 8))
+    u, _ = texel_grid(2, 8)
+    # Bilinear samples of a 16-texel linear ramp at u / 2, in the ramp's interior: exact up to float32.
+    assert np.allclose(texels[:, 0], u / 2, atol=1e-5), texels[:, 0]
+    assert "st1" in {r.get("primvar") for r in compiled.describe()["geometry_inputs"]}
+
+
+def test_a_uv_set_a_mesh_lacks_is_an_error_and_a_partial_failure(tmp_path):
+    path = tmp_path / "st1.usda"
+    path.write_text(uv_image_stage(tmp_path, texcoord_reader(1), ST))
     src = find_material(str(path))
     compiled = compile_material(src.document, src.material)
     with pytest.raises(InputError) as err:
         bind_geometry(compiled, src.stage_file, src.bound_prims)
     text = str(err.value)
-    assert "'st1'" in text and "UV layout, st" in text and "material 'M'" in text
+    assert "material 'M'" in text and "texcoord index 1" in text and "/World/Quad" in text and "st1" in text
     failures = []
     plans = plan_materials(load_asset(str(path)).materials, preset("fast"), failures=failures)
     assert plans == [] and len(failures) == 1 and failures[0].material == "/World/Looks/M"
     assert "st1" in failures[0].reason
+
+
+def test_another_uv_set_without_bound_meshes_is_a_clear_error(tmp_path):
+    """Nothing merged silently: evaluating a texcoord index 1 that no mesh was bound to names the node."""
+    path = tmp_path / "st1.usda"
+    path.write_text(uv_image_stage(tmp_path, texcoord_reader(1), ST + ST1))
+    src = find_material(str(path))
+    compiled = compile_material(src.document, src.material)
+    with pytest.raises(InputError, match="texcoord index 1"):
+        base_color_texels(compiled, (2, 8))
+
+
+def test_a_udim_texture_through_another_uv_set_is_an_error(tmp_path):
+    path = tmp_path / "udim.usda"
+    text = uv_image_stage(tmp_path, texcoord_reader(1), ST + ST1)
+    (tmp_path / "ramp.exr").rename(tmp_path / "ramp.1001.exr")
+    path.write_text(text.replace("ramp.exr@", "ramp.<UDIM>.exr@"))
+    src = find_material(str(path))
+    compiled = compile_material(src.document, src.material)
+    with pytest.raises(InputError, match="UDIM"):
+        bind_geometry(compiled, src.stage_file, src.bound_prims)
 
 
 def test_a_primvar_that_is_the_layouts_uv_set_reads_the_layout(tmp_path):
