@@ -505,23 +505,28 @@ class GeometrySource:
             return None
         return torch.from_numpy(found[0].astype(np.float32)).reshape(16)
 
+    def _meshes(self):
+        """(bound prim path, its UsdGeom.Mesh or None) for each bound prim; a GeomSubset gives its mesh."""
+        # Local: pxr loads its plugins on import; only real meshes need it.
+        from pxr import UsdGeom
+
+        for path in self.prims:
+            prim = self.stage().GetPrimAtPath(path)
+            if prim and prim.IsA(UsdGeom.Subset):
+                prim = prim.GetParent()
+            yield path, (UsdGeom.Mesh(prim) if prim and prim.IsA(UsdGeom.Mesh) else None)
+
     def uv_sets(self) -> dict[str, str | None]:
         """{bound prim: the primvar its UV layout is drawn from (``st``, else its first texCoord2 primvar;
         None: no UVs)}; empty for the sphere (one layout, no primvars)."""
         if self.is_sphere:
             return {}
-        # Local: pxr loads its plugins on import; only real meshes need it.
-        from pxr import UsdGeom
-
         # Local: the UV-set rule lives beside the texel-density measure, which shares it.
         from mtlx2neural.scene.texel_density import uv_primvar
 
         out = {}
-        for path in self.prims:
-            prim = self.stage().GetPrimAtPath(path)
-            if prim and prim.IsA(UsdGeom.Subset):
-                prim = prim.GetParent()
-            pv = uv_primvar(UsdGeom.Mesh(prim)) if prim and prim.IsA(UsdGeom.Mesh) else None
+        for path, mesh in self._meshes():
+            pv = uv_primvar(mesh) if mesh else None
             out[path] = None if pv is None else str(pv.GetPrimvarName())
         return out
 
@@ -533,14 +538,8 @@ class GeometrySource:
         # Local: pxr loads its plugins on import; only real meshes need it.
         from pxr import UsdGeom
 
-        out = {}
-        for path in self.prims:
-            prim = self.stage().GetPrimAtPath(path)
-            if prim and prim.IsA(UsdGeom.Subset):
-                prim = prim.GetParent()
-            api = UsdGeom.PrimvarsAPI(prim) if prim else None
-            out[path] = {str(p.GetPrimvarName()) for p in api.GetPrimvarsWithValues()} if api else set()
-        return out
+        return {path: {str(p.GetPrimvarName()) for p in UsdGeom.PrimvarsAPI(mesh).GetPrimvarsWithValues()}
+                if mesh else set() for path, mesh in self._meshes()}
 
     def stage(self):
         """The USD stage of :attr:`stage_file` (opened once)."""
