@@ -57,6 +57,7 @@ from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.render.flip_probe import FlipProbe
 from mtlx2neural.render.in_scene import compare_in_scene, stage_in_scene
 from mtlx2neural.render.renderer import compare_many, save_png
 from mtlx2neural.render.udim_view import ClampToTiles, compare_tiles, model_tiles
@@ -238,7 +239,9 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
               f"{f' per UDIM tile, tiles {tiles}' if tiles else ''}, "
               f"{stack.levels[0].shape[0]} varying channels, decoder {cfg.decoder}, "
               f"{cfg.iterations} steps x {cfg.batch}", flush=True)
-    model = trainer.run(progress=progress, listener=_LISTENER)
+    # FLIP against training time for the report (not for a UDIM stack: its views are per tile).
+    probe = FlipProbe(ref, tuple(stack.resolution)) if not tiles else None
+    model = trainer.run(progress=progress, listener=_LISTENER, probe=probe)
     train_seconds = time.time() - t0
     models = {"neural": model}
     if preview:  # a UDIM stack gives the baseline one map per tile too

@@ -418,6 +418,9 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
             steps = [float(r["step"]) for r in recs]
             curves_svg = svg_lines({c: (steps, [float(r[c]) for r in recs]) for c in cols}, "step", "loss",
                                    logy=True)
+        probes = flip_probes(recs)
+        if probes:
+            curves_svg += "\n" + svg_lines({"neural (probe)": tuple(zip(*probes))}, "training seconds", "HDR FLIP")
     latents, latent_bytes = [], 0
     files = [(f"{j}", tex) for j, tex in enumerate(neural.usd_info["latent_textures"])]
     if tiles:  # the <UDIM> pattern: every trained tile's file
@@ -460,6 +463,8 @@ against the reference render{'; each trained UDIM tile on the sphere (its uv shi
 normalised; at each chosen texel (<code>--texel U,V</code>).</p>
 {''.join(polar)}
 <h3>Training curves</h3>
+<p class="note">Losses against step; where the conversion probed its quality (<code>probe_every</code>), HDR FLIP
+against training seconds (three views at 48², 4 samples per pixel, so noisier than the table's figure).</p>
 <div class="plots">{curves_svg}</div>
 <h3>Latent textures</h3>
 <div class="latents">{''.join(latents)}</div>
@@ -470,6 +475,20 @@ normalised; at each chosen texel (<code>--texel U,V</code>).</p>
 <tr><td class="l">total</td><td>{latent_bytes + weight_bytes}</td></tr></table>
 """
     return body, numbers
+
+
+def flip_probes(records: list[dict]) -> list[tuple[float, float]]:
+    """(training seconds, HDR FLIP) of the ``training_curves.csv`` rows that carry a ``flip_probe``
+    (:class:`~mtlx2neural.render.flip_probe.FlipProbe`), in order."""
+    out = []
+    for r in records:
+        try:
+            value = float(r.get("flip_probe") or "nan")
+        except ValueError:
+            continue
+        if math.isfinite(value):
+            out.append((float(r["seconds"]), value))
+    return out
 
 
 def default_report_dir(layer) -> Path:

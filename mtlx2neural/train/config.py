@@ -85,13 +85,22 @@ class TrainConfig:
     (fast: 100; 0: no fallback, so no ``NeuralPreview`` shader and no ``previewFlip``). On the
     textured GlazedCeramic (256² grid) 100 steps take 53 s against 200 steps' 128 s for an HDR FLIP
     of 0.158 against 0.156."""
+    probe_every: int = 0
+    """Steps between quality probes during training (:class:`~mtlx2neural.render.flip_probe.FlipProbe`:
+    HDR FLIP of the current model in three small views), written to ``training_curves.csv`` as
+    ``flip_probe`` and plotted against training seconds in the report; the last step is always probed.
+    Their time is left out of the curves' ``seconds``, and they draw none of the training's random
+    numbers, so a run is the same with or without them. 0: none. A probe costs ~0.2 CPU s (48², 4 samples
+    per pixel; the textured GlazedCeramic's 3x64, one thread, 2026-12-03): ~1 % of a `fast` run
+    probed every 100 steps."""
     compile: bool = False
     """torch.compile the decoder/sampler losses (and a uniform material's reference): faster
     steps after tens of seconds of compilation; worth it for long runs only."""
 
 
 _FAST = TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
-                    mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, preview_iterations=100)
+                    mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, preview_iterations=100,
+                    probe_every=100)
 
 PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
@@ -107,13 +116,13 @@ PRESETS = {
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
-    "standard": dataclasses.replace(_FAST, iterations=8000, preview_iterations=200),
+    "standard": dataclasses.replace(_FAST, iterations=8000, preview_iterations=200, probe_every=500),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
-                            lobe_fraction=0.1),
+                            lobe_fraction=0.1, probe_every=2000),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
                          mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
-                         compile=True),
+                         compile=True, probe_every=10_000),
 }
 
 
@@ -125,7 +134,7 @@ def preset(name: str, **overrides) -> TrainConfig:
 
 
 _COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples": 1, "checkpoint_every": 1,
-           "frames": 0, "iterations": 0, "preview_iterations": 0}
+           "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0}
 """Integer settings and their smallest valid value."""
 _SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction")
 """Settings that are a share of something, in [0, 1]."""

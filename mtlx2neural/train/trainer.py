@@ -160,8 +160,9 @@ class Trainer:
     def _write_curves(self) -> None:
         if not self.history:
             return
+        fields = list(dict.fromkeys(k for rec in self.history for k in rec))  # a resumed older run lacks some
         with atomic_path(self.out_dir / "training_curves.csv") as tmp, open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(self.history[0]))
+            w = csv.DictWriter(f, fieldnames=fields)
             w.writeheader()
             w.writerows(self.history)
 
@@ -233,6 +234,15 @@ class Trainer:
 
     def bake(self) -> None:
         """Phase 2: run the encoder over every texel of every level into the latent pyramid."""
+        self._encode_latents()
+        self.baked = True
+        # The encoder is no longer used: keep optimising latents, decoder and sampler.
+        for p in self.model.encoder.parameters():
+            p.requires_grad_(False)
+
+    def _encode_latents(self) -> None:
+        """The encoder over every texel of every level, into the latent pyramid (no flag changes: before
+        the bake, the latents are not trained on, so a probe may fill them early)."""
         with torch.no_grad():
             for k, lv in enumerate(self.model.latents.levels):
                 if self.tiles is not None and self.textured:  # one [C, H, W] stack level per tile
@@ -245,10 +255,6 @@ class Trainer:
                     lv.copy_(codes.T.reshape(lv.shape))
                 else:
                     lv.copy_(self.model.encoder(torch.zeros(1, 0)).T.reshape(lv.shape[-3:]).expand_as(lv))
-        self.baked = True
-        # The encoder is no longer used: keep optimising latents, decoder and sampler.
-        for p in self.model.encoder.parameters():
-            p.requires_grad_(False)
 
     def train_step(self) -> dict:
         cfg, g, dev = self.cfg, self.gen, self.device
@@ -294,14 +300,19 @@ class Trainer:
                 "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(cfg, self.step),
                 "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
 
-    def run(self, progress: bool = True, listener=None) -> NeuralMaterial:
+    def run(self, progress: bool = True, listener=None, probe=None) -> NeuralMaterial:
         """Train to ``cfg.iterations`` steps (from the current step), showing progress when
         ``progress`` (a bar on a terminal, periodic log lines otherwise: :mod:`mtlx2neural.progress`); ``listener(step, total, record)`` is called with every logged record
-        (every 25 steps), e.g. to draw a parent process's bar for a pool worker."""
+        (every 25 steps), e.g. to draw a parent process's bar for a pool worker.
+
+        ``probe(model) -> float`` (e.g. :class:`~mtlx2neural.render.flip_probe.FlipProbe`): called every
+        ``cfg.probe_every`` steps and at the last one, its value logged as ``flip_probe`` (NaN in the other
+        records); before the bake the latents are filled from the encoder for it. Its time is not counted
+        in ``seconds`` (training seconds)."""
         cfg = self.cfg
         switch = int(cfg.iterations * cfg.encoder_fraction)
         bar = progress_bar(cfg.iterations, self.step, enabled=progress, desc=self.out_dir.name)
-        start = time.time()
+        start, probing = time.time(), 0.0
         try:
             while self.step < cfg.iterations:
                 if not self.baked and self.step >= switch:
@@ -309,8 +320,16 @@ class Trainer:
                 rec = self.train_step()
                 if not all(math.isfinite(rec[k]) for k in ("loss_brdf", "loss_kl", "grad_norm")):
                     raise FloatingPointError(f"non-finite loss at step {self.step}: {rec}")
-                if self.step % 25 == 0 or self.step == cfg.iterations:
-                    rec["seconds"] = round(time.time() - start, 2)
+                rec["flip_probe"] = math.nan
+                if probe is not None and cfg.probe_every > 0 and (self.step % cfg.probe_every == 0
+                                                                  or self.step == cfg.iterations):
+                    t = time.time()
+                    if not self.baked:
+                        self._encode_latents()
+                    rec["flip_probe"] = round(float(probe(self.model)), 5)
+                    probing += time.time() - t
+                if self.step % 25 == 0 or self.step == cfg.iterations or math.isfinite(rec["flip_probe"]):
+                    rec["seconds"] = round(time.time() - start - probing, 2)
                     self.history.append(rec)
                     bar.set_postfix(phase=rec["phase"], loss=f"{rec['loss_brdf']:.4f}", kl=f"{rec['loss_kl']:.3f}")
                     if listener is not None:

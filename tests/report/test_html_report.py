@@ -34,7 +34,8 @@ def report(tmp_path_factory):
     d = tmp_path_factory.mktemp("report")
     asset = d / SAMPLE.name
     shutil.copy(SAMPLE, asset)
-    s = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=30, batch=256), material="Plastic",
+    s = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=30, batch=256, probe_every=15),
+                                            material="Plastic",
                                             progress=False, device="cpu", workers=1))
     layer = Path(s[0]["usd"])
     out = d / "rep"
@@ -54,8 +55,11 @@ def test_report_has_every_section_and_its_images(report):
     for name in images:
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     svgs = re.findall(r"<svg.*?</svg>", page, re.DOTALL)
-    assert len(svgs) == 6  # error versus cost, 2 polar plots at each of the 2 texels, training curves
+    # error versus cost, 2 polar plots at each of the 2 texels, training curves, FLIP against training time
+    assert len(svgs) == 7
     assert "uv (0.25, 0.75)" in page
+    (timed,) = [s for s in svgs if "training seconds" in s]  # the probes at steps 15 and 30
+    assert "HDR FLIP" in timed and "<polyline" in timed
     for s in svgs:
         ET.fromstring(s)
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".rep")]  # no temporary folders left

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 import pytest
@@ -232,3 +233,28 @@ def test_footprint_one_call_is_wired_and_keeps_the_targets(tmp_path):
                  tmp_path / "run")
     tr.run(progress=False)  # raises FloatingPointError on a non-finite loss
     assert tr.step == 5
+
+
+def test_flip_probes_are_logged_and_leave_the_run_unchanged(carpaint, tmp_path):
+    """Probing every 40 steps (the real FlipProbe, small: 24², 2 spp) logs a FLIP at steps 40, 80 and the last
+    (100), before and after the bake, and the run is bit-identical to one without probes: the probe draws
+    none of the training's random numbers and writes latents only before they are trained on."""
+    from mtlx2neural.render.flip_probe import FlipProbe
+
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=100, batch=256, seed=3, probe_every=40)
+    probe = FlipProbe(ref, stack.resolution, res=24, spp=2)
+    runs = {}
+    for name, p in (("probed", probe), ("plain", None)):
+        tr = Trainer(ref, stack, cfg, tmp_path / name)
+        runs[name] = (tr, tr.run(progress=False, probe=p))
+    tr, model = runs["probed"]
+    logged = [(r["step"], r["flip_probe"]) for r in tr.history if math.isfinite(r["flip_probe"])]
+    assert [s for s, _ in logged] == [40, 80, 100], logged
+    assert all(0.0 < f < 1.0 for _, f in logged), logged
+    assert logged[-1][1] == round(probe(model), 5)  # the logged value is the final model's
+    assert not any(math.isfinite(r["flip_probe"]) for r in runs["plain"][0].history)
+    for (k, a), b in zip(model.state_dict().items(), runs["plain"][1].state_dict().values()):
+        assert torch.equal(a, b), k
+    rows = list(csv.DictReader(open(tmp_path / "probed" / "training_curves.csv")))
+    assert [float(r["seconds"]) for r in rows] == sorted(float(r["seconds"]) for r in rows)
