@@ -43,7 +43,7 @@ from mtlx2neural.formats import FORMAT_VERSION
 from mtlx2neural.imaging.resolve import on_disk
 from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
 
-IGNORED_SETTINGS = ("checkpoint_every", "compile")
+IGNORED_SETTINGS = ("checkpoint_every", "compile", "probe_every")  # the same model either way
 TRAINING_VERSION = 2
 """Version of the training targets (module docstring). History: 1, before versions were hashed; 2, the
 LEAN tangent (:mod:`mtlx2neural.textures.parameter_stack` passes each anisotropic lobe's tangent to the

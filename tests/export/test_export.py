@@ -551,6 +551,7 @@ def test_source_hash_follows_the_document_and_the_textures(tmp_path):
     assert h2 != h1
     assert source_hash(find_material(doc, "Red"), preset("fast", iterations=31, batch=256)) != h2
     assert source_hash(find_material(doc, "Red"), preset("fast", iterations=30, batch=256, checkpoint_every=7)) == h2
+    assert source_hash(find_material(doc, "Red"), preset("fast", iterations=30, batch=256, probe_every=3)) == h2
     doc.write_text(doc.read_text().replace('nodename="img" />', 'nodename="img" />\n    '
                                             '<input name="specular_roughness" type="float" value="0.5" />'))
     assert source_hash(find_material(doc, "Red"), TINY) != h2
