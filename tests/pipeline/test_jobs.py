@@ -93,9 +93,9 @@ def count_trainings(monkeypatch) -> list:
 
     runs, original = [], Trainer.run
 
-    def run(self, progress=True, listener=None):
+    def run(self, progress=True, listener=None, probe=None):
         runs.append(self.cfg.decoder)
-        return original(self, progress, listener)
+        return original(self, progress, listener, probe)
 
     monkeypatch.setattr(Trainer, "run", run)
     return runs
