@@ -508,7 +508,7 @@ def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path
     weights = tmp_path / "layered_spheres_neural" / "World.Looks.Plastic" / "neural" / "weights.bin"
     trained = weights.read_bytes()
 
-    def no_training(self, progress=True):
+    def no_training(self, *args, **kwargs):
         raise AssertionError("trained although nothing changed")
 
     with monkeypatch.context() as mp:
