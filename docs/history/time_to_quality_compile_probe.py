@@ -1,11 +1,16 @@
 """Session script: the GlazedCeramic's standard step with the reference's eval/pdf/sample torch.compiled
 (the cone MIS and the lobe directions call them), against eager, one thread, same seed."""
-import sys, time, logging
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2] / "benchmarks"))
+import logging
+import sys
+import time
+from pathlib import Path
+
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 torch.set_num_threads(int(sys.argv[1]) if len(sys.argv) > 1 else 1)
 torch._logging.set_logs(dynamo=logging.ERROR)
-from bench_step_profile import build
+from bench_step_profile import build  # noqa: E402  (after the path insert)
 
 
 class Compiled:
