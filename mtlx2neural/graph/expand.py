@@ -86,6 +86,30 @@ def _drive(root: Step):
     return value
 
 
+TARGET_UNITS = {"distance": "meter"}
+"""The unit a value with a ``unit`` attribute is converted to, per unit type: the distance unit MaterialX's
+viewers give their generators (a ``tiledimage``'s ``realworldtilesize="100, 50" unit="centimeter"`` is
+(1, 0.5)). Values without a ``unit`` attribute, and other unit types, are used as written."""
+
+
+def _in_target_unit(elem: mx.ValueElement, value):
+    """``value`` of ``elem`` converted from its ``unit`` to :data:`TARGET_UNITS` of its ``unittype``
+    (by MaterialX's own linear unit converter and the library's unit definitions)."""
+    unit, kind = elem.getUnit(), elem.getUnitType()
+    target = TARGET_UNITS.get(kind)
+    if not unit or not target or unit == target:
+        return value
+    typedef = elem.getDocument().getUnitTypeDef(kind)
+    if typedef is None:
+        return value
+    try:
+        return mx.LinearUnitConverter.create(typedef).convert(value, unit, target)
+    except (LookupError, mx.Exception) as exc:  # an unknown unit name
+        raise InputError(f"{elem.getDocument().getSourceUri() or '<in-memory document>'}: input "
+                         f"'{elem.getNamePath()}' has unit '{unit}', which is not a {kind} unit of the "
+                         f"MaterialX libraries ({exc}). Use one of their unit names.") from exc
+
+
 def _const_value(elem: mx.ValueElement, mx_type: str, base_dir: str):
     """Python value of a MaterialX value element, in IR constant form."""
     if mx_type == "filename":
@@ -96,6 +120,7 @@ def _const_value(elem: mx.ValueElement, mx_type: str, base_dir: str):
     value = elem.getValue()
     if mx_type == "string" or isinstance(value, str):
         return value
+    value = _in_target_unit(elem, value)
     if isinstance(value, (bool, int, float)):
         return (float(value),)
     if isinstance(value, (mx.Matrix33, mx.Matrix44)):  # row by row, the order of the value string

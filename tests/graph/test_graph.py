@@ -67,6 +67,35 @@ def test_constant_folding_through_stdlib_maths():
     assert compiled.spatial_nodes == []
 
 
+def _scaled_diffuse(value: float, unit: str | None):
+    """A diffuse surface whose colour is ``value`` (a float input with a distance ``unit``) times 0.5."""
+    doc = mx.createDocument()
+    mul = doc.addNode("multiply", "mul", "color3")
+    mul.setInputValue("in1", mx.Color3(0.5, 0.5, 0.5))
+    scale = mul.setInputValue("in2", value, "float")
+    if unit:
+        scale.setUnitType("distance")
+        scale.setUnit(unit)
+    diff = doc.addNode("oren_nayar_diffuse_bsdf", "d", "BSDF")
+    diff.setConnectedNode("color", mul)
+    surf = doc.addNode("surface", "s", "surfaceshader")
+    surf.setConnectedNode("bsdf", diff)
+    doc.addMaterialNode("M", surf)
+    compiled = compile_material(doc, "M")
+    leaf = compiled.program.leaves()[0]
+    return compiled.evaluator.value(compiled.graph[leaf.node].inputs["color"], {})
+
+
+def test_distance_units_convert_to_metres():
+    """A value with ``unit`` converts to metres as MaterialX's viewers set their generators up (80 cm is 0.8,
+    1.6 km is 1600), by MaterialX's own converter; without ``unit`` it is used as written."""
+    torch.testing.assert_close(_scaled_diffuse(80.0, "centimeter"), torch.full((1, 3), 0.4))
+    torch.testing.assert_close(_scaled_diffuse(1.6, "kilometer"), torch.full((1, 3), 800.0))
+    torch.testing.assert_close(_scaled_diffuse(0.8, None), torch.full((1, 3), 0.4))
+    with pytest.raises(InputError, match="furlong"):
+        _scaled_diffuse(1.0, "furlong")
+
+
 def test_textured_material_splits_spatial_subgraph():
     path = shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
                        "standard_surface_wood_tiled.mtlx")

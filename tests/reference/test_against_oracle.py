@@ -46,15 +46,15 @@ NOT_COMPARED = {
     ("chiang_hair_bsdf.mtlx", "test_chiang_hair1_out"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("chiang_hair_surfaceshader.mtlx", "simple_hair_default"): (UnsupportedNodeError, "hair is not a surface BRDF"),
     ("surfacematerial_with_graph.mtlx", "M_EmptySurface"): (InputError, "the material has no surface shader"),
-    # Diagnosed 2026-12-03: at the oracle's one uv (0.5, 0.5) the tiledimage's texcoord is (0.5 * 2 - 0.2) / 1
-    # * (100, 50) = (80, 65), exactly on a texel edge of grid.png where a grid line makes the bilinear value
-    # 0.218 / 0.25 / 0.282 at u = 80 - 1e-4 / 80 / 80 + 1e-4: one float32 ulp of texcoord (7.6e-6) moves the
-    # base weight by ~0.002, so two float32 pipelines that round the texcoord differently differ by ~1% on
-    # every direction. Neither side converts the centimetre tile size (the oracle registers no unit system).
-    # The tiledimage node itself matches MaterialX per point (tests/graph).
+    # Diagnosed 2026-12-03. Both sides convert the centimetre tile size to metres (graph.expand.TARGET_UNITS;
+    # the oracle registers MaterialX's unit system), so the tiledimage's texcoord at the oracle's one uv
+    # (0.5, 0.5) is (0.8, 0.65): 512 and 416 texels into the 640² grid.png, exactly on texel edges where its
+    # grid lines are (without the conversion, (80, 65) tiles: edges too). There the two float32 pipelines'
+    # bilinear lookups differ on ~64% of the directions' values; the tiledimage node itself matches
+    # MaterialX per point (tests/graph), and unit conversion is tested in tests/graph/test_graph.py.
     ("mapped_surfaceshader.mtlx", "UnitMappedShaderMaterial"): (
-        None, "textured: the tiledimage's texcoord at the oracle's uv (0.5, 0.5) is (80, 65), exactly on a "
-              "texel edge of grid.png's grid line, where one float32 ulp of texcoord moves the value by ~1%"),
+        None, "textured: the tiledimage's texcoord at the oracle's uv (0.5, 0.5) falls exactly on texel edges "
+              "of grid.png's grid lines, where the two float32 lookups differ"),
 }
 
 
