@@ -49,9 +49,10 @@ NOT_COMPARED = {
     # Diagnosed 2026-12-03. Both sides convert the centimetre tile size to metres (graph.expand.TARGET_UNITS;
     # the oracle registers MaterialX's unit system), so the tiledimage's texcoord at the oracle's one uv
     # (0.5, 0.5) is (0.8, 0.65): 512 and 416 texels into the 640² grid.png, exactly on texel edges where its
-    # grid lines are (without the conversion, (80, 65) tiles: edges too). There the two float32 pipelines'
-    # bilinear lookups differ on ~64% of the directions' values; the tiledimage node itself matches
-    # MaterialX per point (tests/graph), and unit conversion is tested in tests/graph/test_graph.py.
+    # grid lines are (without the conversion, (80, 65) tiles: edges too). There ~64% of the values differ;
+    # bilinear filtering is continuous across an edge, so float32 rounding alone does not explain it (the
+    # samplers' conventions at exact edges are the suspect, not diagnosed). The tiledimage node itself
+    # matches MaterialX per point (tests/graph); unit conversion is tested in tests/graph/test_graph.py.
     ("mapped_surfaceshader.mtlx", "UnitMappedShaderMaterial"): (
         None, "textured: the tiledimage's texcoord at the oracle's uv (0.5, 0.5) falls exactly on texel edges "
               "of grid.png's grid lines, where the two float32 lookups differ"),
