@@ -47,6 +47,7 @@ from mtlx2neural.oracle.textures import (
     _image_size,
     _Texture,
 )
+from mtlx2neural.oracle.units import use_metres
 
 __all__ = ["generate_oracle_source"]
 
@@ -123,22 +124,12 @@ def _generate_pixel_shader(document, material: str):
     cms = mxgen.DefaultColorManagementSystem.create(gen.getTarget())
     cms.loadLibrary(doc)
     gen.setColorManagementSystem(cms)
-    # Units as MaterialX's viewers set them up: values with a distance unit converted to metres
-    # (graph.expand.TARGET_UNITS does the same on the reference's side).
-    units = mxgen.UnitSystem.create(gen.getTarget())
-    registry = mx.UnitConverterRegistry.create()
-    distance = doc.getUnitTypeDef("distance")
-    if distance is not None:
-        registry.addUnitConverter(distance, mx.LinearUnitConverter.create(distance))
-    units.setUnitConverterRegistry(registry)
-    units.loadLibrary(doc)
-    gen.setUnitSystem(units)
     ctx = mxgen.GenContext(gen)
+    use_metres(gen, ctx, doc)  # distance units as MaterialX's viewers convert them
     ctx.registerSourceCodeSearchPath(mx.FileSearchPath(str(_library_root())))
     opts = ctx.getOptions()
     opts.hwSpecularEnvironmentMethod = mxgen.HwSpecularEnvironmentMethod.SPECULAR_ENVIRONMENT_NONE
     opts.hwSrgbEncodeOutput = False
-    opts.targetDistanceUnit = "meter"
     opts.hwTransparency = False
     opts.hwShadowMap = False
     opts.hwAmbientOcclusion = False
