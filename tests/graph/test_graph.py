@@ -55,16 +55,21 @@ def test_constant_folding_through_stdlib_maths():
     mul = doc.addNode("multiply", "mul", "color3")
     mul.setConnectedNode("in1", a)
     mul.setInputValue("in2", 0.5, "float")
+    compiled, color = _diffuse_of(doc, mul)
+    torch.testing.assert_close(color, torch.tensor([[0.1, 0.2, 0.3]]))  # folded at compile time
+    assert compiled.spatial_nodes == []
+
+
+def _diffuse_of(doc: mx.Document, colour: mx.Node):
+    """Material M of ``doc``: a diffuse BSDF whose colour is ``colour``; (compiled, its colour value)."""
     diff = doc.addNode("oren_nayar_diffuse_bsdf", "d", "BSDF")
-    diff.setConnectedNode("color", mul)
+    diff.setConnectedNode("color", colour)
     surf = doc.addNode("surface", "s", "surfaceshader")
     surf.setConnectedNode("bsdf", diff)
     doc.addMaterialNode("M", surf)
     compiled = compile_material(doc, "M")
     leaf = compiled.program.leaves()[0]
-    color = compiled.evaluator.value(compiled.graph[leaf.node].inputs["color"], {})
-    torch.testing.assert_close(color, torch.tensor([[0.1, 0.2, 0.3]]))  # folded at compile time
-    assert compiled.spatial_nodes == []
+    return compiled, compiled.evaluator.value(compiled.graph[leaf.node].inputs["color"], {})
 
 
 def _scaled_diffuse(value: float, unit: str | None):
@@ -76,14 +81,7 @@ def _scaled_diffuse(value: float, unit: str | None):
     if unit:
         scale.setUnitType("distance")
         scale.setUnit(unit)
-    diff = doc.addNode("oren_nayar_diffuse_bsdf", "d", "BSDF")
-    diff.setConnectedNode("color", mul)
-    surf = doc.addNode("surface", "s", "surfaceshader")
-    surf.setConnectedNode("bsdf", diff)
-    doc.addMaterialNode("M", surf)
-    compiled = compile_material(doc, "M")
-    leaf = compiled.program.leaves()[0]
-    return compiled.evaluator.value(compiled.graph[leaf.node].inputs["color"], {})
+    return _diffuse_of(doc, mul)[1]
 
 
 def test_distance_units_convert_to_metres():
