@@ -155,15 +155,23 @@ def texcoord_set_names(index: int) -> tuple[str, ...]:
     return (f"st{index}", f"uv{index}", f"UV{index}", f"map{index + 1}")
 
 
+def reads_other_uv_set(node: IRNode) -> bool:
+    """Whether ``node`` reads texture coordinates of a UV set that may not be the layout's: a ``texcoord``
+    node of index > 0, or a vector2 ``geompropvalue`` of a primvar that is not one of the default UV names."""
+    gp = node.inputs.get("geomprop")
+    return (node.category == "texcoord" and texcoord_index(node) != 0) or (
+        node.category == "geompropvalue" and node.type == "vector2" and isinstance(gp, Const)
+        and isinstance(gp.value, str) and gp.value not in UV_PRIMVARS)
+
+
 def secondary_texcoords(graph: IRGraph, nodes) -> list[int]:
     """The live ``texcoord`` nodes among ``nodes`` that read a UV set other than index 0."""
-    return [i for i in nodes if graph[i].category == "texcoord" and texcoord_index(graph[i]) != 0]
+    return [i for i in nodes if graph[i].category == "texcoord" and reads_other_uv_set(graph[i])]
 
 
 def image_uv_readers(graph: IRGraph, nodes) -> list[tuple[int, int]]:
     """(consumer, reader) for every node among ``nodes`` with a ``texcoord`` input whose value comes (through
-    any maths) from a ``texcoord`` node of index > 0 or a vector2 ``geompropvalue`` of a primvar that is not
-    one of the default UV names."""
+    any maths) from a node that :func:`reads_other_uv_set`."""
     live, found = set(nodes), []
     for c in nodes:
         root = graph[c].inputs.get("texcoord")
@@ -173,13 +181,9 @@ def image_uv_readers(graph: IRGraph, nodes) -> list[tuple[int, int]]:
             if i in seen or i not in live:
                 continue
             seen.add(i)
-            n = graph[i]
-            gp = n.inputs.get("geomprop")
-            if (n.category == "texcoord" and texcoord_index(n) != 0) or (
-                    n.category == "geompropvalue" and n.type == "vector2" and isinstance(gp, Const)
-                    and isinstance(gp.value, str) and gp.value not in UV_PRIMVARS):
+            if reads_other_uv_set(graph[i]):
                 found.append((c, i))
-            stack.extend(v.node for v in n.inputs.values() if isinstance(v, Ref))
+            stack.extend(v.node for v in graph[i].inputs.values() if isinstance(v, Ref))
     return sorted(found)
 
 
@@ -196,7 +200,8 @@ def check_uv_sets(compiled, source) -> None:
     naming the material, the node and the set, on the sphere, for a set a mesh lacks, and for a UDIM
     texture read through another set."""
     graph, nodes = compiled.graph, compiled.spatial_nodes
-    readers = sorted(set(secondary_texcoords(graph, nodes)) | {r for _, r in image_uv_readers(graph, nodes)})
+    textures = image_uv_readers(graph, nodes)
+    readers = sorted(set(secondary_texcoords(graph, nodes)) | {r for _, r in textures})
     if not readers:
         return
     layout = sorted({v for v in source.uv_sets().values() if v})
@@ -222,7 +227,7 @@ def check_uv_sets(compiled, source) -> None:
         node.attrs["primvar"] = primvar
         if primvar in layout:
             node.attrs["layout_uv"] = "1"
-    for c, i in image_uv_readers(graph, nodes):
+    for c, i in textures:
         f = graph[c].inputs.get("file")
         if not graph[i].attrs.get("layout_uv") and isinstance(f, Const) and "<UDIM>" in str(f.value):
             raise _uv_set_error(compiled, graph[i], f"UV set '{graph[i].attrs['primvar']}'", (
@@ -236,9 +241,7 @@ def bind_geometry(compiled, stage_file: str | None = None, prims=()) -> str | No
     (also added to the program's notes), or None when the graph reads no geometry (nothing is bound).
     InputError when another UV set a texture reads cannot be bound (:func:`check_uv_sets`)."""
     source = GeometrySource(stage_file, prims)
-    if secondary_texcoords(compiled.graph, compiled.spatial_nodes) or image_uv_readers(compiled.graph,
-                                                                                       compiled.spatial_nodes):
-        check_uv_sets(compiled, source)  # binds the texcoord nodes of other UV sets to their primvars
+    check_uv_sets(compiled, source)  # binds the texcoord nodes of other UV sets to their primvars
     reads = geometry_reads(compiled.graph, compiled.spatial_nodes, compiled.evaluator.frame_bound)
     if not reads:
         return None

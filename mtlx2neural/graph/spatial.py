@@ -23,15 +23,14 @@ from mtlx2neural.imaging.image_io import Texture
 from mtlx2neural.imaging.texel_lookup import conform_channels
 
 SPATIAL = {"texcoord", "position", "geomcolor", "geompropvalue", "image"}
+FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
+UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
 
 
 def texcoord_index(node) -> int:
-    """The UV set a ``texcoord`` node reads (its constant ``index`` input; 0 when absent)."""
-    inp = node.inputs.get("index")
-    value = getattr(inp, "value", None)
-    return int(value[0]) if isinstance(value, tuple) and value else int(value) if isinstance(value, (int, float)) else 0
-FRAME_AXES = {"normal": (0.0, 0.0, 1.0), "tangent": (1.0, 0.0, 0.0), "bitangent": (0.0, 1.0, 0.0)}
-UV_PRIMVARS = {"st", "uv", "UV0", "uv0", "map1", "st0"}
+    """The UV set a ``texcoord`` node reads (its constant ``index`` input, an IR constant tuple; 0 when absent)."""
+    value = getattr(node.inputs.get("index"), "value", None)
+    return int(value[0]) if isinstance(value, tuple) and value else 0
 
 
 @functools.lru_cache(maxsize=256)
