@@ -68,6 +68,11 @@ class TrainConfig:
     instead of one per level: the same targets' estimator, about half the data time on a 256² grid
     (BENCHMARKS.md, "Time to quality"). On by default since 2026-12-03 (the `fast` preset on every
     sample, both ways, in BENCHMARKS.md); False is the per-level loop, kept for that comparison."""
+    target_reuse: int = field(default=1, metadata={"metavar": "K"})
+    """Steps each training row (its directions, point and reference target) is trained on: each step
+    draws a K-th of the batch fresh and reuses the rest from the K - 1 steps before
+    (:mod:`mtlx2neural.train.replay`), so the reference is called for a K-th of the rows. 1: every row
+    fresh, the paper's loop."""
     level_rate: float = 1.0
     """Level distribution P(k) ~ exp(-rate k): larger favours fine levels more."""
     albedo_head: bool = False
@@ -134,7 +139,7 @@ def preset(name: str, **overrides) -> TrainConfig:
 
 
 _COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples": 1, "checkpoint_every": 1,
-           "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0}
+           "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0, "target_reuse": 1}
 """Integer settings and their smallest valid value."""
 _SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction")
 """Settings that are a share of something, in [0, 1]."""
@@ -162,6 +167,8 @@ def validate_config(cfg: TrainConfig, allow_untrained: bool = False) -> None:
         v = getattr(cfg, name)
         if isinstance(v, bool) or not isinstance(v, int) or v < least:
             raise bad(name, f"must be a whole number of at least {least}")
+    if cfg.target_reuse > cfg.batch:
+        raise bad("target_reuse", f"must be at most the batch ({cfg.batch}): each step draws a K-th of it fresh")
     if cfg.iterations == 0 and not allow_untrained:
         raise bad("iterations", "0 steps would export an untrained network; give at least 1, or pass "
                                 "--allow-untrained (allow_untrained=True) to export one on purpose")

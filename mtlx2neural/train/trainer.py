@@ -45,6 +45,7 @@ from mtlx2neural.train.directions import (
 )
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.mollify import cone_mean, lobe_directions
+from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
 UNIFORM_PDF = 1.0 / (2.0 * math.pi)
@@ -123,6 +124,7 @@ class Trainer:
         self.history: list[dict] = []
         self.clipped_steps = 0
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
+        self.replay = RowReplay(cfg.batch, cfg.target_reuse)
         # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md, "Training throughput"); it costs
         # tens of seconds of compilation, so only the long presets turn it on.
         if cfg.compile:
@@ -143,7 +145,8 @@ class Trainer:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         _atomic_save({"model": self.model.state_dict(), "opt": self.opt.state_dict(), "step": self.step,
                       "baked": self.baked, "history": self.history, "config": dataclasses.asdict(self.cfg),
-                      "rng": self.gen.get_state(), "udim_tiles": self.tiles}, self.checkpoint_path)
+                      "rng": self.gen.get_state(), "udim_tiles": self.tiles,
+                      "replay": self.replay.state_dict()}, self.checkpoint_path)
         self._write_curves()
 
     def resume(self) -> bool:
@@ -155,6 +158,7 @@ class Trainer:
         self.step, self.baked, self.history = ck["step"], ck["baked"], ck["history"]
         self.clipped_steps = self.history[-1].get("clipped_steps", 0) if self.history else 0
         self.gen.set_state(ck["rng"])
+        self.replay.load_state_dict(ck.get("replay"), self.device)
         return True
 
     def _write_curves(self) -> None:
@@ -256,21 +260,25 @@ class Trainer:
                 else:
                     lv.copy_(self.model.encoder(torch.zeros(1, 0)).T.reshape(lv.shape[-3:]).expand_as(lv))
 
-    def train_step(self) -> dict:
+    def draw_rows(self, batch: int) -> tuple[torch.Tensor, ...]:
+        """Fresh training rows for a BRDF batch of ``batch``: ``(uv, level, wi, wo, target)`` with
+        ``batch`` plus ``grazing_fraction * batch`` rows (uv in [0,1]^2, or over the UDIM tiles; level a
+        pyramid index; wi/wo unit vectors in the local shading frame; target [N,3] the footprint-filtered,
+        mollified reference BRDF f without the cosine, linear RGB)."""
         cfg, g, dev = self.cfg, self.gen, self.device
-        n_graze = round(cfg.grazing_fraction * cfg.batch)
-        b = cfg.batch + n_graze
+        n_graze = round(cfg.grazing_fraction * batch)
+        b = batch + n_graze
         uv = draw_uv(b, self.tiles, g).to(dev)
         level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
             else torch.zeros(b, dtype=torch.long, device=dev)
         wi, wo = half_difference_pairs(b, g, dev)
         if n_graze > 0:  # extra rows whose viewer is near the horizon (their wo stays as drawn, above it)
-            wi = torch.cat([wi[:cfg.batch], grazing_directions(n_graze, GRAZING_MAX_COS, g, dev)])
+            wi = torch.cat([wi[:batch], grazing_directions(n_graze, GRAZING_MAX_COS, g, dev)])
         # Rows whose wo is redrawn near the reference's lobes (uv, levels and wi are random already):
         # the first of the batch, and a share of the grazing rows (the coat's spike at a low viewer).
-        n_lobe = round(cfg.lobe_fraction * cfg.batch)
+        n_lobe = round(cfg.lobe_fraction * batch)
         n_graze_lobe = round(GRAZING_LOBE_SHARE * n_graze) if n_lobe else 0
-        rows = torch.cat([torch.arange(n_lobe, device=dev), cfg.batch + torch.arange(n_graze_lobe, device=dev)])
+        rows = torch.cat([torch.arange(n_lobe, device=dev), batch + torch.arange(n_graze_lobe, device=dev)])
         if len(rows) > 0:
             with torch.no_grad():
                 ws, ok = lobe_directions(self.ref, wi[rows], self.mollify_angle(), g,
@@ -278,6 +286,12 @@ class Trainer:
             wo = wo.index_copy(0, rows, torch.where(ok[:, None], ws, wo[rows]))
         with torch.no_grad():
             target = self._targets(wi, wo, uv, level)
+        return uv, level, wi, wo, target
+
+    def train_step(self) -> dict:
+        cfg, g, dev = self.cfg, self.gen, self.device
+        uv, level, wi, wo, target = self.replay.batch(self.draw_rows)
+        b = wi.shape[0]
         latent = self._latent(uv, level)
         u_kl = torch.rand(b, 3, generator=g).to(dev)
         loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, latent, wi, wo, target, u_kl)

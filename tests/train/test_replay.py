@@ -1,0 +1,99 @@
+"""Training rows reused over consecutive steps (train/replay.py, TrainConfig.target_reuse)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+import mtlx2neural as m2n
+from mtlx2neural.errors import InputError
+from mtlx2neural.textures.parameter_stack import build_parameter_stack
+from mtlx2neural.train.config import preset, validate_config
+from mtlx2neural.train.replay import RowReplay
+from mtlx2neural.train.trainer import Trainer, TrainingInterrupted
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda"
+
+
+class Counter:
+    """draw(n): rows numbered in the order they were drawn, plus one extra row per 4 (like grazing rows)."""
+
+    def __init__(self):
+        self.next, self.sizes = 0, []
+
+    def __call__(self, n):
+        self.sizes.append(n)
+        m = n + n // 4
+        ids = torch.arange(self.next, self.next + m)
+        self.next += m
+        return ids, ids.float() * 2
+
+
+def test_every_row_is_trained_on_in_k_consecutive_steps():
+    replay, draw = RowReplay(10, 3), Counter()
+    seen: dict[int, list[int]] = {}
+    for step in range(12):
+        ids, doubled = replay.batch(draw)
+        assert torch.equal(doubled, ids.float() * 2)  # fields stay row-aligned
+        assert len(ids) == len(set(ids.tolist()))
+        for i in ids.tolist():
+            seen.setdefault(i, []).append(step)
+    # First call: the whole batch in three chunks (4 + 3 + 3 rows); then one chunk per step, oldest first.
+    assert draw.sizes == ([4, 3, 3] * 5)[:3 + 11]
+    checked = 0
+    for i, steps in seen.items():
+        if 1 <= steps[0] <= 11 - 2:  # drawn after the first call, and with three steps left to live
+            assert steps == [steps[0], steps[0] + 1, steps[0] + 2], (i, steps)
+            checked += 1
+    assert checked == 3 * (5 + 3 + 3)  # steps 1-9 redraw chunks of 4, 3, 3 rows (+1 extra per 4)
+
+
+def test_reuse_one_draws_the_whole_batch_every_step():
+    replay, draw = RowReplay(8, 1), Counter()
+    a, _ = replay.batch(draw)
+    b, _ = replay.batch(draw)
+    assert draw.sizes == [8, 8] and not set(a.tolist()) & set(b.tolist())
+    with pytest.raises(ValueError, match="between 1 and the batch"):
+        RowReplay(8, 9)
+
+
+def test_reuse_is_validated_against_the_batch():
+    validate_config(preset("fast", batch=64, target_reuse=64))
+    for bad in (0, 65):
+        with pytest.raises(InputError, match="target_reuse"):
+            validate_config(preset("fast", batch=64, target_reuse=bad))
+
+
+@pytest.fixture(scope="module")
+def carpaint():
+    ref = m2n.load_reference(SAMPLE, "/World/Looks/CarPaint")
+    return ref, build_parameter_stack(ref.compiled, resolution=(1, 1))
+
+
+def test_the_reference_sees_a_kth_of_the_rows(carpaint, tmp_path):
+    ref, stack = carpaint
+    tr = Trainer(ref, stack, preset("fast", iterations=8, batch=256, target_reuse=4, seed=3), tmp_path)
+    rows = []
+    real = tr._targets
+    tr._targets = lambda wi, *rest: rows.append(wi.shape[0]) or real(wi, *rest)
+    tr.run(progress=False)
+    assert rows == [64] * 4 + [64] * 7  # the first step fills the ring, then one chunk per step
+
+
+def test_resume_continues_with_the_same_rows(carpaint, tmp_path, monkeypatch):
+    """Interrupted and resumed equals uninterrupted, bit for bit: the ring is in the checkpoint."""
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=12, batch=128, target_reuse=3, checkpoint_every=1000, seed=4)
+    straight = Trainer(ref, stack, cfg, tmp_path / "a").run(progress=False).state_dict()
+    tr = Trainer(ref, stack, cfg, tmp_path / "b")
+    real_step = tr.train_step
+    monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == 5
+                        else real_step())
+    with pytest.raises(TrainingInterrupted):
+        tr.run(progress=False)
+    again = Trainer(ref, stack, cfg, tmp_path / "b")
+    assert again.resume() and again.step == 5
+    resumed = again.run(progress=False).state_dict()
+    assert all(torch.equal(straight[k], resumed[k]) for k in straight)
