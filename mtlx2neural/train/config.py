@@ -63,9 +63,11 @@ class TrainConfig:
     takes one pair per footprint point)."""
     footprint_samples: int = 16
     """Cap on reference samples (a Latin hypercube over the footprint) per footprint-filtered target
-    (fast and standard: 4). Fewer points make each target noisier, not biased, and each step cheaper:
-    on the textured GlazedCeramic 4 points instead of 16 take a `fast` run from 159 s to 60 s at
-    about the same FLIP (BENCHMARKS.md, "Time to quality")."""
+    (fast and standard: 8). Fewer points make each step cheaper and each target noisier. At 4 points
+    the textured BrushedMetal stalls at a higher error (HDR FLIP 0.18 after 2000 steps, against
+    0.16-0.17 after 1000 with 8 points), probably because the log-L1 loss learns the targets' median,
+    which is below their mean where a footprint holds a few bright points. 8 points take 35-40 % less
+    time than 16 at the same FLIP within the seeds' spread (BENCHMARKS.md, "Time to quality")."""
     footprint_one_call: bool = True
     """Evaluate a textured material's footprint points of every level in one reference call per step
     instead of one per level: the same targets' estimator, about half the data time on a 256² grid
@@ -108,7 +110,7 @@ class TrainConfig:
 
 _FAST = TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
                     mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, preview_iterations=100,
-                    probe_every=100, footprint_samples=4)
+                    probe_every=100, footprint_samples=8)
 
 PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
@@ -119,12 +121,12 @@ PRESETS = {
     # grazing energy (CarPaint: albedo 0.19 instead of 0.81 at 5 degrees elevation). More lobe
     # directions overshoot at grazing angles (docs/history/BENCHMARKS-2026-12-01.md has the sweep).
     "fast": _FAST,
-    # fast and standard average 4 footprint points per textured target, not 16: a step 2.7x cheaper,
-    # and in equal time more steps win (GlazedCeramic, seeds 0 / 1: 8000 steps in 494 / 496 s on one
-    # thread reach HDR FLIP 0.045 / 0.047, against 0.049 / 0.048 in 31-33 min with 16 points;
-    # docs/history/time-to-quality-2026-12-03.md, section 8).
+    # fast and standard average 8 footprint points per textured target, not 16: a step 1.5x cheaper at
+    # the same FLIP (GlazedCeramic, BrushedMetal); 4 points are cheaper still and reach the
+    # GlazedCeramic's 0.05 in 8.2 min, but stall the BrushedMetal at a higher error
+    # (docs/history/time-to-quality-2026-12-03.md, section 8).
     # standard: fast's settings for 8x the steps, the CPU's quality setting (one thread: about 8 min
-    # for a uniform material or a 256² textured one). On the sample CarPaint (3x64,
+    # for a uniform material, about 14 for a 256² textured one). On the sample CarPaint (3x64,
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
