@@ -110,3 +110,17 @@ def usd_quad_reading_position(space: str = "object") -> str:
             '                uniform token info:id = "ND_standard_surface_surfaceshader"\n'
             '                color3f inputs:base_color.connect = </World/Looks/M/C.outputs:out>\n'
             '                token outputs:surface\n            }\n        }\n    }\n}\n')
+
+
+def layered_spheres_material(name: str):
+    """The bundled ``samples/layered_spheres.usda`` material ``/World/Looks/<name>`` (a uniform one:
+    CarPaint or Plastic) as ``(reference, 1x1 parameter stack)``, ready for a Trainer."""
+    # Local imports: the rest of this module writes documents and needs neither torch nor MaterialX.
+    from pathlib import Path
+
+    import mtlx2neural as m2n
+    from mtlx2neural.textures.parameter_stack import build_parameter_stack
+
+    ref = m2n.load_reference(Path(__file__).resolve().parents[1] / "samples" / "layered_spheres.usda",
+                             f"/World/Looks/{name}")
+    return ref, build_parameter_stack(ref.compiled, resolution=(1, 1))

@@ -2,19 +2,19 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 import torch
+from materials import layered_spheres_material
 
-import mtlx2neural as m2n
 from mtlx2neural.errors import InputError
-from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset, validate_config
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.trainer import Trainer, TrainingInterrupted
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda"
+
+@pytest.fixture(scope="module")
+def carpaint():
+    return layered_spheres_material("CarPaint")
 
 
 class Counter:
@@ -64,12 +64,6 @@ def test_reuse_is_validated_against_the_batch():
     for bad in (0, 65):
         with pytest.raises(InputError, match="target_reuse"):
             validate_config(preset("fast", batch=64, target_reuse=bad))
-
-
-@pytest.fixture(scope="module")
-def carpaint():
-    ref = m2n.load_reference(SAMPLE, "/World/Looks/CarPaint")
-    return ref, build_parameter_stack(ref.compiled, resolution=(1, 1))
 
 
 def test_the_reference_sees_a_kth_of_the_rows(carpaint, tmp_path):

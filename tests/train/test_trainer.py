@@ -4,23 +4,19 @@ from __future__ import annotations
 
 import csv
 import math
-from pathlib import Path
 
 import pytest
 import torch
+from materials import layered_spheres_material
 
-import mtlx2neural as m2n
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.trainer import Trainer, TrainingInterrupted
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda"
-
 
 @pytest.fixture(scope="module")
 def carpaint():
-    ref = m2n.load_reference(SAMPLE, "/World/Looks/CarPaint")
-    return ref, build_parameter_stack(ref.compiled, resolution=(1, 1))
+    return layered_spheres_material("CarPaint")
 
 
 def test_training_reduces_loss_and_writes_checkpoints(carpaint, tmp_path):
