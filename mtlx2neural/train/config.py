@@ -126,7 +126,7 @@ PRESETS = {
     # GlazedCeramic's 0.05 in 8.2 min, but stall the BrushedMetal at a higher error
     # (docs/history/time-to-quality-2026-12-03.md, section 8).
     # standard: fast's settings for 8x the steps, the CPU's quality setting (one thread: about 8 min
-    # for a uniform material, about 14 for a 256² textured one). On the sample CarPaint (3x64,
+    # for a uniform material, about 11 for a 256² textured one). On the sample CarPaint (3x64,
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
