@@ -48,8 +48,9 @@ class RowReplay:
         return {"ring": [tuple(t.cpu() for t in rows) for rows in self.ring], "oldest": self.oldest}
 
     def load_state_dict(self, state: dict | None, device) -> None:
-        ring = (state or {}).get("ring", [])
-        if len(ring) not in (0, self.reuse):  # a checkpoint from another setting: start afresh
+        state = state or {}
+        ring = state.get("ring", [])
+        if len(ring) != self.reuse:  # none saved (K = 1, an older checkpoint) or another K: start afresh
             ring = []
         self.ring = [tuple(t.to(device) for t in rows) for rows in ring]
-        self.oldest = (state or {}).get("oldest", 0) if self.ring else 0
+        self.oldest = state.get("oldest", 0) if self.ring else 0
