@@ -20,6 +20,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mtlx2neural"
 LAYERS: list[tuple[str, ...]] = [
     ("version",),
     ("errors",),
+    ("faults",),
+    ("file_lock",),
     ("atomic",),
     ("progress",),
     ("staging",),

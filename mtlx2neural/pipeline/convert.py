@@ -101,6 +101,7 @@ from mtlx2neural.scene import find_material, load_asset
 from mtlx2neural.scene.dependencies import input_files
 from mtlx2neural.scene.snapshot import flatten, unsaved_layers, write_snapshot
 from mtlx2neural.scene.usd_stage import is_stage, stage_name
+from mtlx2neural.staging import recover as recover_staging
 from mtlx2neural.train.config import PRESETS, TrainConfig
 from mtlx2neural.version import __version__
 
@@ -338,6 +339,8 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
     source, flat = _stage_source(stage, layout) if stage is not None else (scene.asset, None)
     if flat is not None:  # the materials' networks are reloaded from the snapshot (report, render)
         sources = [dataclasses.replace(s, source_file=str(source)) if s.network else s for s in sources]
+    for root in {layout.layer.parent, layout.folder}:  # a commit a crash interrupted: settled before reading
+        recover_staging(root)
     record = check_output(layout, source, inputs, folders)
     # 4. plans (compiling every graph surfaces bad documents) and --resume compatibility
     plans = plan_materials(sources, cfg, options.allow_missing_textures, options.max_error,
