@@ -287,6 +287,9 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         summary["application"] = {"frame": app.frame, "fps": app.fps, "time": app.time,
                                    "nodes": list(compiled.reads_application)}
     summary.update(extra)
+    flip_notes = sorted({f"view {e['view']}: {e['flip_note']}" for e in errors if e.get("flip_note")})
+    if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
+        summary["warnings"] = list(summary.get("warnings", [])) + [f"HDR FLIP: {n}" for n in flip_notes]
     write_summary(folder, summary)
     return model, summary
 

@@ -41,6 +41,7 @@ import torch.nn.functional as F
 
 from mtlx2neural.render.geometry import Mesh, PinholeCamera, framing_camera
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
+from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.renderer import image_errors, render_scene
 
 RES = 96
@@ -154,8 +155,6 @@ def compare_in_scene(reference, models: dict, texels: tuple[int, int], scene: In
     the meshes; ``seconds`` the wall time of the reference render and this model's, with the errors).
     When the reference render is black everywhere (nothing lit, or back faces only) the FLIP figures
     are NaN: there is nothing to measure."""
-    import flip_evaluator
-
     env = any(isinstance(li, EnvironmentMap) for li in scene.lights)
 
     def draw(material):
@@ -172,11 +171,10 @@ def compare_in_scene(reference, models: dict, texels: tuple[int, int], scene: In
         test = draw(model)
         if float(ref.max()) > 0:
             errors = image_errors(ref, test)
-            raw, _, _ = flip_evaluator.evaluate(np.clip(ref, 0, None), np.clip(test, 0, None), "HDR",
-                                                applyMagma=False)
+            raw, _, _ = hdr_flip(ref, test, apply_magma=False)
             shown = (ref.sum(-1) > 0) | (test.sum(-1) > 0)
             flip = float(raw[..., 0][shown].mean())
-        else:  # nothing lit in the reference: flip_evaluator would end the process (no exposure range)
+        else:  # nothing lit in the reference: nothing to measure
             errors = {"flip": math.nan, "flip_map": np.zeros_like(ref), "mae": float(np.abs(test - ref).mean()),
                       "relmse": math.nan}
             flip = math.nan

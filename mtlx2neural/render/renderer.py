@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from mtlx2neural.contract import Material, ShadingPoint
+from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.geometry import (
     Camera,
     Hits,
@@ -178,16 +179,18 @@ def _bsdf_sample(material: Material, sampler: Material, env, frame, wi, u, at: S
 
 
 def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
-    """HDR FLIP (mean, and flip-evaluator's colour-mapped error map), mean absolute error and
+    """HDR FLIP (mean, and flip-evaluator's colour-mapped error map; :func:`.flip.hdr_flip`, safe for
+    black or non-finite images, whose ``flip_note`` says what it did), mean absolute error and
     relative MSE (eps 1e-2)."""
-    import flip_evaluator
-
-    fmap, mean, _ = flip_evaluator.evaluate(np.clip(ref, 0, None), np.clip(test, 0, None), "HDR")
+    fmap, mean, note = hdr_flip(ref, test)
     rel = ((test - ref) ** 2 / (ref ** 2 + 1e-2)).mean()
-    return {"flip": float(mean), "flip_map": fmap, "mae": float(np.abs(test - ref).mean()), "relmse": float(rel)}
+    out = {"flip": float(mean), "flip_map": fmap, "mae": float(np.abs(test - ref).mean()), "relmse": float(rel)}
+    if note:
+        out["flip_note"] = note
+    return out
 
 
-RESERVED = ("view", "reference", "flip", "flip_map", "mae", "relmse")
+RESERVED = ("view", "reference", "flip", "flip_map", "flip_note", "mae", "relmse")
 """Keys of compare's per-view dicts that a material's label cannot take."""
 
 
