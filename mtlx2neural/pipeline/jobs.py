@@ -52,6 +52,7 @@ from mtlx2neural.baseline.analytic_model import (
     save_analytic,
 )
 from mtlx2neural.errors import InputError, Mtlx2NeuralError
+from mtlx2neural.faults import fault_point
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
@@ -485,6 +486,7 @@ def run_job(job: MaterialJob) -> dict:
     if job.progress_queue is not None:
         q, i = job.progress_queue, job.index
         _LISTENER = lambda step, total, rec: q.put((i, step, total, rec["loss_brdf"], rec["phase"]))  # noqa: E731
+    fault_point("job", job.name)  # tests: a worker that dies abruptly (mtlx2neural.faults)
     src = job.source()
     device = resolve_device(job.device)
     folder = Path(tempfile.mkdtemp(prefix="mtlx2neural_")) if job.ship else Path(job.folder)

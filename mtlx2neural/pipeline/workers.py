@@ -4,7 +4,10 @@ Training one material is independent of training another, so every material is
 one :class:`MaterialJob`, run by one function, :func:`run_job`, wherever it runs:
 
 - ``workers=1``: in this process, one after another, with a progress bar each;
-- ``workers=N`` (N > 1): a local ``ProcessPoolExecutor`` with the ``spawn`` context.
+- ``workers=N`` (N > 1): a local ``ProcessPoolExecutor`` with the ``spawn`` context. A worker
+  process that dies (a native library's ``exit()``, a crash, a kill) fails only its own
+  material: the jobs its broken pool still held run again, each in a process of its own
+  (:func:`_run_pool`).
   Each worker gets ``cpus // N`` torch threads (at least 1), set both through
   ``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` at spawn time and ``torch.set_num_threads``:
   torch's OpenMP kernels collapse (100x) when more threads than free cores compete
@@ -154,10 +157,17 @@ def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
     return _run_pool(jobs, n, report, failed)
 
 
-def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict | None]:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+class WorkerDied(RuntimeError):
+    """The process training a material ended without an answer (a native library's ``exit()`` or
+    ``abort()``, a crash, a kill): that material's failure, never the others'."""
 
+
+def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict | None]:
+    """Run ``jobs`` in a pool of ``n`` spawned processes. A process that dies breaks the pool and
+    with it every job the pool still held, so those jobs run again, each in a process of its own
+    (``n`` at a time): a job whose own process dies there is the one that killed its worker, and
+    fails alone with :class:`WorkerDied`."""
+    import multiprocessing
 
     n = min(n, len(jobs))
     threads = max(1, available_cpus() // n)
@@ -172,29 +182,57 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict |
             for i, j in enumerate(jobs)]
     results: list[dict | None] = [None] * len(jobs)
     errors: list[tuple[int, BaseException]] = []
-    with _thread_env(threads):
-        ex = ProcessPoolExecutor(n, mp_context=ctx,
-                                 initializer=init_pool_worker, initargs=(threads,))
-        try:
-            futures = {ex.submit(run_job, j): i for i, j in enumerate(jobs)}
-            for f in as_completed(futures):
-                i = futures[f]
-                if f.exception() is not None:
-                    errors.append((i, f.exception()))
-                    continue
+    try:
+        with _thread_env(threads):
+            broken = _pool_round(jobs, list(range(len(jobs))), n, threads, ctx, results, errors, report)
+            if broken:
+                if jobs[0].progress or bars:
+                    print(f"a worker process died; training {len(broken)} material(s) it held again, each in a "
+                          f"process of its own", flush=True)
+                for start in range(0, len(broken), n):  # n single-process pools at a time
+                    chunk = broken[start:start + n]
+                    lost = _pool_round(jobs, chunk, 1, threads, ctx, results, errors, report, isolated=True)
+                    errors.extend((i, WorkerDied(
+                        f"the process training {jobs[i].name} ended abruptly (a native library's exit() or "
+                        f"abort(), a crash, or a kill); the other materials were not affected")) for i in lost)
+    finally:
+        if bars:
+            bars.close()
+    _settle(sorted(errors, key=lambda e: e[0]), failed)
+    return results
+
+
+def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolated: bool = False) -> list[int]:
+    """Run ``jobs[i]`` for ``i`` in ``indices`` in one pool of ``n`` processes (``isolated``: one pool
+    per job); fills ``results``/``errors``; returns the indices whose pool broke under them."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    pools = [ProcessPoolExecutor(n, mp_context=ctx, initializer=init_pool_worker, initargs=(threads,))
+             for _ in (indices if isolated else [None])]
+    broken = []
+    try:
+        futures = {pools[k if isolated else 0].submit(run_job, jobs[i]): i for k, i in enumerate(indices)}
+        for f in as_completed(futures):
+            i = futures[f]
+            exc = f.exception()
+            if isinstance(exc, BrokenProcessPool):
+                broken.append(i)
+            elif exc is not None:
+                errors.append((i, exc))
+            else:
                 results[i] = f.result()
                 if report:
                     report(i, results[i])
-        except KeyboardInterrupt:
+    except KeyboardInterrupt:
+        for ex in pools:
             ex.shutdown(wait=True, cancel_futures=True)  # running jobs save their checkpoints
-            raise TrainingInterrupted("interrupted; finished materials and checkpoints are saved in their "
-                                      "folders (rerun with --resume)") from None
-        finally:
+        raise TrainingInterrupted("interrupted; finished materials and checkpoints are saved in their "
+                                  "folders (rerun with --resume)") from None
+    finally:
+        for ex in pools:
             ex.shutdown(wait=True)
-            if bars:
-                bars.close()
-    _settle(sorted(errors, key=lambda e: e[0]), failed)
-    return results
+    return sorted(broken)
 
 
 class _PoolBars:
