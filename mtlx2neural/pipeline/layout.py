@@ -37,6 +37,7 @@ from pathlib import Path
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.export.usd_writer import LEGACY_DOC_PREFIX, RECORD_KEY
+from mtlx2neural.pipeline.output_safety import FOLDER_MARKER, refuse, refuse_inputs
 from mtlx2neural.scene.dependencies import canonical
 
 LAYER_SUFFIXES = (".usda", ".usd", ".usdc")
@@ -47,8 +48,6 @@ SNAPSHOT_NAME = "stage-snapshot.usda"
 (:mod:`mtlx2neural.scene.snapshot`). No material folder can have this name: ``-`` appears in
 those only as ``-<hex digits>-`` or before a hash, and "snapshot" is not hex."""
 
-FOLDER_MARKER = ".mtlx2neural.json"
-"""The file that marks an output folder as this tool's: ``{"source": input path, "tool": version}``."""
 
 MAX_FOLDER_NAME = 120
 """Longer escaped names are cut and end in a hash of the full name (file systems allow 255 bytes)."""
@@ -158,27 +157,19 @@ def _is_our_folder(folder: Path) -> bool:
 
 
 def _refuse(what: str) -> InputError:
-    return InputError(f"{what}. Nothing was written; choose another output with -o (a folder, or a layer "
-                      f"path ending in .usda/.usd/.usdc)")
+    return refuse(what, "choose another output with -o (a folder, or a layer path ending in .usda/.usd/.usdc)")
 
 
 def check_output(layout: OutputLayout, asset, inputs: set[Path], folders: list[Path]) -> LayerRecord | None:
     """Refuse (:class:`InputError`) an output that could overwrite the input or another tool's files
-    (module docstring); returns the existing layer's record, or None when there is no layer yet."""
+    (module docstring; the rules shared by every command: :mod:`.output_safety`); returns the existing
+    layer's record, or None when there is no layer yet."""
     asset = canonical(asset)
     layer, folder = canonical(layout.layer), canonical(layout.folder)
-
-    def role(p: Path) -> str:
-        return "the input" if p == asset else f"a file the input {asset.name} reads"
-
-    for target, kind in [(layer, "the USD layer"), (folder, "the output folder")] + [
-            (canonical(f), "a material folder") for f in folders]:
-        if target in inputs:
-            raise _refuse(f"{target}: {kind} of this run would overwrite {role(target)}")
-    inside = sorted(p for p in inputs if folder in p.parents)
-    if inside:
-        raise _refuse(f"{folder}: the output folder contains {role(inside[0])} ({inside[0]}), which the run "
-                      f"could overwrite")
+    how = "choose another output with -o (a folder, or a layer path ending in .usda/.usd/.usdc)"
+    for target, kind in [(layer, "the USD layer of this run"), (folder, "the output folder")] + [
+            (canonical(f), "a material folder of this run") for f in folders]:
+        refuse_inputs(target, kind, inputs, asset, how)
     record = None
     if layer.exists() or layer.is_symlink():
         record = None if layer.is_dir() else read_layer_record(layer)

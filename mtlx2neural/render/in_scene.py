@@ -39,9 +39,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.geometry import Mesh, PinholeCamera, framing_camera
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
-from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.renderer import image_errors, render_scene
 
 RES = 96

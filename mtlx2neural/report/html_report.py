@@ -54,18 +54,25 @@ from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.imaging.udim import tile_of_udim
 from mtlx2neural.model.neural_material import NeuralMaterial
+from mtlx2neural.pipeline.output_safety import (
+    REPORT_MARKER,
+    claim_report_folder,
+    report_marker,
+)
 from mtlx2neural.pipeline.plan import DECODERS
 from mtlx2neural.reference.loading import application_of, load_reference
 from mtlx2neural.render.renderer import VIEWS, compare, compare_many, save_png
 from mtlx2neural.render.udim_view import TileView, compare_tiles, model_tiles
 from mtlx2neural.report.shader_cost import shader_available, shader_rates
 from mtlx2neural.scene import find_material
+from mtlx2neural.scene.dependencies import input_files
 from mtlx2neural.staging import Staging
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.trainer import Trainer
 from mtlx2neural.train.udim import build_tiled_stack
+from mtlx2neural.version import __version__
 
 COLOURS = {"reference": "#222222", "analytic": "#d95f02", "neural": "#1b9e77", "reference sampler": "#7570b3",
            "analytic sampler": "#e7298a", "neural sampler": "#1b9e77"}
@@ -514,8 +521,10 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
             raise InputError(f"{layer}: no neural material named {', '.join(materials)}; it holds {', '.join(prims)}")
         prims = chosen
     out = Path(out).resolve() if out else default_report_dir(layer)
+    claim_report_folder(out, input_files(layer), layer)  # empty, new, or an earlier report; never an input
     with Staging(out.parent) as st:  # the whole report folder appears at once, or not at all
         tmp = st.stage(out)
+        (tmp / REPORT_MARKER).write_text(report_marker(layer, __version__))
         bodies, numbers = [], []
         for i, prim in enumerate(prims):
             b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed,

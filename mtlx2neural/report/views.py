@@ -44,6 +44,7 @@ from mtlx2neural.pipeline.layout import (
     read_layer_record,
     resolve_output,
 )
+from mtlx2neural.pipeline.output_safety import check_render_outputs
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.reference.loading import application_of
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
@@ -52,7 +53,7 @@ from mtlx2neural.render.renderer import render_scene, save_png
 from mtlx2neural.render.udim_view import TileView, model_tiles
 from mtlx2neural.report.options import RenderOptions
 from mtlx2neural.scene import find_material
-from mtlx2neural.scene.dependencies import canonical
+from mtlx2neural.scene.dependencies import canonical, input_files
 
 GEOMETRIES = ("sphere", "plane", "teapot")
 TEAPOT = Path("resources") / "Geometry" / "teapot.obj"
@@ -254,7 +255,10 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     register_schema()  # before USD's schema registry is first built (a neural layer applies the API)
     record = neural_layer_record(asset)
     src = None
+    inputs = input_files(asset)
     if record is not None:  # the neural layer: its record names the materials
+        if record.source is not None:
+            inputs |= input_files(record.source)
         name, prim = _layer_entry(Path(asset), record, material)
         if model == "reference" and record.source is not None:
             asset, material = record.source, name or material  # the input the layer was written for
@@ -262,6 +266,9 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     else:
         src = find_material(asset, material)  # InputError for an unknown or ambiguous material
         name, prim = src.name, None
+        inputs |= input_files(asset, [src])
+    png = output.with_suffix(".png")
+    check_render_outputs([output, png], inputs, asset)  # never an input, an export or a neural layer
     geo, lights = make_geometry(geometry), make_lights(env)
     source, ck = None, None
     if model == "neural":
@@ -304,7 +311,6 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     img = render_scene(shading, geo, Camera(azimuth, elevation, distance, fov), lights, res, spp, texels, seed,
                        sampler=shading if mis == "own" else None)
     seconds = time.time() - t0
-    png = output.with_suffix(".png")
     write_exr(output, img)
     write_png(png, img)
     return {"material": name, "model": model, "checkpoint": str(ck) if source == "checkpoint" else None,

@@ -125,3 +125,16 @@ def test_report_renders_in_headless_chromium(report, tmp_path):
     assert shot.is_file()
     px = np.asarray(oiio.ImageInput.open(str(shot)).read_image("float"))
     assert px.std() > 0.01  # not a blank page
+
+
+def test_an_earlier_report_is_replaced_whole(report, tmp_path):
+    from mtlx2neural.pipeline.output_safety import REPORT_MARKER
+
+    layer, out = report
+    assert (out / REPORT_MARKER).is_file()
+    again = tmp_path / "again"
+    shutil.copytree(out, again)
+    (again / "m9_view0_stale.png").write_bytes((out / "m0_view0_reference.png").read_bytes())  # of an earlier run
+    assert main(["report", str(layer), "-o", str(again), "--analytic-iterations", "2", "--res", "8", "--spp", "1"]) == 0
+    assert not (again / "m9_view0_stale.png").exists() and (again / "index.html").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".mtlx2neural")]
