@@ -12,6 +12,7 @@ these is part of the spatial sub-graph.
 from __future__ import annotations
 
 import functools
+import os
 
 import torch
 
@@ -33,9 +34,18 @@ def texcoord_index(node) -> int:
     return int(value[0]) if isinstance(value, tuple) and value else 0
 
 
-@functools.lru_cache(maxsize=256)
 def texture(path: str, node_path: str) -> Texture:
-    """The texture (file or UDIM set) read by image node ``node_path`` (pixels cached by image_io)."""
+    """The texture (file or UDIM set) read by image node ``node_path`` (pixels cached by image_io).
+    Cached per file version: a file changed or removed since is read (or reported missing) again."""
+    try:
+        stamp = os.stat(path).st_mtime_ns
+    except OSError:  # missing, or a UDIM pattern: Texture reports or resolves it
+        stamp = None
+    return _texture(path, node_path, stamp)
+
+
+@functools.lru_cache(maxsize=256)
+def _texture(path: str, node_path: str, stamp: int | None) -> Texture:
     return Texture(path, node=node_path)
 
 

@@ -278,8 +278,10 @@ def read_image(path, *, miplevel: int = 0, subimage: int = 0, node: str | None =
     file stores it. ``node`` names the MaterialX / USD node for error messages.
     Results are cached in ``cache`` (default: the process-wide cache).
 
-    Raises InputError naming the file (and node) when it is missing, unreadable,
-    or lacks the requested subimage / MIP level.
+    Raises InputError naming the file (and node) when it is missing, unreadable, truncated or
+    corrupt (OpenImageIO reports an error, even where it decoded part of the pixels: libjpeg
+    fills a truncated JPEG with grey), holds NaN or infinite texels (float files), or lacks the
+    requested subimage / MIP level.
     """
     path = os.fspath(path)
     _check_file(path, node)
@@ -300,9 +302,15 @@ def read_image(path, *, miplevel: int = 0, subimage: int = 0, node: str | None =
         spec = inp.spec()
         fmt = str(spec.format)
         dtype, scale = _STORAGE.get(fmt, (np.float32, 1.0))
+        inp.geterror()  # clears what probing the MIP levels left (seeking past the last level is an error)
         pixels = inp.read_image(subimage, miplevel, 0, spec.nchannels, fmt if fmt in _STORAGE else "float")
-        if pixels is None:
-            raise InputError(f"cannot decode texture file '{path}'{_where(node)}: {inp.geterror()}")
+        failed = inp.has_error() if callable(inp.has_error) else inp.has_error
+        if pixels is None or failed:  # a truncated JPEG decodes, with libjpeg's grey fill and an error
+            message = inp.geterror() or "no pixels"
+            raise InputError(f"cannot decode texture file '{path}'{_where(node)}: it is truncated or corrupt "
+                             f"({message.strip()}). Replace it with a complete file.")
+        if dtype in (np.float16, np.float32):
+            _check_finite(path, node, np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels))
         cs = spec.getattribute("oiio:ColorSpace")
         data = ImageData(
             path=path,
@@ -319,6 +327,18 @@ def read_image(path, *, miplevel: int = 0, subimage: int = 0, node: str | None =
         inp.close()
     cache.put(key, data)
     return data
+
+
+def _check_finite(path: str, node: str | None, pixels: np.ndarray) -> None:
+    """A float image with NaN or infinite texels is an :class:`InputError` naming the file and the count:
+    every filter would spread them, and the trained model with them."""
+    bad = ~np.isfinite(pixels)
+    if bad.any():
+        texels = bad.any(axis=-1)
+        row, col = (int(i[0]) for i in np.nonzero(texels))
+        raise InputError(f"texture file '{path}'{_where(node)} has {int(texels.sum())} texel(s) that are NaN or "
+                         f"infinite (the first at column {col}, row {row} from the top). Replace them with finite "
+                         f"values (e.g. OpenImageIO: oiiotool in.exr --fixnan black -o out.exr).")
 
 
 def mip_level_count(path, *, subimage: int = 0, node: str | None = None) -> int:

@@ -54,6 +54,7 @@ from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.imaging.udim import tile_of_udim
 from mtlx2neural.model.neural_material import NeuralMaterial
+from mtlx2neural.pipeline.layout import read_layer_record
 from mtlx2neural.pipeline.output_safety import (
     REPORT_MARKER,
     claim_report_folder,
@@ -318,11 +319,23 @@ def _materials(layer: Path) -> list[str]:
     return [str(p.GetPath()) for p in prims]
 
 
+def report_source(layer: Path, summary: dict) -> Path:
+    """The input the reference is loaded from: the layer's own record of it (relative to the layer,
+    so a moved pair of input and output still reports), else the summary's ``source`` as written."""
+    record = read_layer_record(layer)
+    if record is not None and record.source is not None:
+        return record.source
+    return Path(summary["source"])
+
+
 def _load_reference(summary: dict, folder: Path):
+    """The conversion's reference, under the conversion's texture rules: a missing texture is an error
+    unless the conversion itself allowed it (``--allow-missing-textures``, in the summary's options)."""
     names = [n for n in (summary.get("material"), summary.get("mtlx_material")) if n]
+    allow = bool((summary.get("options") or {}).get("allow_missing_textures", False))
     for i, name in enumerate(names):
         try:
-            return load_reference(summary["source"], name, allow_missing_textures=True,
+            return load_reference(summary["source"], name, allow_missing_textures=allow,
                                   application=application_of(summary))  # the conversion's --frame/--fps
         except InputError:
             if i == len(names) - 1:
@@ -342,6 +355,7 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
         raise InputError(f"{layer}: {prim}: no summary.json in {folder}; keep the conversion's output folder "
                          f"next to the layer")
     summary = json.loads((folder / "summary.json").read_text())
+    summary["source"] = str(report_source(layer, summary))  # where the input is now, by the layer's record
     reference = _load_reference(summary, folder)
     texels = tuple(summary.get("resolution", (1, 1)))
     tiles = model_tiles(neural)

@@ -66,3 +66,19 @@ def test_report_refuses_a_folder_it_did_not_write(exported, tmp_path, capsys):  
     code, out, err = run_cli(capsys, "report", exported["layer"], "-o", exported["files"] / "rep")
     assert_clean_input_error(code, out, err, "conversion's output folder")
     assert snapshot(tmp_path) == before
+
+
+def test_report_reads_the_input_by_the_layers_record_and_under_the_conversions_texture_rules(textured, tmp_path,
+                                                                                              capsys):
+    code, _, err = run_cli(capsys, textured / "tex.mtlx", "--iterations", "0", "--allow-untrained", "--quiet")
+    assert code == 0, err
+    moved = tmp_path / "moved"
+    textured.rename(moved)  # input, layer and output folder move together; summary.json keeps the old path
+    layer = moved / "tex_neural.usda"
+    fast = ("--analytic-iterations", "2", "--res", "8", "--spp", "1")
+    code, _, err = run_cli(capsys, "report", layer, "-o", tmp_path / "rep", *fast)
+    assert code == 0, err
+    # A texture gone since the conversion (which had it): an error naming it, not a report of other figures.
+    (moved / "albedo.png").unlink()
+    code, out, err = run_cli(capsys, "report", layer, "-o", tmp_path / "rep", *fast)
+    assert_clean_input_error(code, out, err, "albedo.png")
