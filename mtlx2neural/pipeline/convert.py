@@ -49,6 +49,7 @@ in-memory edits is converted from a flattened snapshot written into ``OUT``.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import shutil
 import warnings
@@ -95,7 +96,7 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     latent_resolution,
     plan_materials,
 )
-from mtlx2neural.pipeline.source_hash import cached_summary
+from mtlx2neural.pipeline.source_hash import cached_summary, input_hash
 from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
 from mtlx2neural.scene.dependencies import input_files
@@ -171,7 +172,7 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
     folder.mkdir(parents=True, exist_ok=True)
     summary = {**rep_summary, "material": src.name, "mtlx_material": src.material, "source": src.source_file,
                "bound_prims": list(src.bound_prims), "source_hash": plan.digest, "shared_with": plan.shared_with,
-               "latent": plan.latent_info()}
+               "latent": plan.latent_info(), "input_hash": input_hash(src)}
     summary.pop("cached", None)
     # the checkpoint, so that `render --material` finds it; the analytic baseline, for the export's preview
     for name in ("checkpoint.pt", BASELINE_FILE):
@@ -210,10 +211,13 @@ def _check_resume(plans, folders, max_error) -> None:
                                  f"without --resume (--force retrains from scratch)")
 
 
-def _kept_materials(layout: OutputLayout, record, names, material) -> KeptMaterials | None:
-    """With ``--material``, the previous layer's other materials whose files are still there."""
+def _kept_materials(layout: OutputLayout, record, names, material, found=()) -> KeptMaterials | None:
+    """With ``--material``, the previous layer's other materials whose files are still there. A kept
+    material whose input changed since it was trained (its summary's ``input_hash`` differs from that of
+    ``found``'s material of that name) is kept, with a warning naming it and the fix."""
     if record is None or material is None:
         return None
+    current = {s.name: s for s in found}
     entries = {}
     for name, entry in record.materials.items():
         if name in names:
@@ -221,10 +225,24 @@ def _kept_materials(layout: OutputLayout, record, names, material) -> KeptMateri
         folder = (layout.layer.parent / entry.get("folder", "")).resolve()
         if entry.get("folder") and (folder / EXPORT_FOLDER / "weights.json").is_file():
             entries[name] = entry
+            if _stale(folder, current.get(name)):
+                warnings.warn(f"{layout.layer}: keeping {name} as it was converted, but its input has changed "
+                              f"since (its graph or textures); its neural model is stale. Convert it again "
+                              f"(--material {name} --force, or the whole asset with --force)", stacklevel=3)
         else:
             warnings.warn(f"{layout.layer}: dropping {name} from the layer: its exported files are gone "
                           f"({folder / EXPORT_FOLDER})", stacklevel=3)
     return KeptMaterials(layout.layer, entries)
+
+
+def _stale(folder: Path, source) -> bool:
+    """Does the material ``source`` differ from the input its summary in ``folder`` was trained on?
+    (False when unknown: no source, or a summary written before ``input_hash`` was recorded.)"""
+    try:
+        recorded = json.loads((folder / "summary.json").read_text()).get("input_hash")
+    except (OSError, ValueError):
+        return False
+    return bool(recorded and source is not None and recorded != input_hash(source))
 
 
 LEGACY_ARGUMENTS = ("out", "material", "device", "resume", "progress", "allow_missing_textures", "force",
@@ -357,7 +375,7 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
         p.compiled = None  # the workers compile again (on their device); keep the parent small
     if options.resume:
         _check_resume(plans, folders, options.max_error)
-    keep = _kept_materials(layout, record, {s.name for s in sources}, material)
+    keep = _kept_materials(layout, record, {s.name for s in sources}, material, scene.materials)
     # 5. the output folder: writable, ours, and held by this run alone
     fresh = not layout.folder.exists()  # removed again when training leaves nothing to export
     prepare_folder(layout, source, __version__)

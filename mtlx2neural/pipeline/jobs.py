@@ -57,6 +57,7 @@ from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.pipeline.plan import DECODERS, latent_resolution
+from mtlx2neural.pipeline.source_hash import input_hash
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.flip_probe import FlipProbe
 from mtlx2neural.render.in_scene import compare_in_scene, stage_in_scene
@@ -448,6 +449,8 @@ class MaterialJob:
     index: int = 0
     options: dict | None = None
     """The conversion's options (:func:`mtlx2neural.pipeline.options.options_record`): the summary's ``options``."""
+    input_hash: str | None = None
+    """:func:`~mtlx2neural.pipeline.source_hash.input_hash` of the material: the summary's ``input_hash``."""
     stage_file: str | None = None
     """The USD stage whose bound meshes provide the geometry the graph reads (``MaterialSource.stage_file``)."""
     application: Application | None = None
@@ -472,7 +475,7 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
     return MaterialJob(src.name, src.material, src.source_file, list(src.bound_prims),
                        mx.writeToXmlString(src.document), str(folder), cfg, plan.digest, plan.content,
                        tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
-                       stage_file=getattr(src, "stage_file", None), **options)
+                       stage_file=getattr(src, "stage_file", None), input_hash=input_hash(src), **options)
 
 
 def run_job(job: MaterialJob) -> dict:
@@ -494,6 +497,8 @@ def run_job(job: MaterialJob) -> dict:
     if job.ship and job.checkpoint is not None:
         (folder / "checkpoint.pt").write_bytes(job.checkpoint)
     extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings)}
+    if job.input_hash is not None:
+        extra["input_hash"] = job.input_hash
     if job.latent is not None:
         extra["latent"] = job.latent
     if job.options is not None:

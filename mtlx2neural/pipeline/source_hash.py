@@ -86,6 +86,31 @@ def settings_for_hash(cfg) -> dict:
     return {k: v for k, v in dataclasses.asdict(cfg).items() if k not in IGNORED_SETTINGS}
 
 
+def _put_input(put, source) -> None:
+    """Feed the material's own input (name, MaterialX document, referenced files' contents) to ``put``."""
+    import MaterialX as mx
+
+    put("material", f"{source.name}\0{source.material}")
+    put("document", mx.writeToXmlString(source.document))
+    for f in referenced_files(source.document):
+        put("file", f)
+        f = on_disk(f)  # the file read when the document's spelling differs only in case
+        put("digest", file_digest(f) if os.path.isfile(f) else "missing")
+
+
+def input_hash(source) -> str:
+    """Hex sha256 of the material's input alone (document and referenced files, no settings): the
+    summary's ``input_hash``, which tells whether a material kept from an earlier run is stale."""
+    h = hashlib.sha256()
+
+    def put(tag: str, text: str) -> None:
+        data = text.encode()
+        h.update(f"{tag}:{len(data)}:".encode() + data)
+
+    _put_input(put, source)
+    return h.hexdigest()
+
+
 def source_hash(source, cfg, allow_missing_textures: bool = False) -> str:
     """Hex sha256 of everything a trained material depends on (see the module docstring)."""
     import MaterialX as mx
@@ -98,12 +123,7 @@ def source_hash(source, cfg, allow_missing_textures: bool = False) -> str:
 
     put("format", str(FORMAT_VERSION))
     put("training", str(TRAINING_VERSION))
-    put("material", f"{source.name}\0{source.material}")
-    put("document", mx.writeToXmlString(source.document))
-    for f in referenced_files(source.document):
-        put("file", f)
-        f = on_disk(f)  # the file read when the document's spelling differs only in case
-        put("digest", file_digest(f) if os.path.isfile(f) else "missing")
+    _put_input(put, source)
     put("allow_missing_textures", str(bool(allow_missing_textures)))
     put("settings", json.dumps(settings_for_hash(cfg), sort_keys=True, default=str))
     put("ocio", os.environ.get("OCIO", ""))

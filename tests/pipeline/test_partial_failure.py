@@ -222,3 +222,26 @@ def test_the_library_result_carries_the_failures(monkeypatch, tmp_path):
     monkeypatch.setattr(api, "_open_layer", lambda path: None)
     result = api.convert(tmp_path / "scene.usda")
     assert result.failed == summaries.failed and result.skipped == []
+
+
+def test_a_material_kept_by_a_material_run_warns_when_its_input_changed(tmp_path, capsys):
+    from materials import TWO_MTLX
+
+    asset = tmp_path / "two.mtlx"
+    asset.write_text(TWO_MTLX)
+    tiny = ("--iterations", "0", "--allow-untrained", "--quiet", "--workers", "1")
+    code, _, err = run_cli(capsys, asset, *tiny)
+    assert code == 0, err
+    # Blue changes in the input; only Red is converted again, Blue is kept from the first run.
+    asset.write_text(TWO_MTLX.replace("0.1, 0.1, 0.8", "0.9, 0.9, 0.1"))
+    with pytest.warns(UserWarning, match=r"keeping Blue as it was converted, but its input has changed.*--force"):
+        code, _, err = run_cli(capsys, asset, "--material", "Red", *tiny)
+    assert code == 0, err
+    # Unchanged, no warning.
+    asset.write_text(TWO_MTLX)
+    import warnings as w
+
+    with w.catch_warnings():
+        w.simplefilter("error", UserWarning)
+        code, _, err = run_cli(capsys, asset, "--material", "Red", *tiny)
+    assert code == 0, err
