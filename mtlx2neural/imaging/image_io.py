@@ -48,6 +48,7 @@ import numpy as np
 import torch
 
 from mtlx2neural.errors import InputError, unreadable_reason
+from mtlx2neural.imaging.packages import local_file
 from mtlx2neural.imaging.texel_lookup import (
     ADDRESS_MODES,
     FILTER_TYPES,
@@ -283,7 +284,7 @@ def read_image(path, *, miplevel: int = 0, subimage: int = 0, node: str | None =
     fills a truncated JPEG with grey), holds NaN or infinite texels (float files), or lacks the
     requested subimage / MIP level.
     """
-    path = os.fspath(path)
+    path = local_file(path, node)  # a member of a USDZ package: its bytes, in a local file
     _check_file(path, node)
     real = os.path.realpath(path)
     cache = _CACHE if cache is None else cache
@@ -343,7 +344,7 @@ def _check_finite(path: str, node: str | None, pixels: np.ndarray) -> None:
 
 def mip_level_count(path, *, subimage: int = 0, node: str | None = None) -> int:
     """How many MIP levels the file stores (1 for an ordinary, non-MIP-mapped image)."""
-    inp = _open(os.fspath(path), node)
+    inp = _open(local_file(path, node), node)
     try:
         return _count_mips(inp, subimage)
     finally:

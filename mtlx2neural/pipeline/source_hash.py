@@ -39,7 +39,9 @@ import json
 import os
 from pathlib import Path
 
+from mtlx2neural.errors import InputError
 from mtlx2neural.formats import FORMAT_VERSION
+from mtlx2neural.imaging.packages import local_file
 from mtlx2neural.imaging.resolve import on_disk
 from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
 
@@ -95,6 +97,10 @@ def _put_input(put, source) -> None:
     for f in referenced_files(source.document):
         put("file", f)
         f = on_disk(f)  # the file read when the document's spelling differs only in case
+        try:
+            f = local_file(f)  # a member of a USDZ package: its bytes
+        except InputError:
+            pass  # unreadable: "missing" below, and compiling the material reports it
         put("digest", file_digest(f) if os.path.isfile(f) else "missing")
 
 
