@@ -34,17 +34,32 @@ def _candidates(path) -> tuple[str, list[Candidate]]:
 
 
 def _mtlx_candidates(asset: str) -> list[Candidate]:
-    doc = mtlx_file.read_document(asset)
+    """A candidate per material of the file. An invalid document fails whole, unless the fault lies
+    in some materials' own graphs and others are valid: those others still load (as a USD stage's
+    materials do), and each faulty one raises its own error when loaded."""
+    try:
+        doc, errors = mtlx_file.read_document(asset), {}
+    except InputError as whole:
+        doc = mtlx_file.read_document(asset, validate=False)  # an unreadable file raises again
+        errors = mtlx_file.material_errors(doc, asset)
+        if not any(errors.values()) or all(errors.values()):
+            raise whole from None
     return [
-        Candidate(key=name, aliases=(name,), reason=None, load=_mtlx_loader(asset, doc, name))
+        Candidate(key=name, aliases=(name,), reason=None, load=_mtlx_loader(asset, doc, name, errors.get(name),
+                                                                            pruned=bool(errors)))
         for name in mtlx_file.material_names(doc)
     ]
 
 
-def _mtlx_loader(asset: str, doc: "mx.Document", name: str):
+def _mtlx_loader(asset: str, doc: "mx.Document", name: str, error: InputError | None = None, pruned: bool = False):
     def load() -> MaterialSource:
-        own = mx.createDocument()
-        own.copyContentFrom(doc)
+        if error is not None:
+            raise error
+        if pruned:  # the file is invalid elsewhere: this material's own part of it
+            own = mtlx_file.material_document(doc, name)
+        else:
+            own = mx.createDocument()
+            own.copyContentFrom(doc)
         return MaterialSource(name=name, document=own, material=name, source_file=asset, bound_prims=[])
 
     return load

@@ -25,11 +25,11 @@ def _abspath(path) -> str:
 
 
 @functools.lru_cache(maxsize=64)
-def _read_cached(path: str, mtime_ns: int, search_env: str) -> "mx.Document":
-    return _read_uncached(path)
+def _read_cached(path: str, mtime_ns: int, search_env: str, validate: bool = True) -> "mx.Document":
+    return _read_uncached(path, validate)
 
 
-def read_document(path) -> "mx.Document":
+def read_document(path, validate: bool = True) -> "mx.Document":
     """Read, clean and validate the ``.mtlx`` file at ``path``.
 
     Returns a new document (a private copy; callers may modify it) whose
@@ -37,13 +37,13 @@ def read_document(path) -> "mx.Document":
     and that contains no standard-library elements. Raises InputError when the
     file is missing or unreadable (a permission problem is named as such,
     for the file and for anything it XIncludes), is not well-formed XML, has an
-    unresolvable XInclude, or fails ``validate()`` against the standard libraries.
+    unresolvable XInclude, or (``validate``) fails ``validate()`` against the standard libraries.
     """
     path = _abspath(path)
     if not os.path.isfile(path):
         raise InputError(f"{path}: MaterialX file not found. Check the path.")
     check_readable(path)  # every time: permissions may change without the mtime
-    cached = _read_cached(path, os.stat(path).st_mtime_ns, os.environ.get("MATERIALX_SEARCH_PATH", ""))
+    cached = _read_cached(path, os.stat(path).st_mtime_ns, os.environ.get("MATERIALX_SEARCH_PATH", ""), validate)
     doc = mx.createDocument()
     doc.copyContentFrom(cached)
     for elem in doc.traverseTree():
@@ -53,7 +53,7 @@ def read_document(path) -> "mx.Document":
     return doc
 
 
-def _read_uncached(path: str) -> "mx.Document":
+def _read_uncached(path: str, validate: bool = True) -> "mx.Document":
     doc = mx.createDocument()
     search = mx.FileSearchPath(os.path.dirname(path))
     search.append(mx.FilePath(os.path.dirname(mxlib.library_dir())))
@@ -78,7 +78,8 @@ def _read_uncached(path: str) -> "mx.Document":
     _drop_library_elements(doc)
     wrap_shader_outputs(doc)
     absolutize_filenames(doc, os.path.dirname(path), search)
-    mxlib.validate(doc, path)
+    if validate:
+        mxlib.validate(doc, path)
     return doc
 
 
@@ -209,3 +210,39 @@ def _source_dir(uri: str, default_dir: str, search: "mx.FileSearchPath | None") 
 def material_names(doc: "mx.Document") -> list[str]:
     """Names of the ``surfacematerial`` nodes at the top level of ``doc``, in document order."""
     return [n.getName() for n in doc.getNodes() if n.getCategory() == MATERIAL_CATEGORY]
+
+
+def material_document(doc: "mx.Document", name: str) -> "mx.Document":
+    """A copy of ``doc`` holding, of its top-level nodes and node graphs, only those the material
+    ``name`` reaches upstream (node graphs that implement a nodedef, and every other element such
+    as nodedefs and typedefs, stay): what one material of a multi-material file is made of."""
+    own = mx.createDocument()
+    own.copyContentFrom(doc)
+    own.setSourceUri(doc.getSourceUri())
+    keep, stack = set(), [name]
+    while stack:
+        elem = own.getChild(stack.pop())
+        if elem is None or elem.getName() in keep:
+            continue
+        keep.add(elem.getName())
+        for sub in elem.traverseTree():
+            if sub.getCategory() in ("input", "output"):
+                stack += [v for v in (sub.getAttribute("nodename"), sub.getAttribute("nodegraph")) if v]
+    for elem in list(own.getChildren()):
+        graph = isinstance(elem, mx.NodeGraph) and not elem.getAttribute("nodedef")
+        if (isinstance(elem, mx.Node) or graph) and elem.getName() not in keep:
+            own.removeChild(elem.getName())
+    return own
+
+
+def material_errors(doc: "mx.Document", path: str) -> dict[str, InputError | None]:
+    """Each material of ``doc`` (read without validation) -> the :class:`InputError` its own part of
+    the document (:func:`material_document`) fails validation with, or None when that part is valid."""
+    errors = {}
+    for name in material_names(doc):
+        try:
+            mxlib.validate(material_document(doc, name), f"{path} (material {name})")
+            errors[name] = None
+        except InputError as exc:
+            errors[name] = exc
+    return errors

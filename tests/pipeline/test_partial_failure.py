@@ -245,3 +245,21 @@ def test_a_material_kept_by_a_material_run_warns_when_its_input_changed(tmp_path
         w.simplefilter("error", UserWarning)
         code, _, err = run_cli(capsys, asset, "--material", "Red", *tiny)
     assert code == 0, err
+
+
+def test_a_mtlx_file_with_one_invalid_material_converts_the_other(tmp_path, capsys):
+    bogus = ('  <bogus_node name="bg" type="color3" />\n'
+             + standard_surface("Blue", "SR_b", base_color={"node": "bg"}))
+    asset = tmp_path / "two.mtlx"
+    asset.write_text(document(standard_surface("Red", "SR_red", base_color=(0.8, 0.1, 0.1)), bogus))
+    before = _digest(asset)
+    code, out, err = run_cli(capsys, asset, "--iterations", "0", "--allow-untrained", "--quiet", "--workers", "1")
+    assert code == 3, err  # as a USD stage with one bad material: the other converts
+    assert "skipped Blue" in err and "bogus_node" in err and "Red" in out
+    assert (tmp_path / "two_neural" / "Red" / "neural" / "weights.bin").is_file()
+    assert not (tmp_path / "two_neural" / "Blue").exists()
+    # --strict: the whole file is refused, nothing written
+    code, out, err = run_cli(capsys, asset, "--strict", "-o", tmp_path / "strict", "--iterations", "0",
+                             "--allow-untrained", "--quiet")
+    assert code == 2 and not (tmp_path / "strict").exists()
+    assert _digest(asset) == before
