@@ -17,7 +17,9 @@ a warning line per material and ``budget_met: false`` in its summary.
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 from mtlx2neural.commands.parser import (
     ASSET_SUFFIXES,
@@ -39,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         argv = ["convert"] + argv  # `mtlx2neural ASSET ...` is the conversion
     parser, _ = build_parser()
     args = parser.parse_args(argv)
+    _stop_on_sigterm()
     try:
         return COMMANDS[args.command].run(args)
     except Mtlx2NeuralError as exc:
@@ -47,6 +50,16 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("mtlx2neural: interrupted", file=sys.stderr)
         return 1
+
+
+def _terminated(signum, frame):
+    raise KeyboardInterrupt  # as Ctrl-C: a running training saves its checkpoint, the output stays as it was
+
+
+def _stop_on_sigterm() -> None:
+    """SIGTERM (``kill``, a job scheduler, a container stop) stops the command as Ctrl-C does."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminated)
 
 
 if __name__ == "__main__":  # pragma: no cover

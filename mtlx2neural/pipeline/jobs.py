@@ -525,12 +525,13 @@ def run_job(job: MaterialJob) -> dict:
 
 _LISTENER = None  # a pool worker's progress callback for Trainer.run (set by run_job)
 _RUNNING = False  # a pool worker: is a job running (Ctrl-C interrupts it) or is it idle (Ctrl-C ignored)?
+_INTERRUPTED = False  # has the running job been interrupted already?
 
 
 @contextmanager
 def _running():
-    global _RUNNING
-    _RUNNING = True
+    global _RUNNING, _INTERRUPTED
+    _RUNNING, _INTERRUPTED = True, False
     try:
         yield
     finally:
@@ -538,13 +539,17 @@ def _running():
 
 
 def _pool_sigint(signum, frame):
-    if _RUNNING:  # the trainer saves a checkpoint and raises TrainingInterrupted
+    global _INTERRUPTED
+    if _RUNNING and not _INTERRUPTED:  # the trainer saves a checkpoint and raises TrainingInterrupted;
+        _INTERRUPTED = True  # a second signal (the terminal's, then the parent's) must not cut that save short
         raise KeyboardInterrupt
 
 
 def init_pool_worker(threads: int) -> None:
-    """A spawned pool worker's initializer: Ctrl-C interrupts a running job only; ``threads`` torch threads."""
+    """A spawned pool worker's initializer: Ctrl-C (SIGINT) or SIGTERM interrupts a running job only, which
+    saves its checkpoint; ``threads`` torch threads."""
     import signal
 
     signal.signal(signal.SIGINT, _pool_sigint)
+    signal.signal(signal.SIGTERM, _pool_sigint)
     torch.set_num_threads(threads)

@@ -226,6 +226,7 @@ def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolate
                     report(i, results[i])
     except KeyboardInterrupt:
         for ex in pools:
+            _interrupt_workers(ex)  # a SIGTERM reached this process only; a terminal's Ctrl-C reached all
             ex.shutdown(wait=True, cancel_futures=True)  # running jobs save their checkpoints
         raise TrainingInterrupted("interrupted; finished materials and checkpoints are saved in their "
                                   "folders (rerun with --resume)") from None
@@ -233,6 +234,18 @@ def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolate
         for ex in pools:
             ex.shutdown(wait=True)
     return sorted(broken)
+
+
+def _interrupt_workers(ex) -> None:
+    """SIGINT to the pool's worker processes: each running job saves its checkpoint and stops (a worker
+    acts on the first signal only, so one that had Ctrl-C from the terminal too is not cut short)."""
+    import signal
+
+    for proc in list((getattr(ex, "_processes", None) or {}).values()):  # the executor's own record
+        try:
+            os.kill(proc.pid, signal.SIGINT)
+        except (OSError, AttributeError):
+            pass
 
 
 class _PoolBars:
