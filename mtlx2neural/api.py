@@ -8,6 +8,7 @@ stage composes, exactly as ``mtlx2neural ASSET`` bakes a file
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -74,6 +75,12 @@ def convert(stage_or_path, options: ConvertOptions | None = None) -> ConversionR
     ``OSError`` when writing fails (the previous export stays). A material that cannot be converted
     while others can is left out and listed in ``failed`` (``options.strict``: InputError instead).
     """
+    if not (isinstance(stage_or_path, (str, os.PathLike)) or hasattr(stage_or_path, "GetRootLayer")):
+        raise TypeError(f"convert() takes a Usd.Stage or a path to a USD or .mtlx file, not "
+                        f"{type(stage_or_path).__name__}")
+    if options is not None and not isinstance(options, ConvertOptions):
+        raise TypeError(f"convert() takes its settings as a ConvertOptions (mtlx2neural.ConvertOptions), not "
+                        f"{type(options).__name__}")
     summaries = convert_asset(stage_or_path, options if options is not None else ConvertOptions())
     path = Path(summaries.layer)
     return ConversionResult(layer=_open_layer(path), layer_path=path, folder=Path(summaries.folder),

@@ -41,3 +41,24 @@ def unreadable_reason(path) -> str | None:
         return "permission denied"
     except OSError as exc:
         return exc.strerror or str(exc)
+
+
+def missing_reason(path, missing: str = "does not exist") -> str:
+    """Why ``path``, which is not a readable file, cannot be read, for error messages: ``"is a folder, not a
+    file"``, ``"is a symbolic link that loops"``, ``"is a symbolic link to a missing file (TARGET)"`` or
+    ``missing``."""
+    import errno
+    import os
+
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        return "is a folder, not a file"
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "is a symbolic link that loops (it resolves to itself)"
+        if os.path.islink(path):
+            return f"is a symbolic link to a missing file ({os.readlink(path)})"
+        return missing
+    return "is not a regular file"

@@ -110,3 +110,34 @@ def test_ray_workers_without_ray_exit_2_before_any_work(red, tmp_path, capsys, m
     code, out, err = run_cli(capsys, red, *BASE, "--workers", "ray", "--iterations", "2")
     assert_clean_input_error(code, out, err, "--workers ray needs Ray", "mtlx2neural[ray]")
     assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("kind", ["folder", "loop", "dangling"])
+def test_a_folder_a_link_loop_or_a_dangling_link_is_named_as_such(tmp_path, capsys, kind):
+    asset = tmp_path / "scene.usda"
+    if kind == "folder":
+        asset.mkdir()
+    elif kind == "loop":
+        asset.symlink_to(asset)
+    else:
+        asset.symlink_to(tmp_path / "gone.usda")
+    code, out, err = run_cli(capsys, asset)
+    expected = {"folder": "is a folder, not a file", "loop": "symbolic link that loops",
+                "dangling": "symbolic link to a missing file"}[kind]
+    assert_clean_input_error(code, out, err, str(asset), expected)
+
+
+def test_contradictory_or_unwritable_options_are_refused(tmp_path, capsys):
+    (tmp_path / "red.mtlx").write_text(SIMPLE_MTLX)
+    code, out, err = run_cli(capsys, tmp_path / "red.mtlx", "--resume", "--force")
+    assert_clean_input_error(code, out, err, "--resume", "--force")
+    code, out, err = run_cli(capsys, tmp_path / "red.mtlx", "-o", tmp_path / "x.usdz")
+    assert_clean_input_error(code, out, err, "x.usdz", ".usda")
+    assert not (tmp_path / "x.usdz").exists() and not (tmp_path / "red_neural").exists()
+
+
+def test_convert_says_what_it_takes():
+    import mtlx2neural as m2n
+
+    with pytest.raises(TypeError, match=r"convert\(\) takes a Usd\.Stage or a path.*not int"):
+        m2n.convert(12345)

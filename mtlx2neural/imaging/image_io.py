@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from mtlx2neural.errors import InputError, unreadable_reason
+from mtlx2neural.errors import InputError, missing_reason, unreadable_reason
 from mtlx2neural.imaging.packages import local_file
 from mtlx2neural.imaging.texel_lookup import (
     ADDRESS_MODES,
@@ -243,7 +243,7 @@ def texture_cache() -> TextureCache:
 
 def _check_file(path: str, node: str | None) -> None:
     if not os.path.isfile(path):
-        what = "is a directory, not a file" if os.path.isdir(path) else "does not exist"
+        what = missing_reason(path)
         raise InputError(f"texture file '{path}'{_where(node)} {what}. Fix the path or provide the file.")
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
@@ -118,12 +119,27 @@ class InspectOptions:
         return _preset_config(self.preset, self.train)
 
 
+NOT_OUTPUTS = {".usdz": "a .usdz package", ".mtlx": "a MaterialX document", ".exr": "an image",
+               ".png": "an image", ".json": "a JSON file", ".zip": "an archive"}
+"""``-o`` suffixes that name a kind of file the conversion does not write."""
+
+
 def check_options(options: ConvertOptions) -> TrainConfig:
     """Raise :class:`InputError` naming the first invalid option; return the training settings."""
     if options.preset not in PRESETS:
         raise InputError(f"--preset {options.preset!r}: unknown; choose one of {', '.join(PRESETS)}")
     cfg = options.train_config()
     validate_config(cfg, options.allow_untrained)
+    if options.resume and options.force:
+        raise InputError("--resume and --force contradict each other: --resume continues the saved checkpoints, "
+                         "--force retrains from scratch; give one of them")
+    for name in ("out", "usda"):  # a package or another file type would become a folder of that name
+        v = getattr(options, name)
+        suffix = os.path.splitext(os.fspath(v))[1].lower() if v else ""
+        if suffix in NOT_OUTPUTS:
+            raise InputError(f"-o {v}: mtlx2neural writes a folder and a layer ending in .usda/.usd/.usdc, not "
+                             f"{NOT_OUTPUTS[suffix]}; give a folder or a layer path "
+                             f"(to package it, run usdzip on the written layer)")
     for name, v in (("frame", options.frame), ("fps", options.fps)):
         number = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
         if not number or (name == "fps" and v <= 0):

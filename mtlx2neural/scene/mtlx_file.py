@@ -14,7 +14,7 @@ import re
 
 import MaterialX as mx
 
-from mtlx2neural.errors import InputError, unreadable_reason
+from mtlx2neural.errors import InputError, missing_reason, unreadable_reason
 from mtlx2neural.scene import mxlib
 
 MATERIAL_CATEGORY = "surfacematerial"
@@ -41,7 +41,7 @@ def read_document(path, validate: bool = True) -> "mx.Document":
     """
     path = _abspath(path)
     if not os.path.isfile(path):
-        raise InputError(f"{path}: MaterialX file not found. Check the path.")
+        raise InputError(f"{path}: the MaterialX file {missing_reason(path, 'was not found')}. Check the path.")
     check_readable(path)  # every time: permissions may change without the mtime
     cached = _read_cached(path, os.stat(path).st_mtime_ns, os.environ.get("MATERIALX_SEARCH_PATH", ""), validate)
     doc = mx.createDocument()

@@ -23,7 +23,7 @@ import re
 
 from pxr import Pcp, Sdf, Tf, Usd, UsdShade
 
-from mtlx2neural.errors import InputError
+from mtlx2neural.errors import InputError, missing_reason
 from mtlx2neural.scene import binding, mtlx_file, mxlib
 from mtlx2neural.scene.materials import Candidate, MaterialSource
 from mtlx2neural.scene.mtlx_refs import (
@@ -41,7 +41,7 @@ USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 def open_stage(path: str) -> Usd.Stage:
     """Open the USD file at ``path``; InputError when it is missing, unreadable or cannot be parsed."""
     if not os.path.isfile(path):
-        raise InputError(f"{path}: USD file not found. Check the path.")
+        raise InputError(f"{path}: the USD file {missing_reason(path, 'was not found')}. Check the path.")
     mtlx_file.check_readable(path)  # else USD reports only "failed to open layer"
     try:
         stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
