@@ -11,6 +11,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from mtlx2neural.faults import fault_point
+
 
 @contextmanager
 def atomic_path(path) -> Iterator[Path]:
@@ -21,6 +23,7 @@ def atomic_path(path) -> Iterator[Path]:
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
         yield tmp
+        fault_point("write", path.name)  # tests: a full disk (mtlx2neural.faults)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

@@ -62,3 +62,26 @@ def missing_reason(path, missing: str = "does not exist") -> str:
             return f"is a symbolic link to a missing file ({os.readlink(path)})"
         return missing
     return "is not a regular file"
+
+
+WRITE_ERRNOS = ("ENOSPC", "EDQUOT", "EROFS", "EFBIG", "EIO")
+"""``errno`` names of failures to write (a full disk or quota, a read-only or failing file system)."""
+
+
+def write_failure(exc: BaseException, where) -> OSError | None:
+    """``exc`` as an :class:`OSError` naming ``where`` when it is a failure to write (a full disk...),
+    whatever layer raised it (torch reports one as a ``RuntimeError``: "file write failed"); else None.
+    Such a failure is the machine's, not one material's: it ends the run (exit 1)."""
+    import errno
+    import os
+
+    codes = {getattr(errno, n) for n in WRITE_ERRNOS if hasattr(errno, n)}
+    if isinstance(exc, OSError) and exc.errno in codes:
+        name = os.fspath(exc.filename) if exc.filename else ""
+        name = name if os.path.isabs(name) else os.path.join(os.fspath(where), os.path.basename(name))
+        return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), name)
+    text = str(exc)
+    if "No space left on device" in text or "file write failed" in text:
+        code = errno.ENOSPC if "No space left" in text else errno.EIO
+        return OSError(code, f"{os.strerror(code)} ({text.strip().splitlines()[-1][:200]})", str(where))
+    return None

@@ -42,4 +42,4 @@ def fault_point(name: str, detail: object = None) -> None:
     for item in spec.split(","):
         point, _, action = item.strip().partition("=")
         if point in here:
-            _fire(action or "kill", f"{name}:{detail}" if detail is not None else name)
+            _fire(action or "kill", str(detail) if detail is not None else name)

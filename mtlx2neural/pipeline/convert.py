@@ -393,8 +393,8 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
             failures = failures + summaries.failed
             layer, exported = _export(summaries, trained, scene, material, cfg, flat, source, layout, label,
                                       keep, failures, options)
-    except InputError as exc:
-        if exc is error and fresh:  # a folder this run created, for nothing
+    except (InputError, OSError) as exc:
+        if fresh and (exc is error or isinstance(exc, OSError)):  # a folder this run created, for nothing
             shutil.rmtree(layout.folder, ignore_errors=True)
         raise
     for s, e in zip(summaries, exported):

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import torch
 
-from mtlx2neural.errors import InputError
+from mtlx2neural.errors import InputError, write_failure
 from mtlx2neural.pipeline.jobs import (
     MaterialJob,
     init_pool_worker,
@@ -107,12 +107,17 @@ def _interrupt(exc: BaseException) -> bool:
     return isinstance(exc, (TrainingInterrupted, KeyboardInterrupt, SystemExit))
 
 
-def _settle(errors: list[tuple[int, BaseException]], failed: Failed | None) -> None:
-    """After every job ran: re-raise an interrupt, else report each failure through ``failed``
-    (None: raise the first)."""
+def _settle(errors: list[tuple[int, BaseException]], failed: Failed | None, jobs) -> None:
+    """After every job ran: re-raise an interrupt, or a failure to write (a full disk:
+    :func:`~mtlx2neural.errors.write_failure`, an ``OSError`` naming the job's folder, never a
+    material's failure), else report each failure through ``failed`` (None: raise the first)."""
     for _, exc in errors:
         if _interrupt(exc):
             raise exc
+    for i, exc in errors:
+        disk = write_failure(exc, jobs[i].folder)
+        if disk is not None:
+            raise disk from exc
     if errors and failed is None:
         raise errors[0][1]
     for i, exc in errors:
@@ -152,7 +157,7 @@ def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
                 continue
             if report:
                 report(i, out[-1])
-        _settle(errors, failed)
+        _settle(errors, failed, jobs)
         return out
     return _run_pool(jobs, n, report, failed)
 
@@ -198,7 +203,7 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict |
     finally:
         if bars:
             bars.close()
-    _settle(sorted(errors, key=lambda e: e[0]), failed)
+    _settle(sorted(errors, key=lambda e: e[0]), failed, jobs)
     return results
 
 
@@ -342,7 +347,7 @@ def _run_ray(jobs, address: str, report, failed: Failed | None = None) -> list[d
             results[i] = summary
             if report:
                 report(i, summary)
-        _settle(sorted(errors, key=lambda e: e[0]), failed)
+        _settle(sorted(errors, key=lambda e: e[0]), failed, jobs)
         return results
     finally:
         if started:
