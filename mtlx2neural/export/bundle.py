@@ -34,6 +34,8 @@ previous export, if any, stays as it was and nothing partial remains.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from pathlib import Path
 
 from mtlx2neural.baseline.analytic_model import (
@@ -131,7 +133,12 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
 def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep: KeptMaterials | None = None,
                  tool_version: str = "", skipped: dict[str, str] | None = None,
                  engine_shaders: bool = False) -> tuple[Path, list[ExportedMaterial]]:
-    """Export every ``(model, summary, material folder)`` of ``trained`` and write the layer.
+    """Export every ``(model, summary, material folder[, records])`` of ``trained`` and write the layer.
+
+    ``records`` (optional; None: none) is a folder holding the material's new training files
+    (checkpoint, curves, summary, PNGs, baseline): the whole material folder is then replaced, those
+    files and the new ``neural/`` together, in the same commit as the layer; without it only the
+    material folder's ``neural/`` is replaced.
 
     ``usda`` defaults to :func:`layer_path` of ``out``. ``keep``: materials of the
     previous layer at ``usda`` to carry over (:func:`~.usd_writer.write_neural_layer`); ``skipped``:
@@ -141,11 +148,38 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
     usda = Path(usda).resolve() if usda else layer_path(out)
     exported = []
     with Staging(usda.parent) as st:
-        for model, summary, folder in trained:
-            final = Path(folder).resolve() / EXPORT_FOLDER
-            exported.append(export_material(model, summary, st.stage(final), final, preset,
-                                            baseline=Path(folder).resolve() / BASELINE_FILE,
+        for model, summary, folder, *rest in trained:
+            records = rest[0] if rest else None
+            folder = Path(folder).resolve()
+            final = folder / EXPORT_FOLDER
+            if records is None:
+                staged, baseline = st.stage(final), folder / BASELINE_FILE
+            else:  # the material folder whole: this run's training files, then its export
+                whole = st.stage(folder)
+                _link_files(Path(records), whole)
+                staged, baseline = whole / EXPORT_FOLDER, whole / BASELINE_FILE
+                staged.mkdir(exist_ok=True)
+            exported.append(export_material(model, summary, staged, final, preset, baseline=baseline,
                                             engine_shaders=engine_shaders))
         write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version,
                            skipped=skipped)
     return usda, exported
+
+
+def _link_files(src: Path, dst: Path) -> None:
+    """Hard-link (else copy) every file under ``src`` into ``dst``, keeping ``src`` as it is (a commit
+    that fails leaves the training files where they were)."""
+    for p in sorted(src.rglob("*")):
+        if p.name == EXPORT_FOLDER and p.parent == src:
+            continue
+        target = dst / p.relative_to(src)
+        if EXPORT_FOLDER in target.relative_to(dst).parts[:1]:
+            continue
+        if p.is_dir():
+            target.mkdir(parents=True, exist_ok=True)
+        else:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(p, target)
+            except OSError:
+                shutil.copy2(p, target)

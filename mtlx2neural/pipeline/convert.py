@@ -75,13 +75,16 @@ from mtlx2neural.pipeline.jobs import (  # noqa: F401
 )
 from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
     SNAPSHOT_NAME,
+    WORK_FOLDER,
     OutputLayout,
     check_output,
     default_output,
     material_folder,
     material_folders,
     prepare_folder,
+    prepare_work_folder,
     resolve_output,
+    work_folder,
 )
 from mtlx2neural.pipeline.lock import output_lock
 from mtlx2neural.pipeline.options import (
@@ -189,11 +192,14 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
 
 
 def _check_resume(plans, folders, max_error) -> None:
-    """Before training: every checkpoint a ``--resume`` run would continue is readable and was
-    trained with the same network shape (else :class:`InputError` naming it and the difference)."""
+    """Before training: every checkpoint a ``--resume`` run would continue (an interrupted run's, in the
+    work folder, else the final folder's) is readable and was trained with the same network shape
+    (else :class:`InputError` naming it and the difference)."""
     for plan, folder in zip(plans, folders):
         if plan.shared_with:
             continue
+        work = work_folder(folder)
+        folder = work if checkpoint_file(work).is_file() or (work / BUDGET_FOLDER).is_dir() else folder
         sizes = [folder / BUDGET_FOLDER / d for d in DECODERS] if max_error is not None else [folder]
         for place in sizes:
             f = checkpoint_file(place)
@@ -393,8 +399,9 @@ def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
             failures = failures + summaries.failed
             layer, exported = _export(summaries, trained, scene, material, cfg, flat, source, layout, label,
                                       keep, failures, options)
-    except (InputError, OSError) as exc:
-        if fresh and (exc is error or isinstance(exc, OSError)):  # a folder this run created, for nothing
+            shutil.rmtree(layout.folder / WORK_FOLDER, ignore_errors=True)  # committed: the work is in place
+    except InputError as exc:
+        if exc is error and fresh:  # a folder this run created, for nothing
             shutil.rmtree(layout.folder, ignore_errors=True)
         raise
     for s, e in zip(summaries, exported):
@@ -449,26 +456,35 @@ def training_failure(material: str, exc: BaseException) -> MaterialFailure:
 
 def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
                      max_error, record: dict | None = None, application=None) -> tuple[Summaries, list[tuple]]:
-    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder) per
-    converted plan). A plan whose training raised (and one sharing its result) is left out and listed
+    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder, records)
+    per converted plan; ``records``: the work folder holding its new training files, None when reused). A plan whose training raised (and one sharing its result) is left out and listed
     in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end."""
     results: dict[int, tuple] = {}  # plan index -> (model or None, summary, cached)
+    uncommitted: dict[int, Path] = {}  # plan index -> the work folder of a reused result not yet committed
     jobs, job_plans = [], []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
         if plan.shared_with:
             continue
-        reused = None if force else _reuse(folder, plan.digest)
+        # Reused: a committed result, else one an earlier run trained but could not export (a full disk).
+        reused, where = None, folder
+        if not force:
+            reused, where = _reuse(folder, plan.digest), folder
+            if reused is None:
+                reused, where = _reuse(work_folder(folder), plan.digest), work_folder(folder)
         if reused is not None:
             model, summary = reused
             if summary.get("source") != plan.source.source_file:  # e.g. a stage snapshot, now the saved file
                 summary = {**summary, "source": plan.source.source_file}
-                write_summary(folder, summary)
+                write_summary(where, summary)
             results[i] = (model, summary, True)
+            if where != folder:
+                uncommitted[i] = where
             if progress:
                 print(f"{plan.name}: unchanged since the last run (source hash {plan.digest[:12]}): "
                       f"reusing {folder}", flush=True)
             continue
-        jobs.append(make_job(plan, folder, plan.cfg, device=device, resume=resume, progress=progress,
+        jobs.append(make_job(plan, prepare_work_folder(folder, resume), plan.cfg, device=device, resume=resume,
+                             progress=progress,
                              allow_missing_textures=allow_missing_textures, max_error=max_error,
                              options=record, application=application))
         job_plans.append(i)
@@ -492,7 +508,7 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
     for k, s in enumerate(run_jobs(jobs, workers, report, failed)):
         i = job_plans[k]
         if s is not None:
-            results[i] = (load_checkpoint(folders[i]), s, False)
+            results[i] = (load_checkpoint(jobs[k].folder), s, False)
     first = {p.name: i for i, p in reversed(list(enumerate(plans)))}
     summaries, trained = Summaries(), []
     summaries.failed = []
@@ -507,13 +523,16 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
                                                         f"whose training failed: {errors[j].reason}"))
                 continue
             model, rep, cached = results[j]
-            summary = _share(plan.source, plan, rep, folders[j], folder)
+            rep_files = work_folder(folders[j]) if (not cached or j in uncommitted) else folders[j]
+            records = prepare_work_folder(folder, False)
+            summary = _share(plan.source, plan, rep, rep_files, records)
             if progress:
                 print(f"{plan.name}: identical to {plan.shared_with} (same compiled graph, textures and "
                       f"settings; content hash {plan.content[:12]}): trained once, sharing its result", flush=True)
         else:
             model, summary, cached = results[i]
+            records = work_folder(folder) if (not cached or i in uncommitted) else None
         summary = {**summary, "cached": cached, "latent": plan.latent_info()}
-        trained.append((model, summary, folder))
+        trained.append((model, summary, folder, records))
         summaries.append(summary)
     return summaries, trained

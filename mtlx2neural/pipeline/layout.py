@@ -212,3 +212,31 @@ def prepare_folder(layout: OutputLayout, asset, tool_version: str) -> None:
         tmp = marker.with_name(f"{marker.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps({"source": str(canonical(asset)), "tool": f"mtlx2neural {tool_version}"}) + "\n")
         os.replace(tmp, marker)
+
+
+WORK_FOLDER = ".mtlx2neural-work"
+"""Where a run trains: ``OUT/.mtlx2neural-work/<material folder>``. A material's training files
+(checkpoint, curves, summary, PNGs, baseline) reach ``OUT/<material folder>`` only with its
+export, in one commit (:mod:`mtlx2neural.staging`), so a run that fails or is killed before
+then leaves the previous files, records and export as they were."""
+
+
+def work_folder(folder) -> Path:
+    """The folder a material whose final folder is ``folder`` trains in (:data:`WORK_FOLDER`)."""
+    folder = Path(folder)
+    return folder.parent / WORK_FOLDER / folder.name
+
+
+def prepare_work_folder(folder, resume: bool) -> Path:
+    """A work folder (:func:`work_folder`) to train ``folder``'s material in: empty, or with ``resume``
+    holding the checkpoint to continue (an interrupted run's, kept there, else the final folder's)."""
+    import shutil
+
+    work = work_folder(folder)
+    if not resume:
+        shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True, exist_ok=True)
+    saved = Path(folder) / "checkpoint.pt"
+    if resume and not (work / "checkpoint.pt").is_file() and saved.is_file():
+        shutil.copyfile(saved, work / "checkpoint.pt")
+    return work

@@ -592,7 +592,9 @@ def test_a_failed_export_leaves_nothing_partial(tmp_path, capsys, monkeypatch):
         assert main(args) == 1
     assert "disk full" in capsys.readouterr().err
     assert not usda.exists() and not export_dir.exists()
-    assert (tmp_path / "red_neural" / "Red" / "checkpoint.pt").is_file()  # training results are kept
+    # The training results are kept, uncommitted, in the work folder; the material folder is not there yet.
+    assert (tmp_path / "red_neural" / ".mtlx2neural-work" / "Red" / "checkpoint.pt").is_file()
+    assert not (tmp_path / "red_neural" / "Red").exists()
     assert not [p for p in tmp_path.rglob("*") if "staging" in p.name or ".tmp" in p.name]
 
     assert main(args) == 0  # the export alone (training is cached)

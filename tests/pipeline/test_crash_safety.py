@@ -84,3 +84,25 @@ def test_a_conversion_killed_in_its_commit_keeps_the_previous_export(tmp_path):
     for name in ("World.Looks.CarPaint", "World.Looks.Plastic"):
         assert (out / name / "neural" / "weights.bin").is_file() and (out / name / "neural" / "export.json").is_file()
     assert snapshot(asset.parent) == before
+
+
+def test_a_full_disk_exits_1_naming_the_file_and_keeps_the_previous_export_and_records(tmp_path):
+    asset = _sample(tmp_path)
+    out, layer = tmp_path / "out", tmp_path / "out.usda"
+    # A fresh run whose checkpoint cannot be written: exit 1 (not a material's "training failed"), the
+    # file named, and no layer nor material folder.
+    r = _cli(asset, "-o", out, "--workers", "1", *TINY, fault="write:checkpoint.pt=enospc")
+    assert r.returncode == 1, r.stderr
+    assert "No space left on device" in r.stderr and "checkpoint.pt" in r.stderr
+    assert not layer.exists() and not [p for p in out.iterdir() if not p.name.startswith(".mtlx2neural")]
+    assert _cli(asset, "-o", out, "--workers", "1", *TINY).returncode == 0
+    before = {**snapshot(out), "layer": layer.read_bytes()}
+    # A --force rerun that trains anew, then finds the disk full while exporting: every previous file
+    # (checkpoints, summaries, PNGs, the export, the layer) is as it was.
+    r = _cli(asset, "-o", out, "--workers", "1", "--force", "--seed", "3", *TINY, fault="write:latents_0.exr=enospc")
+    assert r.returncode == 1, r.stderr
+    assert "latents_0.exr" in r.stderr and "unchanged" in r.stderr
+    after = {**snapshot(out), "layer": layer.read_bytes()}
+    changed = sorted(k for k in set(before) | set(after)
+                     if before.get(k) != after.get(k) and not k.startswith(".mtlx2neural"))
+    assert changed == [], changed  # (the lock and the work folder are the run's own)
