@@ -68,3 +68,18 @@ def test_ordinary_images_give_flip_evaluators_own_figure():
     _, mean, _ = flip_evaluator.evaluate(ref, test, "HDR")
     e = image_errors(ref, test)
     assert e["flip"] == pytest.approx(float(mean), abs=0.0) and "flip_note" not in e  # the same call
+
+
+def test_a_material_that_renders_black_converts_with_a_warning(tmp_path, capsys):
+    """The issue's cut-out case through the CLI: a reference that is black in every view (no base, no
+    specular) once made flip-evaluator exit() the whole conversion (rc 255, no message)."""
+    from cli_helpers import run_cli
+    from materials import document, standard_surface
+
+    asset = tmp_path / "black.mtlx"
+    asset.write_text(document(standard_surface("Black", "SR", base=0.0, specular=0.0)))
+    code, out, err = run_cli(capsys, asset, "--iterations", "0", "--allow-untrained", "--workers", "1")
+    assert code == 0, err
+    summary = json.loads((tmp_path / "black_neural" / "Black" / "summary.json").read_text())
+    assert any("HDR FLIP" in w and "black" in w for w in summary["warnings"]), summary["warnings"]
+    assert all(np.isfinite(summary["flip_per_view"]))
