@@ -115,7 +115,7 @@ def _settle(errors: list[tuple[int, BaseException]], failed: Failed | None, jobs
         if _interrupt(exc):
             raise exc
     for i, exc in errors:
-        disk = write_failure(exc, jobs[i].folder)
+        disk = write_failure(exc, getattr(jobs[i], "folder", ""))
         if disk is not None:
             raise disk from exc
     if errors and failed is None:

@@ -1,6 +1,6 @@
 """SIGTERM (``kill``, a scheduler's time limit, a container stop) stops a conversion as Ctrl-C does: the
-running training saves its checkpoint (``--resume`` continues it), the exit code is 1, no layer is
-written and the input is untouched. The signal is real, sent to a CLI process mid-training."""
+running training saves its checkpoint (in the run's work folder, where ``--resume`` continues it),
+the exit code is 1, no layer is written and the input is untouched. The signal is real, sent to a CLI process mid-training."""
 
 from __future__ import annotations
 
@@ -40,6 +40,7 @@ def test_sigterm_saves_the_running_trainings_checkpoint(tmp_path):
     text = log.read_text()
     assert rc == 1, text
     assert "checkpoint saved" in text and "--resume" in text
-    assert (tmp_path / "out" / "World.Looks.Plastic" / "checkpoint.pt").is_file()
+    saved = tmp_path / "out" / ".mtlx2neural-work" / "World.Looks.Plastic" / "checkpoint.pt"  # for --resume
+    assert saved.is_file() and str(saved) in text
     assert not (tmp_path / "out.usda").exists()
     assert snapshot(asset.parent) == before
