@@ -119,8 +119,6 @@ def input_hash(source) -> str:
 
 def source_hash(source, cfg, allow_missing_textures: bool = False) -> str:
     """Hex sha256 of everything a trained material depends on (see the module docstring)."""
-    import MaterialX as mx
-
     h = hashlib.sha256()
 
     def put(tag: str, text: str) -> None:

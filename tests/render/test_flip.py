@@ -78,7 +78,7 @@ def test_a_material_that_renders_black_converts_with_a_warning(tmp_path, capsys)
 
     asset = tmp_path / "black.mtlx"
     asset.write_text(document(standard_surface("Black", "SR", base=0.0, specular=0.0)))
-    code, out, err = run_cli(capsys, asset, "--iterations", "0", "--allow-untrained", "--workers", "1")
+    code, _, err = run_cli(capsys, asset, "--iterations", "0", "--allow-untrained", "--workers", "1")
     assert code == 0, err
     summary = json.loads((tmp_path / "black_neural" / "Black" / "summary.json").read_text())
     assert any("HDR FLIP" in w and "black" in w for w in summary["warnings"]), summary["warnings"]
