@@ -284,7 +284,13 @@ def read_image(path, *, miplevel: int = 0, subimage: int = 0, node: str | None =
     fills a truncated JPEG with grey), holds NaN or infinite texels (float files), or lacks the
     requested subimage / MIP level.
     """
+    shown = os.fspath(path)
     path = local_file(path, node)  # a member of a USDZ package: its bytes, in a local file
+    if path != shown:  # errors name the package member, not the private copy
+        try:
+            return read_image(path, miplevel=miplevel, subimage=subimage, node=node, cache=cache)
+        except InputError as exc:
+            raise InputError(str(exc).replace(path, shown), node=exc.node) from None
     _check_file(path, node)
     real = os.path.realpath(path)
     cache = _CACHE if cache is None else cache

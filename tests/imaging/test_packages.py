@@ -58,3 +58,13 @@ def test_a_usdz_with_packed_textures_converts(package, capsys):
     code, _, err = run_cli(capsys, usdz, "--iterations", "0", "--allow-untrained", "--quiet", "--workers", "1")
     assert code == 0, err
     assert (usdz.parent / "texq_neural.usda").is_file()
+
+
+def test_a_damaged_packed_texture_is_named_by_its_package_path(tmp_path):
+    import zipfile
+
+    usdz = tmp_path / "bad.usdz"
+    with zipfile.ZipFile(usdz, "w", zipfile.ZIP_STORED) as z:
+        z.writestr("tex/cut.png", b"\x89PNG\r\n\x1a\n" + b"\0" * 40)  # a PNG signature, then nothing usable
+    with pytest.raises(InputError, match=r"bad\.usdz\[tex/cut\.png\]"):
+        read_image(f"{usdz}[tex/cut.png]")
