@@ -125,3 +125,75 @@ def test_the_layering_check_catches_an_upward_import(tmp_path):
     found = list(_imports(probe))
     assert found == [(2, "pipeline", True, False)]
     assert RANK["pipeline"] > RANK["graph"]
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """Module name -> the mtlx2neural modules it imports (anywhere in it). ``from pkg import mod``
+    counts as importing ``pkg.mod``, not the package's ``__init__``."""
+    mods = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).with_suffix("")
+        mods[".".join(rel.parts).removesuffix(".__init__")] = path
+    graph = {m: set() for m in mods}
+    for m, path in mods.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mtlx2neural"):
+                subs = [f"{node.module}.{a.name}" for a in node.names if f"{node.module}.{a.name}" in mods]
+                names = subs if len(subs) == len(node.names) else [node.module, *subs]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            graph[m] |= {n for n in names if n in mods and n != m}
+    return graph
+
+
+def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles (strongly connected sets of two or more modules) among edges that stay
+    inside one component (``mtlx2neural.<component>``)."""
+    def component(m: str) -> str:
+        return m.split(".")[1] if "." in m else ""
+
+    order, low, stack, on, found, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        order[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if component(w) != component(v):
+                continue
+            if w not in order:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], order[w])
+        if low[v] == order[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in order:
+            visit(v)
+    return found
+
+
+def test_no_import_circles_inside_a_package():
+    circles = _circles(_module_graph())
+    assert not circles, "modules that import each other (directly or around a circle):\n" + "\n".join(
+        " <-> ".join(c) for c in circles)
+
+
+def test_the_circle_check_finds_a_circle():
+    graph = {"mtlx2neural.a.x": {"mtlx2neural.a.y"}, "mtlx2neural.a.y": {"mtlx2neural.a.z"},
+             "mtlx2neural.a.z": {"mtlx2neural.a.x"}, "mtlx2neural.b.w": {"mtlx2neural.a.x"},
+             "mtlx2neural.a.v": {"mtlx2neural.b.w"}}
+    assert _circles(graph) == [["mtlx2neural.a.x", "mtlx2neural.a.y", "mtlx2neural.a.z"]]

@@ -17,7 +17,7 @@ Generated flags have no argparse default (:data:`argparse.SUPPRESS`): the namesp
 exactly the flags given, which :func:`options_from_args` turns into an instance (unset fields
 keep the dataclass's, or the base's, default).
 
-README's table: ``python -m mtlx2neural.commands.options_cli --readme README.md`` rewrites the
+README's table: ``python -m mtlx2neural.commands.readme_tables --readme README.md`` rewrites the
 text between ``<!-- options:begin -->`` and ``<!-- options:end -->`` (``--check``: exit 1 when
 it is out of date, writing nothing).
 """
@@ -29,12 +29,10 @@ import ast
 import dataclasses
 import inspect
 import re
-import sys
 import textwrap
 import types
 import typing
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 BEGIN, END = "<!-- options:begin -->", "<!-- options:end -->"
@@ -292,36 +290,3 @@ def replace_between_markers(text: str, table: str) -> str:
     if start < 0 or stop < start:
         raise ValueError(f"the markers {BEGIN} and {END} are missing or out of order")
     return text[:start + len(BEGIN)] + "\n" + table + text[stop:]
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m mtlx2neural.commands.options_cli --readme README.md [--check]``: write (or
-    check) the option tables between the markers; print them without ``--readme``."""
-    ap = argparse.ArgumentParser(prog="python -m mtlx2neural.commands.options_cli",
-                                 description="Generate README's command-line option tables.")
-    ap.add_argument("--readme", type=Path, help="the README to update between the markers")
-    ap.add_argument("--check", action="store_true", help="exit 1 if the README's tables are out of date")
-    args = ap.parse_args(argv)
-    # Local: the parser imports every command module, and each of them imports this one.
-    from mtlx2neural.commands.parser import command_parsers
-
-    table = options_table(command_parsers())
-    if args.readme is None:
-        sys.stdout.write(table)
-        return 0
-    text = args.readme.read_text()
-    new = replace_between_markers(text, table)
-    if args.check:
-        if new != text:
-            print(f"{args.readme}: the option tables are out of date: run python -m "
-                  f"mtlx2neural.commands.options_cli --readme {args.readme}", file=sys.stderr)
-            return 1
-        return 0
-    if new != text:
-        args.readme.write_text(new)
-        print(f"updated {args.readme}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -50,13 +50,13 @@ def test_readme_option_tables_are_up_to_date():
     assert BEGIN in command_line and END in command_line, "the tables belong in README's Command line section"
     expected = replace_between_markers(text, options_table(command_parsers()))
     assert text == expected, ("README's option tables are out of date: run "
-                              "python -m mtlx2neural.commands.options_cli --readme README.md")
+                              "python -m mtlx2neural.commands.readme_tables --readme README.md")
 
 
 def test_readme_check_mode_reports_a_stale_table(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text(f"# x\n\n{BEGIN}\n| stale |\n{END}\n\nafter\n")
-    cmd = [sys.executable, "-m", "mtlx2neural.commands.options_cli", "--readme", str(readme)]
+    cmd = [sys.executable, "-m", "mtlx2neural.commands.readme_tables", "--readme", str(readme)]
     stale = subprocess.run([*cmd, "--check"], capture_output=True, text=True, timeout=120, check=False)
     assert stale.returncode == 1 and "out of date" in stale.stderr
     assert "| stale |" in readme.read_text()  # --check writes nothing
