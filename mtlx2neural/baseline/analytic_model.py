@@ -63,7 +63,6 @@ from mtlx2neural.contract import (
     zero_below_horizon,
 )
 from mtlx2neural.model.latent import LatentPyramid
-from mtlx2neural.staging import Staging
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
@@ -355,16 +354,6 @@ def author_preview_surface(stage, material_path, textures: dict, ior: float, pre
     return surf
 
 
-def _author_usda(path: Path, files: dict, ior: float) -> None:
-    from pxr import Usd, UsdShade
-
-    stage = Usd.Stage.CreateNew(str(path))
-    stage.SetDefaultPrim(stage.DefinePrim("/Looks", "Scope"))
-    UsdShade.Material.Define(stage, "/Looks/Analytic")
-    author_preview_surface(stage, "/Looks/Analytic", {k: f"./{v}" for k, v in files.items()}, ior)
-    stage.GetRootLayer().Save()
-
-
 def write_preview_textures(model: AnalyticMaterial, folder) -> dict:
     """Bake ``model``'s level-0 maps into ``folder`` (created if needed) for a UsdPreviewSurface.
 
@@ -389,22 +378,6 @@ def write_preview_textures(model: AnalyticMaterial, folder) -> dict:
             files[name] = folder / (f"{name}.exr" if tile is None else f"{name}.<UDIM>.exr")
             _write_image(folder / (f"{name}.exr" if tile is None else f"{name}.{tile}.exr"), images[name])
     return {"textures": files, "ior": ior}
-
-
-def export_usd_preview(model: AnalyticMaterial, folder) -> dict:
-    """Write ``model``'s baked maps (:func:`write_preview_textures`) and a UsdPreviewSurface
-    ``analytic.usda`` (Material ``/Looks/Analytic``, :func:`author_preview_surface`) into ``folder``.
-
-    The folder is written whole into a temporary sibling and swapped in (an old one is replaced).
-    Returns ``{"usda": Path, "textures": {input: Path}, "ior": float}``.
-    """
-    folder = Path(folder)
-    with Staging(folder.parent) as st:
-        tmp = st.stage(folder)
-        baked = write_preview_textures(model, tmp)
-        _author_usda(tmp / "analytic.usda", {k: p.name for k, p in baked["textures"].items()}, baked["ior"])
-    return {"usda": folder / "analytic.usda", "textures": {k: folder / p.name for k, p in baked["textures"].items()},
-            "ior": baked["ior"]}
 
 
 # ----------------------------------------------------------------------------- saving a fitted baseline

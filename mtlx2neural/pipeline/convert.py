@@ -251,26 +251,7 @@ def _stale(folder: Path, source) -> bool:
     return bool(recorded and source is not None and recorded != input_hash(source))
 
 
-LEGACY_ARGUMENTS = ("out", "material", "device", "resume", "progress", "allow_missing_textures", "force",
-                    "preset", "usda", "workers", "max_error", "texel_density", "allow_untrained")
-"""The arguments ``convert_asset`` took after ``cfg`` before :class:`ConvertOptions`, in order."""
-
-
-def _legacy_options(cfg: TrainConfig, args: tuple, kwargs: dict) -> tuple[ConvertOptions, str]:
-    """(options, preset label) for the deprecated ``convert_asset(asset, cfg, out, material, ...)`` call."""
-    if len(args) > len(LEGACY_ARGUMENTS):
-        raise TypeError(f"convert_asset() takes at most {2 + len(LEGACY_ARGUMENTS)} positional arguments")
-    given = dict(zip(LEGACY_ARGUMENTS, args))
-    for k, v in kwargs.items():
-        if k not in LEGACY_ARGUMENTS or k in given:
-            raise TypeError(f"convert_asset() got an unexpected or repeated keyword argument {k!r}")
-        given[k] = v
-    label = given.pop("preset", None) or preset_name(cfg)
-    given.setdefault("device", "cpu")  # the old default; ConvertOptions' is "auto"
-    return ConvertOptions(**given, preset=label if label in PRESETS else "fast", train=cfg), label
-
-
-def convert_asset(asset, options: ConvertOptions | None = None, *legacy, **legacy_kwargs) -> Summaries:
+def convert_asset(asset, options: ConvertOptions | None = None) -> Summaries:
     """Train (or reuse, or share) every selected material (or only ``options.material``), then export them.
 
     ``asset``: a ``.mtlx`` or USD file, or an open ``Usd.Stage`` (below). ``options``
@@ -304,24 +285,11 @@ def convert_asset(asset, options: ConvertOptions | None = None, *legacy, **legac
     ``failed`` (materials that could not be converted, when others could; ``options.strict``
     raises instead), ``kept``, ``folder`` and ``layer`` (:class:`Summaries`). ``neural:metrics:preset``
     records ``options.preset`` (or the preset ``options.train`` equals).
-
-    Deprecated: the former signature ``convert_asset(asset, cfg, out=None, material=None,
-    device="cpu", resume=False, progress=True, allow_missing_textures=False, force=False,
-    preset=None, usda=None, workers=None, max_error=None, texel_density=None,
-    allow_untrained=False)`` with a ``TrainConfig`` still works (a ``DeprecationWarning``)
-    while callers move to :class:`ConvertOptions`.
     """
-    if isinstance(options, TrainConfig) or legacy or legacy_kwargs:
-        if not isinstance(options, TrainConfig):
-            raise TypeError("convert_asset(asset, options): give a ConvertOptions (extra arguments belong to "
-                            "the deprecated convert_asset(asset, cfg, ...) form, whose cfg is a TrainConfig)")
-        warnings.warn("convert_asset(asset, cfg, out, ...) is deprecated: pass a ConvertOptions "
-                      "(mtlx2neural.pipeline.options)", DeprecationWarning, stacklevel=2)
-        options, label = _legacy_options(options, legacy, legacy_kwargs)
-    else:
-        options = ConvertOptions() if options is None else options
-        label = None
-    return _convert(asset, options, label)
+    if options is not None and not isinstance(options, ConvertOptions):
+        raise TypeError(f"convert_asset(asset, options): options is a ConvertOptions "
+                        f"(mtlx2neural.pipeline.options), not {type(options).__name__}")
+    return _convert(asset, ConvertOptions() if options is None else options)
 
 
 def _stage_layout(stage, options: ConvertOptions) -> OutputLayout:
@@ -333,12 +301,11 @@ def _stage_layout(stage, options: ConvertOptions) -> OutputLayout:
     return resolve_output(root.realPath if root.realPath else None, options.out or options.usda)
 
 
-def _convert(asset, options: ConvertOptions, label: str | None) -> Summaries:
+def _convert(asset, options: ConvertOptions) -> Summaries:
     # 1. options, before reading anything
     cfg = check_options(options)
-    if label is None:
-        named = preset_name(cfg) if options.train is not None else "custom"
-        label = named if named != "custom" else options.preset
+    named = preset_name(cfg) if options.train is not None else "custom"
+    label = named if named != "custom" else options.preset  # the preset options.train equals, else options.preset
     device = check_device(options.device)
     workers = check_workers(options.workers)
     material = options.material

@@ -110,8 +110,3 @@ def stratified_gaussian(m: int, s: int, generator: torch.Generator | None = None
     perm = torch.argsort(torch.rand(m, s, 2, generator=generator), dim=1)
     u = (perm + torch.rand(m, s, 2, generator=generator)) / s
     return torch.special.ndtri(u.clamp(1e-7, 1 - 1e-7))
-
-
-def footprint_sigma_texels(level: int) -> float:
-    """Standard deviation of the level-``level`` footprint, in level-0 texels."""
-    return SIGMA_TEXELS * math.pow(2.0, level)

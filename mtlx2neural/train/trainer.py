@@ -48,12 +48,9 @@ from mtlx2neural.train.mollify import cone_mean, lobe_directions
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
-UNIFORM_PDF = 1.0 / (2.0 * math.pi)
-KL_ESTIMATOR = "proposal"  # brdf_and_sampler_losses: "proposal" (the paper's) or "uniform" (before 2026-12-02)
 KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine density (defensive mixture)
 GRAD_CLIP = 10.0  # global gradient-norm cap
 GRAZING_MAX_COS = 0.25  # cfg.grazing_fraction's viewers: within ~14 degrees of the horizon
-MOLLIFY_SCHEDULE = "cosine"  # the cone's decay (Trainer.mollify_angle): "cosine" (the paper's) or "linear"
 GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
 
 
@@ -75,24 +72,18 @@ def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u):
     learned proxy (detached) or, where ``u[:, 2] < KL_DEFENSIVE``, from the cosine density, and is
     weighted by f / r with r = (1 - KL_DEFENSIVE) q + KL_DEFENSIVE cos / pi the mixture's density, the
     weights normalised over the batch. ``u`` [N,3] uniform random numbers. The latent is detached so the
-    sampler cannot pull the latents towards what it can sample. (:data:`KL_ESTIMATOR` ``"uniform"``:
-    the estimator before 2026-12-02, uniform directions (normalised Gaussians from ``u``) mirrored above
-    the horizon, kept for the measurement in docs/history/paper-choices-2026-12-02.md.)
+    sampler cannot pull the latents towards what it can sample. (The uniform-direction estimator it
+    replaced, and the measurement, are in docs/history/paper-choices-2026-12-02.md.)
     """
     loss_brdf = log_l1(decoder(latent, wi, wo), target)
     lat_d = latent.detach()
     with torch.no_grad():
-        if KL_ESTIMATOR == "uniform":
-            wo_s = torch.nn.functional.normalize(torch.special.ndtri(u.clamp(1e-6, 1 - 1e-6)), dim=-1)
-            wo_s = torch.cat([wo_s[:, :2], wo_s[:, 2:3].abs()], -1)
-            density = torch.full_like(wo_s[:, 0], UNIFORM_PDF)
-        else:
-            params_d = sampler(wi, lat_d)
-            wo_s = torch.where((u[:, 2] < KL_DEFENSIVE)[:, None], cosine_sample(u[:, :2]),
-                               proxy.sample(wi, params_d, u[:, :2]))
-            wo_s = torch.nn.functional.normalize(torch.nan_to_num(wo_s, nan=0.0), dim=-1)
-            density = ((1.0 - KL_DEFENSIVE) * proxy.pdf(wi, wo_s, params_d)
-                       + KL_DEFENSIVE * wo_s[:, 2].clamp_min(0.0) / math.pi)
+        params_d = sampler(wi, lat_d)
+        wo_s = torch.where((u[:, 2] < KL_DEFENSIVE)[:, None], cosine_sample(u[:, :2]),
+                           proxy.sample(wi, params_d, u[:, :2]))
+        wo_s = torch.nn.functional.normalize(torch.nan_to_num(wo_s, nan=0.0), dim=-1)
+        density = ((1.0 - KL_DEFENSIVE) * proxy.pdf(wi, wo_s, params_d)
+                   + KL_DEFENSIVE * wo_s[:, 2].clamp_min(0.0) / math.pi)
         ok = (wo_s[:, 2] > 0) & (density > 0) & torch.isfinite(density)
         w = torch.where(ok, decoder(lat_d, wi, wo_s).mean(-1) / density.clamp_min(1e-12), torch.zeros_like(density))
         w = w / w.sum().clamp_min(1e-12)
@@ -175,11 +166,11 @@ class Trainer:
         """This step's mollification cone half-angle (radians): the paper's cosine decay (supplement,
         eq. 2) from ``mollify_degrees`` to 0 over ``mollify_fraction`` of the run,
         ``0.5 * mollify_degrees * (1 + cos(pi * t))`` with t the share of that span done, never below
-        ``mollify_min_degrees``. (:data:`MOLLIFY_SCHEDULE` ``"linear"``: 1 - t, the schedule before
-        2026-12-02, kept for the measurement in docs/history/paper-choices-2026-12-02.md.)"""
+        ``mollify_min_degrees``. (The linear schedule it replaced, and the measurement, are in
+        docs/history/paper-choices-2026-12-02.md.)"""
         cfg = self.cfg
         t = min(1.0, self.step / max(1.0, cfg.iterations * cfg.mollify_fraction))
-        decay = 1.0 - t if MOLLIFY_SCHEDULE == "linear" else 0.5 * (1.0 + math.cos(math.pi * t))
+        decay = 0.5 * (1.0 + math.cos(math.pi * t))
         return math.radians(max(cfg.mollify_degrees * decay, cfg.mollify_min_degrees))
 
     def _targets(self, wi, wo, uv, level):

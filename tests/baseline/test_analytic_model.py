@@ -13,8 +13,9 @@ import mtlx2neural as m2n
 from mtlx2neural.baseline.analytic_model import (
     CHANNELS,
     AnalyticMaterial,
-    export_usd_preview,
+    author_preview_surface,
     fit_analytic,
+    write_preview_textures,
 )
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.render.renderer import compare
@@ -77,7 +78,7 @@ def test_eval_is_finite_at_grazing_and_below_horizon():
     assert all(torch.isfinite(lv.grad).all() for lv in model.maps.levels if lv.grad is not None)
 
 
-def test_usd_preview_export_opens_and_references_textures(tmp_path):
+def test_usd_preview_surface_opens_and_references_the_baked_textures(tmp_path):
     import OpenImageIO as oiio
     from pxr import Usd, UsdShade
 
@@ -85,10 +86,13 @@ def test_usd_preview_export_opens_and_references_textures(tmp_path):
     with torch.no_grad():
         model.maps.levels[0].normal_(0, 1, generator=torch.Generator().manual_seed(2))
     assert len(CHANNELS) == 8
-    out = export_usd_preview(model, tmp_path / "preview")
-    again = export_usd_preview(model, tmp_path / "preview")  # replaces the folder whole
-    assert again["usda"] == out["usda"] and sorted(p.name for p in (tmp_path).iterdir()) == ["preview"]
-    stage = Usd.Stage.Open(str(out["usda"]))
+    baked = write_preview_textures(model, tmp_path / "preview")
+    stage = Usd.Stage.CreateNew(str(tmp_path / "preview" / "analytic.usda"))
+    UsdShade.Material.Define(stage, "/Looks/Analytic")
+    author_preview_surface(stage, "/Looks/Analytic", {k: f"./{p.name}" for k, p in baked["textures"].items()},
+                           baked["ior"])
+    stage.GetRootLayer().Save()
+    stage = Usd.Stage.Open(str(tmp_path / "preview" / "analytic.usda"))
     mat = UsdShade.Material(stage.GetPrimAtPath("/Looks/Analytic"))
     surf = mat.ComputeSurfaceSource()[0]
     assert surf.GetIdAttr().Get() == "UsdPreviewSurface"
@@ -96,11 +100,11 @@ def test_usd_preview_export_opens_and_references_textures(tmp_path):
         src = surf.GetInput(name).GetConnectedSources()[0][0].source
         tex = UsdShade.Shader(src.GetPrim())
         asset = tex.GetInput("file").Get()
-        resolved = (out["usda"].parent / asset.path).resolve()
-        assert resolved.is_file() and resolved == out["textures"][name].resolve()
+        resolved = (tmp_path / "preview" / asset.path).resolve()
+        assert resolved.is_file() and resolved == baked["textures"][name].resolve()
         spec = oiio.ImageInput.open(str(resolved)).spec()
         assert (spec.width, spec.height) == (8, 4)
-    normal = oiio.ImageInput.open(str(out["textures"]["normal"])).read_image("float")
+    normal = oiio.ImageInput.open(str(baked["textures"]["normal"])).read_image("float")
     n = np.asarray(normal) * 2 - 1
     assert np.allclose(np.linalg.norm(n, axis=-1), 1, atol=2e-3) and (n[..., 2] > 0).all()
-    assert 1.0 < out["ior"] < 3.0
+    assert 1.0 < baked["ior"] < 3.0

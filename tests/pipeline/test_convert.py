@@ -1,4 +1,4 @@
-"""convert_asset: ConvertOptions, the deprecated argument form, and open file-backed stages.
+"""convert_asset: ConvertOptions checked first, and open file-backed stages.
 
 Trainings are tiny (20 steps of 256 samples): these tests check which files are written and
 what they point at, not fidelity.
@@ -14,10 +14,10 @@ from materials import usd_painted_ball
 from pxr import Sdf, Usd
 
 from mtlx2neural.errors import InputError
-from mtlx2neural.pipeline.convert import _legacy_options, convert_asset
+from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.layout import SNAPSHOT_NAME
 from mtlx2neural.pipeline.options import ConvertOptions
-from mtlx2neural.train.config import PRESETS, preset
+from mtlx2neural.train.config import preset
 
 TINY = preset("fast", iterations=20, batch=256)
 PAINT = "/World/Looks/Paint"
@@ -31,28 +31,15 @@ def _options(**kw) -> ConvertOptions:
     return ConvertOptions(train=TINY, device="cpu", progress=False, workers=1, **kw)
 
 
-def test_legacy_arguments_map_onto_convert_options():
-    options, label = _legacy_options(TINY, ("out", "Paint"), {"resume": True, "max_error": 0.1})
-    assert (options.out, options.material, options.resume, options.max_error) == ("out", "Paint", True, 0.1)
-    assert options.device == "cpu" and options.train is TINY  # the old default device
-    assert label == "custom"  # TINY is no preset: as before, the label is the preset cfg equals
-    assert _legacy_options(PRESETS["standard"], (), {})[1] == "standard"
-    assert _legacy_options(TINY, (), {"preset": "fast"})[1] == "fast"
-    with pytest.raises(TypeError, match="nope"):
-        _legacy_options(TINY, (), {"nope": 1})
-    with pytest.raises(TypeError, match="repeated"):
-        _legacy_options(TINY, ("out",), {"out": "again"})
-
-
-def test_legacy_call_warns_and_checks_the_options_first(tmp_path):
+def test_options_are_checked_first_and_only_convert_options_are_taken(tmp_path):
     asset = tmp_path / "scene.usda"
     asset.write_text(SCENE)
-    with pytest.warns(DeprecationWarning, match="ConvertOptions"), pytest.raises(InputError, match="texel-density"):
-        convert_asset(asset, TINY, None, None, "cpu", texel_density=-1.0)
+    with pytest.raises(InputError, match="texel-density"):
+        convert_asset(asset, _options(texel_density=-1.0))
     with pytest.raises(InputError, match="--preset 'nope'"):
         convert_asset(asset, ConvertOptions(preset="nope"))
-    with pytest.raises(TypeError, match="ConvertOptions"):
-        convert_asset(asset, ConvertOptions(), "out")
+    with pytest.raises(TypeError, match="ConvertOptions.*not TrainConfig"):  # the removed (asset, cfg, ...) form
+        convert_asset(asset, TINY)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.usda"]  # nothing written
 
 
