@@ -49,9 +49,7 @@ class TrainConfig:
     azimuth with cos(theta_i) uniform in (0, 0.25], within ~14 degrees of the horizon: half/difference
     pairs rarely land there, and a coat's Fresnel darkens the base within a few degrees of it (the
     rim). Extra rather than in place of half/difference rows, which the specular lobes need; with
-    ``lobe_fraction`` half of them take ``wo`` near the reference's lobes. Off in every preset: 0.1
-    cut the CarPaint's directional-light error by a quarter but cost the textured materials' sky
-    error (GlazedCeramic 0.113 -> 0.130; docs/history/BENCHMARKS-2026-12-01.md)."""
+    ``lobe_fraction`` half of them take ``wo`` near the reference's lobes. 0 (off) in every preset."""
     lobe_fraction: float = 0.0
     """Share of each BRDF batch whose ``wo`` comes from the reference's sampler (spread over the
     current cone) instead of uniform half/difference angles, so narrow lobes are trained on."""
@@ -63,17 +61,12 @@ class TrainConfig:
     takes one pair per footprint point)."""
     footprint_samples: int = 16
     """Cap on reference samples (a Latin hypercube over the footprint) per footprint-filtered target
-    (fast and standard: 8). Fewer points make each step cheaper and each target noisier. At 4 points
-    the textured BrushedMetal stalls at a higher error (HDR FLIP 0.18 after 2000 steps, against
-    0.16-0.17 after 1000 with 8 points): the log-L1 loss follows the targets' median, below their mean
-    where a footprint holds sparse bright points, so the learned BRDF keeps 52-69 % of the footprint's
-    energy per level at 4 points, 73-88 % at 8 and 79-91 % at 16. 8 points take 35-40 % less time
-    than 16 at the same directional FLIP within the seeds' spread (BENCHMARKS.md, "Time to quality")."""
+    (fast and standard: 8). Fewer points make each step cheaper and each target noisier, and keep less
+    of a sparse bright footprint's energy (BENCHMARKS.md, "Setting notes")."""
     footprint_one_call: bool = True
     """Evaluate a textured material's footprint points of every level in one reference call per step
-    instead of one per level: the same targets' estimator, about half the data time on a 256² grid
-    (BENCHMARKS.md, "Time to quality"). On by default since 2026-12-03 (the `fast` preset on every
-    sample, both ways, in BENCHMARKS.md); False is the per-level loop, kept for that comparison."""
+    instead of one per level: the same targets' estimator, in about half the data time on a 256² grid.
+    False: one call per level."""
     target_reuse: int = field(default=1, metadata={"metavar": "K"})
     """Steps each training row (its directions, point and reference target) is trained on: each step
     draws a K-th of the batch fresh and reuses the rest from the K - 1 steps before
@@ -93,17 +86,14 @@ class TrainConfig:
     """Seed of the initial weights and of the training data (0 to 2^63 - 1)."""
     preview_iterations: int = field(default=200, metadata={"metavar": "N"})
     """Adam steps of the analytic Lambert + GGX fit behind the layer's UsdPreviewSurface fallback
-    (fast: 100; 0: no fallback, so no ``NeuralPreview`` shader and no ``previewFlip``). On the
-    textured GlazedCeramic (256² grid) 100 steps take 53 s against 200 steps' 128 s for an HDR FLIP
-    of 0.158 against 0.156."""
+    (fast: 100; 0: no fallback, so no ``NeuralPreview`` shader and no ``previewFlip``)."""
     probe_every: int = 0
     """Steps between quality probes during training (:class:`~mtlx2neural.render.flip_probe.FlipProbe`:
     HDR FLIP of the current model in three small views), written to ``training_curves.csv`` as
     ``flip_probe`` and plotted against training seconds in the report; the last step is always probed.
     Their time is left out of the curves' ``seconds``, and they draw none of the training's random
-    numbers, so a run is the same with or without them. 0: none. A probe costs ~0.2 CPU s (48², 4 samples
-    per pixel; the textured GlazedCeramic's 3x64, one thread, 2026-12-03): ~1 % of a `fast` run
-    probed every 100 steps."""
+    numbers, so a run is the same with or without them. 0: none. A probe costs about 0.2 CPU s
+    (BENCHMARKS.md, "Setting notes")."""
     compile: bool = False
     """torch.compile the decoder/sampler losses (and a uniform material's reference): faster
     steps after tens of seconds of compilation; worth it for long runs only."""
