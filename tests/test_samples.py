@@ -6,6 +6,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 import mtlx2neural as m2n
@@ -22,6 +23,7 @@ def _generator():
     return mod
 
 
+@pytest.mark.slow
 def test_textured_sample_is_layered_textured_and_trainable(tmp_path, capsys):
     stage = _generator().build(tmp_path / "textured", res=64)
     scene = load_asset(stage)

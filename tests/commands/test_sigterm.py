@@ -12,11 +12,13 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from cli_helpers import snapshot
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda"
 
 
+@pytest.mark.slow
 def test_sigterm_saves_the_running_trainings_checkpoint(tmp_path):
     asset = tmp_path / "in" / SAMPLE.name
     asset.parent.mkdir()

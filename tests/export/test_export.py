@@ -290,6 +290,7 @@ def converted(tmp_path_factory):
             "out": folder / "layered_spheres_neural"}
 
 
+@pytest.mark.slow
 def test_output_layout(converted):
     assert [s["cached"] for s in converted["summaries"]] == [False, False]
     assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
@@ -498,6 +499,7 @@ def test_text_baseline(tmp_path):
 # ----------------------------------------------------------------------------- the cache
 
 
+@pytest.mark.slow
 def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path, monkeypatch):
     from mtlx2neural.train.trainer import Trainer
 
@@ -560,6 +562,7 @@ def test_source_hash_follows_the_document_and_the_textures(tmp_path):
 # ----------------------------------------------------------------------------- the command line
 
 
+@pytest.mark.slow
 def test_cli_converts_the_bundled_sample_and_reuses_it(tmp_path, capsys):
     asset = tmp_path / SAMPLE.name
     shutil.copyfile(SAMPLE, asset)
@@ -639,6 +642,7 @@ def test_mtlx_input_gets_a_materials_scope(tmp_path):
 SHARED_USD = SHARED / "assets" / "usd" / "test_assets"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["basic_flatten.usda", "basicTextured_flatten.usda", "basicTextured.usda"])
 def test_shared_usd_assets_convert_end_to_end(tmp_path, name):
     if not (SHARED_USD / "MaterialXTest" / name).exists():

@@ -73,6 +73,7 @@ def _material(usda: Path, prim: str, variant: str = "neural"):
     return stage, UsdShade.Material(p)
 
 
+@pytest.mark.slow
 def test_every_converted_material_has_a_valid_node_that_generates(red, sample):
     exports = [red["export"]] + [sample["out"] / n / "neural" for n in ("World.Looks.CarPaint", "World.Looks.Plastic")]
     for export, name in zip(exports, ["Red", "/World/Looks/CarPaint", "/World/Looks/Plastic"]):

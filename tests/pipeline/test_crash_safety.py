@@ -40,6 +40,7 @@ def _sample(tmp_path: Path) -> Path:
     return asset
 
 
+@pytest.mark.slow
 def test_a_worker_that_exits_abruptly_fails_only_its_own_material(tmp_path):
     asset = _sample(tmp_path)
     before = snapshot(asset.parent)
@@ -60,6 +61,7 @@ def _exports(out: Path, layer: Path) -> dict:
     return snap
 
 
+@pytest.mark.slow
 def test_a_conversion_killed_in_its_commit_keeps_the_previous_export(tmp_path):
     asset = _sample(tmp_path)
     out, layer = tmp_path / "out", tmp_path / "out.usda"
@@ -86,6 +88,7 @@ def test_a_conversion_killed_in_its_commit_keeps_the_previous_export(tmp_path):
     assert snapshot(asset.parent) == before
 
 
+@pytest.mark.slow
 def test_a_full_disk_exits_1_naming_the_file_and_keeps_the_previous_export_and_records(tmp_path):
     asset = _sample(tmp_path)
     out, layer = tmp_path / "out", tmp_path / "out.usda"

@@ -382,6 +382,7 @@ def test_process_pool_trains_two_materials_in_two_workers(tmp_path, capfd):
         assert m2n.load_neural(s["usd"], s["material"]).usd_info["material"] == "/Materials/" + s["material"]
 
 
+@pytest.mark.slow
 def test_ray_local_cluster_runs_the_same_jobs(tmp_path, capsys):
     ray = pytest.importorskip("ray", reason="the optional 'ray' extra is not installed")
     asset = tmp_path / "three.usda"

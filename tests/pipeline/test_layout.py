@@ -218,6 +218,7 @@ def test_a_read_only_folder_is_found_before_training(tmp_path):
 # ----------------------------------------------------------------------------- incremental layers
 
 
+@pytest.mark.slow
 def test_a_material_rerun_keeps_the_other_materials(tmp_path, capsys):
     asset = tmp_path / "two.usda"
     stage_with(asset, {"/World/Looks/Red": (0.8, 0.1, 0.1), "/World/Looks/Blue": (0.1, 0.1, 0.8)})

@@ -224,6 +224,7 @@ def test_the_library_result_carries_the_failures(monkeypatch, tmp_path):
     assert result.failed == summaries.failed and result.skipped == []
 
 
+@pytest.mark.slow
 def test_a_material_kept_by_a_material_run_warns_when_its_input_changed(tmp_path, capsys):
     from materials import TWO_MTLX
 

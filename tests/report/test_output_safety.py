@@ -68,6 +68,7 @@ def test_report_refuses_a_folder_it_did_not_write(exported, tmp_path, capsys):  
     assert snapshot(tmp_path) == before
 
 
+@pytest.mark.slow
 def test_report_reads_the_input_by_the_layers_record_and_under_the_conversions_texture_rules(textured, tmp_path,
                                                                                               capsys):
     code, _, err = run_cli(capsys, textured / "tex.mtlx", "--iterations", "0", "--allow-untrained", "--quiet")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import OpenImageIO as oiio
+import pytest
 from conftest import shared_path
 
 import mtlx2neural as m2n
@@ -48,6 +49,7 @@ def test_chessboard_maps_match_the_source_textures():
     assert stack.levels[-1].shape[1:] == (1, 1)
 
 
+@pytest.mark.slow
 def test_wood_tiled_statistics_follow_its_textures():
     path = shared_path(*EXAMPLES, "standard_surface_wood_tiled.mtlx")
     m = m2n.load_reference(path)

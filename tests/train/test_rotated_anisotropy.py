@@ -118,6 +118,7 @@ def test_reference_highlights_follow_the_rotation(rotated):
     assert r0 < 0.5 and r1 < 0.5, (r0, r1)
 
 
+@pytest.mark.slow
 def test_training_learns_the_lobes_orientation(rotated, tmp_path, one_thread):
     ref, stack = rotated
     model = train_rotated(ref, stack, tmp_path, seed=1)

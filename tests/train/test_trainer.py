@@ -114,6 +114,7 @@ def test_one_texel_pyramid_and_ablation_variants_stay_finite(tmp_path, variant):
     assert all(bool(torch.isfinite(t).all()) for t in (f, wo, weight, pdf))
 
 
+@pytest.mark.slow
 def test_learned_sampler_beats_cosine_on_a_glossy_material(carpaint, tmp_path):
     """After a short training run the learned proxy tracks CarPaint's glossy lobes better than
     cosine sampling: lower relative variance of f*cos/pdf for the neural BRDF."""
