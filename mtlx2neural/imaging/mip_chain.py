@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mtlx2neural.errors import InputError
+from mtlx2neural.errors import InputError, missing_reason
 from mtlx2neural.imaging.image_io import openimageio
 
 
@@ -20,8 +20,7 @@ def read_mip_chain(path) -> list[np.ndarray]:
     """
     path = Path(path)
     if not path.is_file():
-        what = "is a directory, not a file" if path.is_dir() else "does not exist"
-        raise InputError(f"latent texture {path} {what}; export the material again (its latents_<k>.exr "
+        raise InputError(f"latent texture {path} {missing_reason(path)}; export the material again (its latents_<k>.exr "
                          f"files hold the latent pyramid)")
     oiio = openimageio()
     inp = oiio.ImageInput.open(str(path))

@@ -38,10 +38,13 @@ def _clean(img: np.ndarray) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(np.clip(img, 0.0, None)), count
 
 
+def _max_y(clean: np.ndarray) -> float:
+    return float((clean[..., :3].astype(np.float64) @ _Y).max()) if clean.size else 0.0
+
+
 def max_luminance(img: np.ndarray) -> float:
     """The largest Rec. 709 luminance of a linear RGB ``[H, W, 3]`` image (non-finite pixels as 0)."""
-    clean, _ = _clean(img)
-    return float((clean[..., :3].astype(np.float64) @ _Y).max()) if clean.size else 0.0
+    return _max_y(_clean(img)[0])
 
 
 def hdr_flip(reference: np.ndarray, test: np.ndarray, apply_magma: bool = True) -> tuple[np.ndarray, float, str | None]:
@@ -58,8 +61,8 @@ def hdr_flip(reference: np.ndarray, test: np.ndarray, apply_magma: bool = True) 
     if bad_ref or bad_test:
         notes.append(f"{bad_ref} reference and {bad_test} test pixels were not finite and count as black")
     params = {}
-    if max_luminance(ref) < MIN_REFERENCE_LUMINANCE:
-        if max_luminance(tst) < MIN_REFERENCE_LUMINANCE:
+    if _max_y(ref) < MIN_REFERENCE_LUMINANCE:  # ref, tst: cleaned already
+        if _max_y(tst) < MIN_REFERENCE_LUMINANCE:
             notes.append("both images are black: FLIP 0")
             shape = ref.shape[:2] + ((3,) if apply_magma else (1,))
             return np.zeros(shape, np.float32), 0.0, "; ".join(notes)
