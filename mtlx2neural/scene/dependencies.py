@@ -81,6 +81,19 @@ def _stage_dependencies(stage) -> set[Path]:
     return found
 
 
+def _mtlx_file_dependencies(path: Path) -> set[Path]:
+    """The files the ``.mtlx`` file ``path`` reads (:func:`_mtlx_dependencies` of its document); an
+    unreadable document reads nothing more here (loading it reports why)."""
+    # Local: mtlx_file imports MaterialX and the standard libraries, needed only for a .mtlx asset.
+    from mtlx2neural.errors import InputError
+    from mtlx2neural.scene.mtlx_file import read_document
+
+    try:
+        return _mtlx_dependencies(read_document(path, validate=False))
+    except InputError:
+        return set()
+
+
 def input_files(asset, sources=()) -> set[Path]:
     """Every file the asset ``asset`` (a path, or an open ``Usd.Stage``) and the material
     ``sources`` (:class:`MaterialSource`) read."""
@@ -91,6 +104,8 @@ def input_files(asset, sources=()) -> set[Path]:
         found = {asset}
         if asset.suffix.lower() in USD_SUFFIXES:
             found |= _usd_dependencies(asset)
+        elif asset.suffix.lower() == ".mtlx" and asset.is_file():  # its includes and textures, as USD's
+            found |= _mtlx_file_dependencies(asset)
     for src in sources:
         if src.source_file and not _is_anonymous(src.source_file):
             found.add(canonical(src.source_file))

@@ -73,6 +73,10 @@ def test_report_reads_the_input_by_the_layers_record_and_under_the_conversions_t
                                                                                               capsys):
     code, _, err = run_cli(capsys, textured / "tex.mtlx", "--iterations", "0", "--allow-untrained", "--quiet")
     assert code == 0, err
+    # Through the layer of a .mtlx input, the input's textures are still inputs: refused.
+    code, out, err = run_cli(capsys, "render", textured / "tex_neural.usda", "--model", "neural",
+                             "-o", textured / "albedo.exr", *COMMON)
+    assert_clean_input_error(code, out, err, str(textured / "albedo.png"), "would overwrite")
     moved = tmp_path / "moved"
     textured.rename(moved)  # input, layer and output folder move together; summary.json keeps the old path
     layer = moved / "tex_neural.usda"
