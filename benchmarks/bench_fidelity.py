@@ -40,7 +40,8 @@ import mtlx2neural.model.decoder as decoder_module
 import mtlx2neural.model.networks as networks_module
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.graph import compile_material
-from mtlx2neural.pipeline.convert import held_out_error, latent_resolution
+from mtlx2neural.pipeline.material_training import held_out_error
+from mtlx2neural.pipeline.plan import latent_resolution
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.renderer import compare, save_png
 from mtlx2neural.scene import find_material

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from pxr import Sdf
 
+from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 
@@ -30,9 +31,10 @@ class ConversionResult:
     folder: Path
     """The output folder: per-material training files and exports, and the stage snapshot
     (``stage-snapshot.usda``) when the input had unsaved or in-memory edits."""
-    summaries: list[dict]
-    """One training summary per converted material (``material``: the prim path; ``source``: the
-    file to load its reference from; ``source_hash``, ``flip_mean``, ``cached``, ``usd``...)."""
+    summaries: list[MaterialRecord]
+    """One :class:`~mtlx2neural.material_record.MaterialRecord` per converted material (``material``: the
+    prim path; ``source``: the file to load its reference from; ``flip_mean``, ``cached``, ``usd``...),
+    as stored in its folder's ``summary.json``."""
     skipped: list[dict]
     """The scene's materials left out (``{"material", "reason"}``, e.g. not bound to renderable
     geometry); empty when ``options.material`` named one."""

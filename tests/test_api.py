@@ -161,7 +161,7 @@ def test_convert_an_in_memory_stage(tmp_path, monkeypatch):
 
     # Summaries: the bound material, its source the snapshot; the unbound one skipped.
     (summary,) = result.summaries
-    assert summary["material"] == PAINT and summary["source"] == str(snapshot) and summary["usd"] == str(layer_path)
+    assert summary.material == PAINT and summary.source == str(snapshot) and summary.usd == str(layer_path)
     assert result.skipped == [{"material": UNUSED, "reason": "not bound to any renderable prim"}]
 
     # The snapshot holds the composed scene: the session edit, the texture's absolute path; a
@@ -170,10 +170,10 @@ def test_convert_an_in_memory_stage(tmp_path, monkeypatch):
     assert flat.GetAttributeAtPath(f"{PAINT}/SR.inputs:base").default == pytest.approx(0.3)
     assert flat.GetAttributeAtPath(f"{PAINT}/Grain.inputs:file").default.path == texture
     again = find_material(snapshot, PAINT)
-    assert source_hash(again, TINY) == summary["source_hash"]
+    assert source_hash(again, TINY) == summary.source_hash
     # ... and that hash is the session edit's: without it, the material hashes differently.
     stage.GetSessionLayer().Clear()
-    assert source_hash(find_material(stage, PAINT), TINY) != summary["source_hash"]
+    assert source_hash(find_material(stage, PAINT), TINY) != summary.source_hash
 
     neural = m2n.load_neural(layer_path, PAINT)
     wi, wo = random_dirs(64, seed=11), random_dirs(64, seed=12)

@@ -25,6 +25,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("atomic",),
     ("progress",),
     ("staging",),
+    ("material_record",),  # summary.json: the typed record every later stage reads
     ("contract",),
     ("usd_schema",),
     ("formats",),  # FP16 and the weights file: below both export and codegen

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_fidelity import train_and_model  # noqa: E402
 
-from mtlx2neural.pipeline.jobs import held_out_error  # noqa: E402
+from mtlx2neural.pipeline.material_training import held_out_error  # noqa: E402
 from mtlx2neural.render.renderer import compare  # noqa: E402
 from mtlx2neural.train.config import TrainConfig, preset  # noqa: E402
 

@@ -95,36 +95,34 @@ def print_summaries(summaries) -> None:
     """A line per material (how it was obtained, decoder, errors; budget, warnings, notes), then the
     folder and layer written."""
     for s in summaries:
-        if s.get("shared_with"):
-            how = f"identical to {s['shared_with']} (same graph, textures and settings): trained once, shared"
-        elif s["cached"]:
+        if s.shared_with:
+            how = f"identical to {s.shared_with} (same graph, textures and settings): trained once, shared"
+        elif s.cached:
             how = "reused (unchanged; --force retrains)"
         else:
-            how = f"{s['steps']} steps in {s['seconds']} s"
-        print(f"{s['material']}: {how}, decoder {s.get('decoder', s['config']['decoder'])}, held-out log-L1 "
-              f"{s['held_out_log_l1']:.4f}, HDR FLIP {s['flip_mean']:.4f} "
-              + (f"(UDIM tiles {s['flip_per_tile']})" if s.get("flip_per_tile") else f"(views {s['flip_per_view']})")
-              + (f", in scene {s['flip_in_scene']:.4f}" if s.get("flip_in_scene") is not None else ""))
-        budget = s.get("budget")
-        if budget:
-            tried = ", ".join(f"{k} {v:.4f}" for k, v in budget["flip_by_decoder"].items())
-            where = " in scene" if budget.get("metric") == "flip_in_scene" else ""
-            print(f"  budget HDR FLIP{where} <= {budget['max_error']}: {'met' if budget['met'] else 'NOT met'} "
+            how = f"{s.steps} steps in {s.seconds} s"
+        print(f"{s.material}: {how}, decoder {s.decoder}, held-out log-L1 {s.held_out_log_l1:.4f}, "
+              f"HDR FLIP {s.flip_mean:.4f} "
+              + (f"(UDIM tiles {s.flip_per_tile})" if s.flip_per_tile else f"(views {s.flip_per_view})")
+              + (f", in scene {s.flip_in_scene:.4f}" if s.flip_in_scene is not None else ""))
+        if s.budget:
+            tried = ", ".join(f"{k} {v:.4f}" for k, v in s.budget["flip_by_decoder"].items())
+            where = " in scene" if s.budget["metric"] == "flip_in_scene" else ""
+            print(f"  budget HDR FLIP{where} <= {s.budget['max_error']}: {'met' if s.budget['met'] else 'NOT met'} "
                   f"(tried {tried})")
-        for w in s.get("warnings", []):
+        for w in s.warnings:
             print(f"  warning: {w}")
-        for n in s.get("latent", {}).get("notes", []):
+        for n in (s.latent or {}).get("notes", []):
             print(f"  note: {n}")
-        notes = s.get("export_notes", [])
-        for note in notes[:3]:
+        for note in s.export_notes[:3]:
             print(f"  fp16: {note}")
-        if len(notes) > 3:
-            print(f"  fp16: ... and {len(notes) - 3} more (see neural/weights.json and export.json)")
+        if len(s.export_notes) > 3:
+            print(f"  fp16: ... and {len(s.export_notes) - 3} more (see neural/weights.json and export.json)")
     for k in getattr(summaries, "skipped", []):
         print(f"{k['material']}: skipped ({k['reason']})")
     print(f"wrote {summaries.folder} (checkpoints, training curves, summaries, latent EXRs, weights)")
     if summaries:
         kept = getattr(summaries, "kept", [])
         also = f"; kept from earlier runs: {', '.join(kept)}" if kept else ""
-        print(f"wrote {summaries[0]['usd']} (USD layer with the neural materials{also})")
+        print(f"wrote {summaries[0].usd} (USD layer with the neural materials{also})")
 

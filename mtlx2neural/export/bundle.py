@@ -54,6 +54,7 @@ from mtlx2neural.export.usd_writer import (
     write_neural_layer,
 )
 from mtlx2neural.formats.weights import write_weights
+from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.staging import Staging
 
 EXPORT_FOLDER = "neural"
@@ -67,15 +68,7 @@ def layer_path(out) -> Path:
     return out.parent / f"{out.name}.usda"
 
 
-def metrics(summary: dict, preset: str) -> dict:
-    """The ``neural:metrics:*`` values from a training summary."""
-    return {"flip": summary.get("flip_mean", float("nan")), "iterations": summary.get("steps", 0),
-            "preset": preset, "device": summary.get("device_name") or summary.get("device", ""),
-            "train_seconds": summary.get("train_seconds", summary.get("seconds", 0.0)),
-            "preview_flip": summary.get("preview_flip"), "flip_in_scene": summary.get("flip_in_scene")}
-
-
-def export_material(model, summary: dict, staged: Path, final: Path, preset: str,
+def export_material(model, record: MaterialRecord, staged: Path, final: Path, preset: str,
                     baseline: Path | None = None, engine_shaders: bool = False) -> ExportedMaterial:
     """Write ``model``'s latents, weights, shaders and MaterialX node into ``staged``; paths in the
     result point at ``final``. ``baseline``: the fitted analytic baseline
@@ -85,7 +78,7 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
     HLSL and the G-buffer SPIR-V (:func:`~mtlx2neural.codegen.engine.write_engine_files`; minutes of
     spirv-opt per material on a small CPU), required then: a missing tool is an error. A failure
     raises naming the material."""
-    name = summary["material"]
+    name = record.material
     textures, notes = write_latent_textures(list(model.latents.levels), staged, tiles=model.latents.tile_list)
     manifest, wnotes = write_weights(model, staged)
     write_material_shader(model, staged, name)  # NeuralMaterial_<name>.slang + runtime
@@ -108,35 +101,35 @@ def export_material(model, summary: dict, staged: Path, final: Path, preset: str
             raise Mtlx2NeuralError(f"material {name}: cannot bake its UsdPreviewSurface fallback: {exc}") from exc
         preview = {"textures": {k: final / PREVIEW_FOLDER / p.name for k, p in baked["textures"].items()},
                    "ior": baked["ior"]}
-    elif (summary.get("config") or {}).get("preview_iterations") == 0:
+    elif record.config.get("preview_iterations") == 0:
         pnotes.append(f"{name}: preview_iterations = 0: the layer has no UsdPreviewSurface fallback for it")
     else:
         pnotes.append(f"{name}: no fitted analytic baseline ({baseline}); the layer has no UsdPreviewSurface "
                       f"fallback for it (trained by an older version: rerun with --force)")
     m = ExportedMaterial(
-        name=name, material=summary.get("mtlx_material", name), folder=final,
+        name=name, material=record.mtlx_material, folder=final,
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],
         manifest=final / "weights.json", architecture=manifest["architecture"],
-        source_hash=summary.get("source_hash", ""), metrics=metrics(summary, preset), notes=notes + wnotes + enotes + pnotes,
+        source_hash=record.source_hash, metrics=record.layer_metrics(preset), notes=notes + wnotes + enotes + pnotes,
         mtlx_document=None if mtlx is None else final / MATERIALX_FOLDER / mtlx.name, preview=preview)
-    record = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
+    listing = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
               "latent_textures": [p.name for p in m.latent_textures], "weights": m.weights.name,
               "manifest": m.manifest.name,
               "mtlx_document": None if mtlx is None else f"{MATERIALX_FOLDER}/{mtlx.name}",
               "preview": None if preview is None else {
                   "textures": {k: f"{PREVIEW_FOLDER}/{p.name}" for k, p in preview["textures"].items()},
                   "ior": preview["ior"]}}
-    (staged / "export.json").write_text(json.dumps(record, indent=2) + "\n")
+    (staged / "export.json").write_text(json.dumps(listing, indent=2) + "\n")
     return m
 
 
 def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep: KeptMaterials | None = None,
                  tool_version: str = "", skipped: dict[str, str] | None = None,
                  engine_shaders: bool = False) -> tuple[Path, list[ExportedMaterial]]:
-    """Export every ``(model, summary, material folder[, records])`` of ``trained`` and write the layer.
+    """Export every ``(model, MaterialRecord, material folder[, fresh])`` of ``trained`` and write the layer.
 
-    ``records`` (optional; None: none) is a folder holding the material's new training files
-    (checkpoint, curves, summary, PNGs, baseline): the whole material folder is then replaced, those
+    ``fresh`` (optional; None: none) is a folder holding the material's new training files
+    (checkpoint, curves, record, PNGs, baseline): the whole material folder is then replaced, those
     files and the new ``neural/`` together, in the same commit as the layer; without it only the
     material folder's ``neural/`` is replaced.
 
@@ -148,18 +141,18 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
     usda = Path(usda).resolve() if usda else layer_path(out)
     exported = []
     with Staging(usda.parent) as st:
-        for model, summary, folder, *rest in trained:
-            records = rest[0] if rest else None
+        for model, record, folder, *rest in trained:
+            fresh = rest[0] if rest else None
             folder = Path(folder).resolve()
             final = folder / EXPORT_FOLDER
-            if records is None:
+            if fresh is None:
                 staged, baseline = st.stage(final), folder / BASELINE_FILE
             else:  # the material folder whole: this run's training files, then its export
                 whole = st.stage(folder)
-                _link_files(Path(records), whole)
+                _link_files(Path(fresh), whole)
                 staged, baseline = whole / EXPORT_FOLDER, whole / BASELINE_FILE
                 staged.mkdir(exist_ok=True)
-            exported.append(export_material(model, summary, staged, final, preset, baseline=baseline,
+            exported.append(export_material(model, record, staged, final, preset, baseline=baseline,
                                             engine_shaders=engine_shaders))
         write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version,
                            skipped=skipped)

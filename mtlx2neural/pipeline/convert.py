@@ -3,7 +3,7 @@
 Steps (the library behind the default command):
 
 0. check every setting and the device (:func:`mtlx2neural.pipeline.options.check_options`,
-   :func:`mtlx2neural.pipeline.jobs.check_device`), then, once the materials are selected, every
+   :func:`mtlx2neural.pipeline.devices.check_device`), then, once the materials are selected, every
    path the run will write (:mod:`.layout`): nothing is trained for a run that
    could not finish or would overwrite the input;
 1. select: the materials renderable geometry binds (:func:`mtlx2neural.scene.load_asset`;
@@ -28,7 +28,8 @@ Steps (the library behind the default command):
 4. train the rest as jobs (:mod:`.jobs`): in this process, a local process pool
    (``workers``) or Ray; with ``max_error`` each job picks the smallest decoder whose
    HDR FLIP meets the budget. Each writes into ``OUT/<material>/``: ``checkpoint.pt``,
-   ``training_curves.csv``, ``summary.json`` (settings, hashes, time, held-out error,
+   ``training_curves.csv``, ``summary.json`` (the material's
+   :class:`~mtlx2neural.material_record.MaterialRecord`: settings, hashes, time, held-out error,
    HDR FLIP at three views, notes) and PNG renders of reference, neural model and FLIP
    map per view. A shared material's folder gets a ``summary.json`` with
    ``shared_with`` and a link (or copy) of the checkpoint;
@@ -49,7 +50,6 @@ in-memory edits is converted from a flattened snapshot written into ``OUT``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 import warnings
@@ -60,19 +60,20 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.export import export_asset
 from mtlx2neural.export.bundle import EXPORT_FOLDER
 from mtlx2neural.export.usd_writer import KeptMaterials, register_schema
+from mtlx2neural.material_record import (
+    MaterialRecord,
+    read_record_or_none,
+    write_record,
+)
 from mtlx2neural.model.checkpoint import (
     checkpoint_file,
     load_checkpoint,
     read_checkpoint,
     resume_conflicts,
 )
-from mtlx2neural.pipeline.jobs import (  # noqa: F401
-    BUDGET_FOLDER,
-    check_device,
-    held_out_error,
-    make_job,
-    write_summary,
-)
+from mtlx2neural.pipeline.budget import BUDGET_FOLDER
+from mtlx2neural.pipeline.devices import check_device
+from mtlx2neural.pipeline.jobs import make_job
 from mtlx2neural.pipeline.layout import (  # noqa: F401 (API)
     SNAPSHOT_NAME,
     WORK_FOLDER,
@@ -99,7 +100,7 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     latent_resolution,
     plan_materials,
 )
-from mtlx2neural.pipeline.source_hash import cached_summary, input_hash
+from mtlx2neural.pipeline.source_hash import cached_record, input_hash
 from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
 from mtlx2neural.scene.dependencies import input_files
@@ -144,19 +145,20 @@ def _training_failed(asset, failures) -> InputError:
 
 
 def _reuse(folder: Path, digest: str):
-    """(model, summary) of an earlier run of the same source hash in ``folder``, or None."""
-    summary = cached_summary(folder, digest)
-    if summary is None or summary.get("shared_with"):  # a shared folder's checkpoint is another's
+    """(model, record) of an earlier run of the same source hash in ``folder``, or None."""
+    record = cached_record(folder, digest)
+    if record is None or record.shared_with:  # a shared folder's checkpoint is another's
         return None
     try:
         model = load_checkpoint(folder)
     except InputError:  # unreadable: train again
         return None
-    return (model, summary) if model.checkpoint_step == summary.get("steps") else None
+    return (model, record) if model.checkpoint_step == record.steps else None
 
 
 class Summaries(list):
-    """The per-material summaries of :func:`convert_asset`, plus ``skipped``: the scene's materials
+    """The per-material records (:class:`~mtlx2neural.material_record.MaterialRecord`) of
+    :func:`convert_asset`, plus ``skipped``: the scene's materials
     left out (``{"material", "reason"}``; only when no ``material`` was named), ``failed``: the
     selected materials that could not be converted (or whose training failed) and were skipped (``{"material", "node",
     "reason"}``, :class:`~mtlx2neural.pipeline.plan.MaterialFailure`; the CLI then exits 3),
@@ -170,13 +172,13 @@ class Summaries(list):
     layer: Path
 
 
-def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict:
-    """The summary of ``src``, which reuses the result of ``plan.shared_with`` (trained in ``rep_folder``)."""
+def _share(src, plan, rep: MaterialRecord, rep_folder: Path, folder: Path) -> MaterialRecord:
+    """The record of ``src``, which reuses the result of ``plan.shared_with`` (trained in ``rep_folder``)."""
     folder.mkdir(parents=True, exist_ok=True)
-    summary = {**rep_summary, "material": src.name, "mtlx_material": src.material, "source": src.source_file,
-               "bound_prims": list(src.bound_prims), "source_hash": plan.digest, "shared_with": plan.shared_with,
-               "latent": plan.latent_info(), "input_hash": input_hash(src)}
-    summary.pop("cached", None)
+    record = dataclasses.replace(rep, material=src.name, mtlx_material=src.material, source=src.source_file,
+                                 bound_prims=list(src.bound_prims), source_hash=plan.digest,
+                                 shared_with=plan.shared_with, latent=plan.latent_info(),
+                                 input_hash=input_hash(src), cached=False)
     # the checkpoint, so that `render --material` finds it; the analytic baseline, for the export's preview
     for name in ("checkpoint.pt", BASELINE_FILE):
         target = folder / name
@@ -187,8 +189,8 @@ def _share(src, plan, rep_summary: dict, rep_folder: Path, folder: Path) -> dict
             os.link(rep_folder / name, target)
         except OSError:
             shutil.copyfile(rep_folder / name, target)
-    write_summary(folder, summary)
-    return summary
+    write_record(folder, record)
+    return record
 
 
 def _check_resume(plans, folders, max_error) -> None:
@@ -219,7 +221,7 @@ def _check_resume(plans, folders, max_error) -> None:
 
 def _kept_materials(layout: OutputLayout, record, names, material, found=()) -> KeptMaterials | None:
     """With ``--material``, the previous layer's other materials whose files are still there. A kept
-    material whose input changed since it was trained (its summary's ``input_hash`` differs from that of
+    material whose input changed since it was trained (its record's ``input_hash`` differs from that of
     ``found``'s material of that name) is kept, with a warning naming it and the fix."""
     if record is None or material is None:
         return None
@@ -242,12 +244,10 @@ def _kept_materials(layout: OutputLayout, record, names, material, found=()) -> 
 
 
 def _stale(folder: Path, source) -> bool:
-    """Does the material ``source`` differ from the input its summary in ``folder`` was trained on?
-    (False when unknown: no source, or a summary written before ``input_hash`` was recorded.)"""
-    try:
-        recorded = json.loads((folder / "summary.json").read_text()).get("input_hash")
-    except (OSError, ValueError):
-        return False
+    """Does the material ``source`` differ from the input its record in ``folder`` was trained on?
+    (False when unknown: no source, or no readable record.)"""
+    record = read_record_or_none(folder)
+    recorded = record.input_hash if record is not None else None
     return bool(recorded and source is not None and recorded != input_hash(source))
 
 
@@ -278,10 +278,10 @@ def convert_asset(asset, options: ConvertOptions | None = None) -> Summaries:
     in-memory root layer has no folder, so ``out`` (or ``usda``) is then required. The
     stage is never changed and nothing is written outside the output folder and the layer.
 
-    Returns one summary per material, with ``latent`` (the plan's grid decision),
-    ``cached`` (True: reused, nothing trained), ``shared_with`` (the material whose result
-    it shares, else absent), ``warnings``, ``usd`` (the layer written) and
-    ``export_notes`` (FP16 range-check notes) added; the list also carries ``skipped``,
+    Returns one :class:`~mtlx2neural.material_record.MaterialRecord` per material, its ``latent``
+    (the plan's grid decision), ``cached`` (True: reused, nothing trained), ``shared_with`` (the
+    material whose result it shares, else None), ``usd`` (the layer written) and ``export_notes``
+    (FP16 range-check notes) filled in; the list also carries ``skipped``,
     ``failed`` (materials that could not be converted, when others could; ``options.strict``
     raises instead), ``kept``, ``folder`` and ``layer`` (:class:`Summaries`). ``neural:metrics:preset``
     records ``options.preset`` (or the preset ``options.train`` equals).
@@ -372,7 +372,7 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
             shutil.rmtree(layout.folder, ignore_errors=True)
         raise
     for s, e in zip(summaries, exported):
-        s["usd"], s["export_notes"] = str(layer), e.notes
+        s.usd, s.export_notes = str(layer), e.notes
     summaries.kept = sorted(keep.entries) if keep else []
     summaries.failed = [f.record() for f in failures]
     summaries.folder, summaries.layer = layout.folder, Path(layer)
@@ -384,7 +384,7 @@ def _export(summaries, trained, scene, material, cfg, flat, source, layout, labe
     summaries.skipped = [{"material": n, "reason": r} for n, r in scene.skipped] if material is None else []
     if cfg.iterations == 0:
         for s in summaries:
-            s.setdefault("warnings", []).append("exported untrained (--iterations 0 --allow-untrained)")
+            s.warnings = [*s.warnings, "exported untrained (--iterations 0 --allow-untrained)"]
     if flat is not None:
         write_snapshot(flat, source)
     layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
@@ -422,11 +422,12 @@ def training_failure(material: str, exc: BaseException) -> MaterialFailure:
 
 
 def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
-                     max_error, record: dict | None = None, application=None) -> tuple[Summaries, list[tuple]]:
-    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, summary, folder, records)
-    per converted plan; ``records``: the work folder holding its new training files, None when reused). A plan whose training raised (and one sharing its result) is left out and listed
+                     max_error, options: dict | None = None, application=None) -> tuple[Summaries, list[tuple]]:
+    """Reuse, train (as jobs) or share each plan's material: (summaries, (model, record, folder, fresh)
+    per converted plan; ``fresh``: the work folder holding its new training files, None when reused).
+    ``options``: the conversion's options record (:func:`options_record`). A plan whose training raised (and one sharing its result) is left out and listed
     in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end."""
-    results: dict[int, tuple] = {}  # plan index -> (model or None, summary, cached)
+    results: dict[int, tuple] = {}  # plan index -> (model or None, record, cached)
     uncommitted: dict[int, Path] = {}  # plan index -> the work folder of a reused result not yet committed
     jobs, job_plans = [], []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
@@ -439,11 +440,11 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
             if reused is None:
                 reused, where = _reuse(work_folder(folder), plan.digest), work_folder(folder)
         if reused is not None:
-            model, summary = reused
-            if summary.get("source") != plan.source.source_file:  # e.g. a stage snapshot, now the saved file
-                summary = {**summary, "source": plan.source.source_file}
-                write_summary(where, summary)
-            results[i] = (model, summary, True)
+            model, record = reused
+            if record.source != plan.source.source_file:  # e.g. a stage snapshot, now the saved file
+                record = dataclasses.replace(record, source=plan.source.source_file)
+                write_record(where, record)
+            results[i] = (model, record, True)
             if where != folder:
                 uncommitted[i] = where
             if progress:
@@ -453,16 +454,16 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
         jobs.append(make_job(plan, prepare_work_folder(folder, resume), plan.cfg, device=device, resume=resume,
                              progress=progress,
                              allow_missing_textures=allow_missing_textures, max_error=max_error,
-                             options=record, application=application))
+                             options=options, application=application))
         job_plans.append(i)
 
     finished = []
 
-    def report(k: int, s: dict) -> None:  # one line per finished material, in the parent
+    def report(k: int, s: MaterialRecord) -> None:  # one line per finished material, in the parent
         finished.append(k)
         if progress and len(jobs) > 1:
-            print(f"[{len(finished)}/{len(jobs)}] {s['material']}: decoder {s['decoder']}, {s['steps']} steps "
-                  f"in {s['seconds']} s, HDR FLIP {s['flip_mean']:.4f}", flush=True)
+            print(f"[{len(finished)}/{len(jobs)}] {s.material}: decoder {s.decoder}, {s.steps} steps "
+                  f"in {s.seconds} s, HDR FLIP {s.flip_mean:.4f}", flush=True)
 
     errors: dict[int, MaterialFailure] = {}  # plan index -> why its training failed
 
@@ -491,15 +492,15 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
                 continue
             model, rep, cached = results[j]
             rep_files = work_folder(folders[j]) if (not cached or j in uncommitted) else folders[j]
-            records = prepare_work_folder(folder, False)
-            summary = _share(plan.source, plan, rep, rep_files, records)
+            fresh = prepare_work_folder(folder, False)
+            record = _share(plan.source, plan, rep, rep_files, fresh)
             if progress:
                 print(f"{plan.name}: identical to {plan.shared_with} (same compiled graph, textures and "
                       f"settings; content hash {plan.content[:12]}): trained once, sharing its result", flush=True)
         else:
-            model, summary, cached = results[i]
-            records = work_folder(folder) if (not cached or i in uncommitted) else None
-        summary = {**summary, "cached": cached, "latent": plan.latent_info()}
-        trained.append((model, summary, folder, records))
-        summaries.append(summary)
+            model, record, cached = results[i]
+            fresh = work_folder(folder) if (not cached or i in uncommitted) else None
+        record = dataclasses.replace(record, cached=cached, latent=plan.latent_info())
+        trained.append((model, record, folder, fresh))
+        summaries.append(record)
     return summaries, trained

@@ -44,6 +44,7 @@ from mtlx2neural.formats import FORMAT_VERSION
 from mtlx2neural.imaging.packages import local_file
 from mtlx2neural.imaging.resolve import on_disk
 from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
+from mtlx2neural.material_record import MaterialRecord, read_record_or_none
 
 IGNORED_SETTINGS = ("checkpoint_every", "compile", "probe_every")  # the same model either way
 TRAINING_VERSION = 2
@@ -185,13 +186,10 @@ def content_hash(compiled, cfg, allow_missing_textures: bool = False, extra: str
     return h.hexdigest()
 
 
-def cached_summary(folder, digest: str) -> dict | None:
-    """The stored summary of ``folder`` when its source hash is ``digest`` and its checkpoint exists."""
-    folder = Path(folder)
-    try:
-        summary = json.loads((folder / "summary.json").read_text())
-    except (OSError, ValueError):
+def cached_record(folder, digest: str) -> MaterialRecord | None:
+    """The stored record of ``folder`` when its source hash is ``digest`` and its checkpoint exists (None:
+    no record of this version, another hash, or no checkpoint: the material trains again)."""
+    record = read_record_or_none(folder)
+    if record is None or record.source_hash != digest or not (Path(folder) / "checkpoint.pt").is_file():
         return None
-    if summary.get("source_hash") != digest or not (folder / "checkpoint.pt").is_file():
-        return None
-    return summary
+    return record

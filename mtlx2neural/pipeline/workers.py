@@ -23,9 +23,9 @@ one :class:`MaterialJob`, run by one function, :func:`run_job`, wherever it runs
 
 A job carries its MaterialX document as XML (documents do not pickle) and writes its
 results into its material folder (``checkpoint.pt``, ``training_curves.csv``,
-``summary.json``, PNGs: :func:`train_material`). With an error budget
+``summary.json``, PNGs: :func:`~mtlx2neural.pipeline.material_training.train_material`). With an error budget
 (``max_error``) it trains decoders from small to large until the HDR FLIP meets the
-budget (:func:`choose_decoder`).
+budget (:func:`~mtlx2neural.pipeline.budget.choose_decoder`).
 """
 
 from __future__ import annotations
@@ -40,12 +40,9 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.errors import InputError, write_failure
-from mtlx2neural.pipeline.jobs import (
-    MaterialJob,
-    init_pool_worker,
-    resolve_device,
-    run_job,
-)
+from mtlx2neural.material_record import MaterialRecord
+from mtlx2neural.pipeline.devices import resolve_device
+from mtlx2neural.pipeline.jobs import MaterialJob, Shipped, init_pool_worker, run_job
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.trainer import TrainingInterrupted
 
@@ -97,7 +94,7 @@ def parse_workers(value) -> int | str | None:
 
 
 Report = Callable[[int, dict], None]
-"""Called in the parent as each job finishes: (job index, summary)."""
+"""Called in the parent as each job finishes: (job index, its record)."""
 Failed = Callable[[int, BaseException], None]
 """Called in the parent for each job whose training raised: (job index, the error)."""
 
@@ -125,13 +122,13 @@ def _settle(errors: list[tuple[int, BaseException]], failed: Failed | None, jobs
 
 
 def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
-             failed: Failed | None = None) -> list[dict | None]:
+             failed: Failed | None = None) -> list[MaterialRecord | None]:
     """Run every job of ``jobs`` with ``workers`` (see the module docstring); summaries in job order.
 
     When jobs fail (any ``Exception`` their training raises: a non-finite loss, out of
     memory, an error in a worker process or Ray task), the others still run to the end
     (their results are saved and cached). Then, with ``failed``, each failure is passed to
-    it and its summary is None; without, the first failure is raised. Ctrl-C stops every
+    it and its record is None; without, the first failure is raised. Ctrl-C stops every
     job at a checkpoint and raises :class:`~mtlx2neural.train.trainer.TrainingInterrupted`
     (never a per-material failure).
     """
@@ -142,7 +139,7 @@ def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
         return _run_ray(jobs, workers, report, failed)
     n = workers or default_workers(len(jobs), jobs[0].device)
     if n == 1 or len(jobs) == 1:
-        out: list[dict | None] = []
+        out: list[MaterialRecord | None] = []
         errors: list[tuple[int, BaseException]] = []
         for i, job in enumerate(jobs):
             try:
@@ -167,7 +164,7 @@ class WorkerDied(RuntimeError):
     ``abort()``, a crash, a kill): that material's failure, never the others'."""
 
 
-def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict | None]:
+def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[MaterialRecord | None]:
     """Run ``jobs`` in a pool of ``n`` spawned processes. A process that dies breaks the pool and
     with it every job the pool still held, so those jobs run again, each in a process of its own
     (``n`` at a time): a job whose own process dies there is the one that killed its worker, and
@@ -185,7 +182,7 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[dict |
     jobs = [dataclasses.replace(j, progress=False, threads=threads, device=devices[i % len(devices)],
                                 progress_queue=bars.queue if bars else None, index=i)
             for i, j in enumerate(jobs)]
-    results: list[dict | None] = [None] * len(jobs)
+    results: list[MaterialRecord | None] = [None] * len(jobs)
     errors: list[tuple[int, BaseException]] = []
     try:
         with _thread_env(threads):
@@ -306,7 +303,7 @@ def check_workers(workers):
     return workers
 
 
-def _run_ray(jobs, address: str, report, failed: Failed | None = None) -> list[dict | None]:
+def _run_ray(jobs, address: str, report, failed: Failed | None = None) -> list[MaterialRecord | None]:
     check_workers(address)
     import ray  # local: Ray is an optional extra, imported only for a Ray runner
 
@@ -328,25 +325,25 @@ def _run_ray(jobs, address: str, report, failed: Failed | None = None) -> list[d
             j = dataclasses.replace(j, progress=False, threads=1, device="cuda" if gpus else "cpu", ship=ship,
                                     checkpoint=ckpt.read_bytes() if ship and j.resume and ckpt.is_file() else None)
             refs[task.remote(j)] = i
-        results: list[dict | None] = [None] * len(jobs)
+        results: list[MaterialRecord | None] = [None] * len(jobs)
         errors, pending = [], list(refs)
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             i = refs[done[0]]
             try:
-                summary = ray.get(done[0])
+                result = ray.get(done[0])
             except Exception as exc:  # noqa: BLE001 - re-raised once the others finish
                 errors.append((i, getattr(exc, "cause", None) or exc))
                 continue
-            files = summary.pop("_files", None)
-            if files is not None:
+            if isinstance(result, Shipped):
                 folder = Path(jobs[i].folder)
                 folder.mkdir(parents=True, exist_ok=True)
-                for name, data in files.items():
+                for name, data in result.files.items():
                     (folder / name).write_bytes(data)
-            results[i] = summary
+                result = result.record
+            results[i] = result
             if report:
-                report(i, summary)
+                report(i, result)
         _settle(sorted(errors, key=lambda e: e[0]), failed, jobs)
         return results
     finally:

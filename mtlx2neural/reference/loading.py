@@ -9,14 +9,14 @@ from mtlx2neural.reference.material import ReferenceMaterial
 from mtlx2neural.scene import find_material
 
 
-def application_of(summary: dict | None) -> Application | None:
-    """The instant a conversion baked a material's ``time``/``frame`` nodes at, from its ``summary.json``
-    (``{"application": {"frame", "fps", ...}}``, written when the graph reads them); None when it records
-    none (the graph reads neither, or the summary predates the field: frame 1 at 24 fps then)."""
-    app = (summary or {}).get("application")
-    if not isinstance(app, dict) or "frame" not in app or "fps" not in app:
+def application_of(recorded: dict | None) -> Application | None:
+    """The instant a conversion baked a material's ``time``/``frame`` nodes at, from its record's
+    ``application`` (:attr:`mtlx2neural.material_record.MaterialRecord.application`: ``frame``, ``fps``,
+    ...; written when the graph reads them); None when it records none (the graph reads neither:
+    frame 1 at 24 fps then)."""
+    if not isinstance(recorded, dict) or "frame" not in recorded or "fps" not in recorded:
         return None
-    return Application(frame=float(app["frame"]), fps=float(app["fps"]))
+    return Application(frame=float(recorded["frame"]), fps=float(recorded["fps"]))
 
 
 def load_reference(path, material: str | None = None, device: str = "cpu",
@@ -30,7 +30,7 @@ def load_reference(path, material: str | None = None, device: str = "cpu",
     normal, primvars) reads the bound meshes rasterised into their UV layout, or the unit sphere for
     ``.mtlx`` input (:func:`mtlx2neural.graph.geometry.bind_geometry`). ``application``: the instant
     ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps; a conversion's ``--frame``/``--fps``,
-    which :func:`application_of` reads back from its ``summary.json``).
+    which :func:`application_of` reads back from its record).
     """
     src = find_material(path, material)
     compiled = compile_material(src.document, src.material, device=device,

@@ -1,9 +1,9 @@
 """``mtlx2neural report OUT_neural.usda``: a self-contained HTML report of every neural material in a layer.
 
 For each material of the layer (read back with :func:`mtlx2neural.load_neural`; its
-training folder, ``summary.json`` and ``training_curves.csv`` are found beside the
-exported files) the report compares three models against the MaterialX reference
-(:func:`mtlx2neural.load_reference` on the summary's source asset):
+training folder, its record ``summary.json`` (:func:`~mtlx2neural.material_record.read_record`)
+and ``training_curves.csv`` are found beside the exported files) the report compares three models against the MaterialX reference
+(:func:`mtlx2neural.load_reference` on the record's source asset):
 
 - renders of reference / analytic baseline / neural at :data:`.render.VIEWS`, with HDR FLIP
   maps (:func:`.render.compare_many`: one reference render per view, the analytic and neural renders
@@ -39,6 +39,7 @@ import html
 import json
 import math
 import string
+import tempfile
 import time
 from importlib import resources
 from pathlib import Path
@@ -53,6 +54,12 @@ from mtlx2neural.export.load import _neural_prims, load_neural
 from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.imaging.udim import tile_of_udim
+from mtlx2neural.material_record import (
+    RECORD_FILE,
+    MaterialRecord,
+    read_record,
+    record_path,
+)
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.pipeline.layout import read_layer_record
 from mtlx2neural.pipeline.output_safety import (
@@ -188,13 +195,12 @@ def _cost_row(r: dict) -> str:
             f'<td class="l">{html.escape(r["note"])}</td></tr>')
 
 
-def _mtlx_source(summary: dict):
-    """The summary's material as a MaterialSource (for MaterialX's own shader), or None."""
-
-    for name in (summary.get("material"), summary.get("mtlx_material")):
+def _mtlx_source(record: MaterialRecord):
+    """The record's material as a MaterialSource (for MaterialX's own shader), or None."""
+    for name in (record.material, record.mtlx_material):
         if name:
             try:
-                return find_material(summary["source"], name)
+                return find_material(record.source, name)
             except InputError:
                 continue
     return None
@@ -218,7 +224,7 @@ def one_tile_stand_in(neural):
     return one.train(False)
 
 
-def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: dict, train_sizes=None) -> dict:
+def cost_table(record: MaterialRecord, reference, analytic, neural, trained: str, flip: dict, train_sizes=None) -> dict:
     """Rows (model, mean HDR FLIP or None, evals/s or None, note) for the reference, the analytic
     baseline and every decoder size of the error budget, with the harness used.
 
@@ -229,7 +235,7 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
     same views at the conversion's spp) when it tried them; else, with ``train_sizes`` (a function
     decoder -> (model, FLIP)), trained for the report with the conversion's settings; else unknown."""
 
-    budget = (summary.get("budget") or {}).get("flip_by_decoder", {})
+    budget = (record.budget or {}).get("flip_by_decoder", {})
     neural = one_tile_stand_in(neural)  # costs only: a UDIM model is timed as one tile
     sizes, fresh = {trained: neural}, {}
     for d in DECODERS:
@@ -245,7 +251,7 @@ def cost_table(summary: dict, reference, analytic, neural, trained: str, flip: d
                     a.copy_(b)
     ok, why = shader_available()
     if ok:
-        rates = shader_rates(sizes, analytic, _mtlx_source(summary))
+        rates = shader_rates(sizes, analytic, _mtlx_source(record))
         harness = "generated shaders, slangpy CPU"
         how = ("Evaluations per second of the code a renderer runs, on slangpy's CPU device (FP32): MaterialX's own "
                "Slang for the reference, codegen/slang/AnalyticMaterial.slang for the analytic fit and each decoder's "
@@ -319,28 +325,28 @@ def _materials(layer: Path) -> list[str]:
     return [str(p.GetPath()) for p in prims]
 
 
-def report_source(layer: Path, summary: dict) -> Path:
+def report_source(layer: Path, record: MaterialRecord) -> Path:
     """The input the reference is loaded from: the layer's own record of it (relative to the layer,
-    so a moved pair of input and output still reports), else the summary's ``source`` as written."""
-    record = read_layer_record(layer)
-    if record is not None and record.source is not None:
-        return record.source
-    return Path(summary["source"])
+    so a moved pair of input and output still reports), else the material record's ``source``."""
+    layer_record = read_layer_record(layer)
+    if layer_record is not None and layer_record.source is not None:
+        return layer_record.source
+    return Path(record.source)
 
 
-def _load_reference(summary: dict, folder: Path):
+def _load_reference(record: MaterialRecord, folder: Path):
     """The conversion's reference, under the conversion's texture rules: a missing texture is an error
-    unless the conversion itself allowed it (``--allow-missing-textures``, in the summary's options)."""
-    names = [n for n in (summary.get("material"), summary.get("mtlx_material")) if n]
-    allow = bool((summary.get("options") or {}).get("allow_missing_textures", False))
+    unless the conversion itself allowed it (``--allow-missing-textures``, in the record's options)."""
+    names = [n for n in (record.material, record.mtlx_material) if n]
+    allow = bool((record.options or {}).get("allow_missing_textures", False))
     for i, name in enumerate(names):
         try:
-            return load_reference(summary["source"], name, allow_missing_textures=allow,
-                                  application=application_of(summary))  # the conversion's --frame/--fps
+            return load_reference(record.source, name, allow_missing_textures=allow,
+                                  application=application_of(record.application))  # the conversion's --frame/--fps
         except InputError:
             if i == len(names) - 1:
                 raise
-    raise InputError(f"{folder / 'summary.json'}: names no material")
+    raise InputError(f"{record_path(folder)}: names no material")
 
 
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,
@@ -351,13 +357,13 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     neural = load_neural(layer, prim)
     weights = Path(neural.usd_info["weights"])
     folder = weights.parent.parent
-    if not (folder / "summary.json").is_file():
-        raise InputError(f"{layer}: {prim}: no summary.json in {folder}; keep the conversion's output folder "
+    if not record_path(folder).is_file():
+        raise InputError(f"{layer}: {prim}: no {RECORD_FILE} in {folder}; keep the conversion's output folder "
                          f"next to the layer")
-    summary = json.loads((folder / "summary.json").read_text())
-    summary["source"] = str(report_source(layer, summary))  # where the input is now, by the layer's record
-    reference = _load_reference(summary, folder)
-    texels = tuple(summary.get("resolution", (1, 1)))
+    record = read_record(folder)
+    record.source = str(report_source(layer, record))  # where the input is now, by the layer's record
+    reference = _load_reference(record, folder)
+    texels = tuple(record.resolution)
     tiles = model_tiles(neural)
     t0 = time.time()
     if tiles:  # one analytic fit per trained tile, on that tile's stack; the sphere shows each tile
@@ -395,14 +401,11 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
                             f"{c}</figcaption></figure>" for k, c in figs))
     flip = {"analytic": float(np.mean([e["flip"] for e in res_a])), "neural": float(np.mean([e["flip"] for e in res_n])),
             "reference": 0.0}
-    trained = str(summary.get("decoder") or "neural")
+    trained = record.decoder
 
     def train_size(decoder: str):
         """Train ``decoder`` with the conversion's settings; (model, mean HDR FLIP as above)."""
-        import tempfile
-
-
-        cfg = TrainConfig(**{**summary["config"], "decoder": decoder, "compile": False})
+        cfg = TrainConfig(**{**record.config, "decoder": decoder, "compile": False})
         with tempfile.TemporaryDirectory(prefix="m2n_report_") as tmp_dir:
             model = Trainer(reference, stack, cfg, tmp_dir).run(progress=False)
         if tiles:
@@ -411,8 +414,7 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
             errs = compare(reference, model, texels, res=res, spp=spp)
         return model, float(np.mean([e["flip"] for e in errs]))
 
-    cost = cost_table(summary, reference, analytic, neural, trained, flip,
-                      train_size if train_sizes and "config" in summary else None)
+    cost = cost_table(record, reference, analytic, neural, trained, flip, train_size if train_sizes else None)
     polar = []
     if texels_at is None:
         texels_at = [(tu + 0.5, tv + 0.5) for tu, tv in map(tile_of_udim, tiles)] if tiles else [(0.5, 0.5)]
@@ -465,9 +467,9 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     udim_note = (f" per UDIM tile, tiles {', '.join(map(str, tiles))} (the analytic baseline is fitted per tile; costs "
                  f"are timed on one tile)") if tiles else ""
     body = f"""
-<h2 id="material-{index}">{e(summary.get('material', prim))} <small>({e(prim)})</small></h2>
-<p class="note">Source {e(str(summary.get('source')))}; decoder {e(str(summary.get('decoder')))}, {summary.get('steps')}
-steps in {summary.get('train_seconds', summary.get('seconds'))} s on {e(str(summary.get('device_name', '')))};
+<h2 id="material-{index}">{e(record.material)} <small>({e(prim)})</small></h2>
+<p class="note">Source {e(record.source)}; decoder {e(record.decoder)}, {record.steps}
+steps in {record.train_seconds} s on {e(record.device_name)};
 latent grid {texels[1]}x{texels[0]}{udim_note}. Analytic baseline: {analytic_iterations} Adam steps in {fit_seconds:.1f} s,
 final log-L1 {analytic.final_loss:.4f}{' (first tile)' if tiles else ''}.</p>
 <h3>Renders</h3>

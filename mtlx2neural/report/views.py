@@ -16,7 +16,6 @@ temporary files and renamed into place, so a failed run leaves no partial file.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -33,6 +32,7 @@ from mtlx2neural.export.usd_writer import LEGACY_DOC_PREFIX, RECORD_KEY, registe
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
+from mtlx2neural.material_record import read_record, record_path
 from mtlx2neural.model.checkpoint import load_checkpoint
 from mtlx2neural.pipeline.layout import (
     FOLDER_MARKER,
@@ -186,14 +186,13 @@ def neural_source(asset, material_name: str) -> tuple[str, Path, str | None]:
 
 
 def conversion_application(asset, material_name: str) -> Application | None:
-    """The instant ``mtlx2neural ASSET`` baked ``material_name``'s ``time``/``frame`` nodes at (its
-    ``summary.json`` in the folder of :func:`conversion_outputs`), or None (no conversion, or the graph
-    reads neither)."""
-    path = conversion_outputs(asset).folder / material_folder(material_name) / "summary.json"
-    try:
-        return application_of(json.loads(path.read_text()))
-    except (OSError, ValueError):
+    """The instant ``mtlx2neural ASSET`` baked ``material_name``'s ``time``/``frame`` nodes at (its record
+    in the folder of :func:`conversion_outputs`), or None (no conversion, or the graph reads neither). A
+    record this version cannot read raises :class:`~mtlx2neural.material_record.RecordError` naming it."""
+    folder = conversion_outputs(asset).folder / material_folder(material_name)
+    if not record_path(folder).is_file():
         return None
+    return application_of(read_record(folder).application)  # a bad or old record: RecordError, named
 
 
 def render_asset(asset, output: str | Path | RenderOptions, material: str | None = None, model: str = "reference",

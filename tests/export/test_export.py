@@ -45,6 +45,7 @@ from mtlx2neural.export.latents import (
 )
 from mtlx2neural.export.load import applied_schemas
 from mtlx2neural.formats.weights import read_weights, write_weights
+from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.model.checkpoint import load_checkpoint
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.pipeline.convert import convert_asset
@@ -119,9 +120,9 @@ def load_checkpoint_like(model):
     return copy.deepcopy(model)
 
 
-def fake_summary(name: str, **extra) -> dict:
-    return {"material": name, "mtlx_material": name, "source_hash": "0" * 64, "flip_mean": 0.125, "steps": 30,
-            "device": "cpu", "device_name": "cpu (test)", "train_seconds": 1.5, **extra}
+def fake_summary(name: str, **extra) -> MaterialRecord:
+    return MaterialRecord(name, name, "", "0" * 64, flip_mean=0.125, steps=30, device="cpu",
+                          device_name="cpu (test)", train_seconds=1.5, **extra)
 
 
 def random_model(resolution=(3, 5), channels=6, frames=2, seed=0, analytic_cosine=True) -> NeuralMaterial:
@@ -292,8 +293,8 @@ def converted(tmp_path_factory):
 
 @pytest.mark.slow
 def test_output_layout(converted):
-    assert [s["cached"] for s in converted["summaries"]] == [False, False]
-    assert {s["usd"] for s in converted["summaries"]} == {str(converted["usda"])}
+    assert [s.cached for s in converted["summaries"]] == [False, False]
+    assert {s.usd for s in converted["summaries"]} == {str(converted["usda"])}
     for name in ("World.Looks.CarPaint", "World.Looks.Plastic"):
         files = sorted(p.name for p in (converted["out"] / name / "neural").iterdir())
         shader = "NeuralMaterial_" + name.rsplit(".", 1)[-1]  # generated Slang module (mtlx2neural.codegen)
@@ -396,7 +397,7 @@ def test_original_variant_resolves_every_render_context_as_the_input(converted):
 
     source = Usd.Stage.Open(str(converted["asset"]))
     stage = Usd.Stage.Open(str(converted["usda"]))
-    names = [s["material"] for s in converted["summaries"]]
+    names = [s.material for s in converted["summaries"]]
     switched = set()
     for name in names:
         prim = stage.GetPrimAtPath(name)
@@ -506,7 +507,7 @@ def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path
     asset = tmp_path / SAMPLE.name
     shutil.copyfile(SAMPLE, asset)
     first = convert_asset(asset, ConvertOptions(train=TINY, material="Plastic", progress=False, device="cpu"))
-    assert first[0]["cached"] is False
+    assert first[0].cached is False
     weights = tmp_path / "layered_spheres_neural" / "World.Looks.Plastic" / "neural" / "weights.bin"
     trained = weights.read_bytes()
 
@@ -516,16 +517,16 @@ def test_cache_reuses_unchanged_materials_and_retrains_changed_settings(tmp_path
     with monkeypatch.context() as mp:
         mp.setattr(Trainer, "run", no_training)
         again = convert_asset(asset, ConvertOptions(train=TINY, material="Plastic", progress=False, device="cpu"))
-    assert again[0]["cached"] is True and again[0]["source_hash"] == first[0]["source_hash"]
-    assert weights.read_bytes() == trained and Path(again[0]["usd"]).is_file()
+    assert again[0].cached is True and again[0].source_hash == first[0].source_hash
+    assert weights.read_bytes() == trained and Path(again[0].usd).is_file()
 
     changed = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=31, batch=256), material="Plastic",
                                                   progress=False, device="cpu"))
-    assert changed[0]["cached"] is False and changed[0]["steps"] == 31
-    assert changed[0]["source_hash"] != first[0]["source_hash"]
+    assert changed[0].cached is False and changed[0].steps == 31
+    assert changed[0].source_hash != first[0].source_hash
     forced = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=31, batch=256), material="Plastic",
                                                  progress=False, device="cpu", force=True))
-    assert forced[0]["cached"] is False and forced[0]["source_hash"] == changed[0]["source_hash"]
+    assert forced[0].cached is False and forced[0].source_hash == changed[0].source_hash
 
 
 def test_source_hash_follows_the_document_and_the_textures(tmp_path):
@@ -617,7 +618,7 @@ def test_mtlx_input_gets_a_materials_scope(tmp_path):
     asset.write_text(RED_MTLX)
     before = sha(asset)
     summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
-    usda = Path(summaries[0]["usd"])
+    usda = Path(summaries[0].usd)
     assert usda == tmp_path / "red_neural.usda"
     from pxr import Sdf, Usd, UsdShade
 
@@ -654,10 +655,10 @@ def test_shared_usd_assets_convert_end_to_end(tmp_path, name):
     cfg = preset("fast", iterations=30, batch=256, max_resolution=32)
     summaries = convert_asset(asset, ConvertOptions(train=cfg, progress=False, device="cpu",
                                                      allow_missing_textures=True))
-    usda = Path(summaries[0]["usd"])
+    usda = Path(summaries[0].usd)
     for s in summaries:
-        loaded = m2n.load_neural(usda, s["material"])
-        folder = usda.with_suffix("") / material_folder(s["material"])
+        loaded = m2n.load_neural(usda, s.material)
+        folder = usda.with_suffix("") / material_folder(s.material)
         original = load_checkpoint(folder)
         assert_round_trip(loaded, original, textured=True, lod=torch.rand(2048) * (original.latents.num_levels - 1),
                           u_level=torch.rand(2048))

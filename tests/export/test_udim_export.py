@@ -20,6 +20,7 @@ from mtlx2neural.export.latents import (
     read_mip_chain,
     write_latent_textures,
 )
+from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.model.neural_material import NeuralMaterial
 
 pytest.importorskip("pxr", reason="the layer is USD")
@@ -53,8 +54,8 @@ def test_latent_files_per_tile(tmp_path):
 def _export(model, tmp_path):
     asset = tmp_path / "thing.mtlx"
     asset.write_text(SIMPLE_MTLX)
-    summary = {"material": "Red", "mtlx_material": "Red", "source_hash": "0" * 64, "flip_mean": 0.1, "steps": 1,
-               "device": "cpu", "train_seconds": 1.0}
+    summary = MaterialRecord("Red", "Red", str(asset), "0" * 64, flip_mean=0.1, steps=1, device="cpu",
+                             train_seconds=1.0)
     usda, (m,) = export_asset(asset, [(model, summary, tmp_path / "thing_neural" / "Red")],
                               tmp_path / "thing_neural", "fast")
     return usda, m

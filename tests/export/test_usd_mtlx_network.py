@@ -44,7 +44,7 @@ def red(tmp_path_factory):
     asset = folder / "red.mtlx"
     asset.write_text(SIMPLE_MTLX)
     summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
-    return {"asset": asset, "summary": summaries[0], "usda": Path(summaries[0]["usd"]),
+    return {"asset": asset, "summary": summaries[0], "usda": Path(summaries[0].usd),
             "export": folder / "red_neural" / "Red" / "neural"}
 
 
@@ -54,7 +54,7 @@ def sample(tmp_path_factory):
     asset = folder / SAMPLE.name
     shutil.copyfile(SAMPLE, asset)
     summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
-    return {"asset": asset, "summaries": summaries, "usda": Path(summaries[0]["usd"]),
+    return {"asset": asset, "summaries": summaries, "usda": Path(summaries[0].usd),
             "out": folder / "layered_spheres_neural"}
 
 
@@ -134,20 +134,20 @@ def test_preview_surface_and_its_flip(red):
         (src,) = surf.GetInput(name).GetConnectedSources()[0]
         tex = UsdShade.Shader(src.source.GetPrim())
         assert Path(tex.GetInput("file").Get().resolvedPath) == red["export"] / "preview" / f"{name}.exr"
-    flip = red["summary"]["preview_flip"]
+    flip = red["summary"].preview_flip
     assert math.isfinite(flip) and flip > 0
     # float32 attribute against the summary's 4-decimal value
     assert mat.GetPrim().GetAttribute("neural:metrics:previewFlip").Get() == pytest.approx(flip, abs=1e-6)
     assert (red["export"].parent / "analytic_baseline.pt").is_file()
-    assert red["summary"]["preview"]["iterations"] > 0
+    assert red["summary"].preview["iterations"] > 0
 
 
 def test_preview_flip_for_every_sample_material(sample):
     for s in sample["summaries"]:
-        assert math.isfinite(s["preview_flip"]) and s["preview_flip"] > 0
-        stage, mat = _material(sample["usda"], s["material"])
+        assert math.isfinite(s.preview_flip) and s.preview_flip > 0
+        stage, mat = _material(sample["usda"], s.material)
         attr = mat.GetPrim().GetAttribute("neural:metrics:previewFlip").Get()
-        assert attr == pytest.approx(s["preview_flip"], abs=1e-6)
+        assert attr == pytest.approx(s.preview_flip, abs=1e-6)
 
 
 def test_neural_variant_wins_over_the_inputs_own_outputs(sample):
@@ -176,7 +176,7 @@ def test_neural_variant_wins_over_the_inputs_own_outputs(sample):
                 (target,) = attr.GetConnections()
                 wrap = UsdShade.Input(attr) if UsdShade.Input.IsInput(attr) else UsdShade.Output(attr)
                 assert UsdShade.ConnectableAPI.CanConnect(wrap, stage.GetAttributeAtPath(target)), (variant, attr)
-    notes = " ".join(n for s in sample["summaries"] for n in s["export_notes"])
+    notes = " ".join(n for s in sample["summaries"] for n in s.export_notes)
     assert "outputs:" not in notes  # nothing shadowed, nothing to note
 
 
@@ -186,14 +186,14 @@ def test_no_preview_fallback_at_zero_preview_iterations(tmp_path):
     asset.write_text(SIMPLE_MTLX)
     cfg = preset("fast", iterations=30, batch=256, seed=0, preview_iterations=0)
     (summary,) = convert_asset(asset, ConvertOptions(train=cfg, progress=False, device="cpu"))
-    assert "preview_flip" not in summary and "preview" not in summary
+    assert summary.preview_flip is None and summary.preview is None
     assert not (tmp_path / "red_neural" / "Red" / "analytic_baseline.pt").exists()
     assert not (tmp_path / "red_neural" / "Red" / "neural" / "preview").exists()
-    stage, mat = _material(Path(summary["usd"]), "/Materials/Red")
+    stage, mat = _material(Path(summary.usd), "/Materials/Red")
     assert not stage.GetPrimAtPath("/Materials/Red/NeuralPreview") and not mat.ComputeSurfaceSource("")[0]
     assert not mat.GetPrim().GetAttribute("neural:metrics:previewFlip")
     assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == f"/Materials/Red/{node_names('Red').surface}"
-    assert any("preview_iterations = 0" in n for n in summary["export_notes"])
+    assert any("preview_iterations = 0" in n for n in summary.export_notes)
 
 
 VALIDATE = textwrap.dedent("""

@@ -53,7 +53,7 @@ def test_file_stage_with_unsaved_edits_converts_a_snapshot_and_a_clean_one_the_f
         dirty = convert_asset(stage, _options())
     folder, layer = tmp_path / "scene_neural", tmp_path / "scene_neural.usda"  # beside the file, as for a path
     snapshot = folder / SNAPSHOT_NAME
-    assert dirty.folder == folder and dirty.layer == layer and dirty[0]["source"] == str(snapshot)
+    assert dirty.folder == folder and dirty.layer == layer and dirty[0].source == str(snapshot)
     assert asset.read_text() == SCENE  # the file stays as it was
     written = Sdf.Layer.OpenAsAnonymous(str(layer))
     assert written.subLayerPaths == [f"./scene_neural/{SNAPSHOT_NAME}"]
@@ -70,7 +70,7 @@ def test_file_stage_with_unsaved_edits_converts_a_snapshot_and_a_clean_one_the_f
         clean = convert_asset(stage, _options())
     assert not snapshot.exists() and (folder / "World.Looks.Paint" / "checkpoint.pt").is_file()
     # The material is the snapshot's (base 0.25): its training is reused, its source is now the file.
-    assert clean[0]["source"] == str(asset) and clean[0]["cached"]
+    assert clean[0].source == str(asset) and clean[0].cached
     written = Sdf.Layer.OpenAsAnonymous(str(layer))
     assert written.subLayerPaths == ["./scene.usda"]
     assert written.customLayerData["mtlx2neural"]["source"] == "./scene.usda"
@@ -79,4 +79,4 @@ def test_file_stage_with_unsaved_edits_converts_a_snapshot_and_a_clean_one_the_f
 
     # ... exactly as the path itself: the same source hash, so the path run reuses the training.
     by_path = convert_asset(asset, _options())
-    assert by_path[0]["cached"] and by_path[0]["source_hash"] == clean[0]["source_hash"]
+    assert by_path[0].cached and by_path[0].source_hash == clean[0].source_hash

@@ -20,8 +20,8 @@ import torch
 
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
+from mtlx2neural.pipeline.budget import choose_decoder
 from mtlx2neural.pipeline.convert import convert_asset
-from mtlx2neural.pipeline.jobs import choose_decoder
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.pipeline.workers import parse_workers
 from mtlx2neural.train.config import preset
@@ -103,15 +103,15 @@ def count_trainings(monkeypatch) -> list:
 
 def count_fits(monkeypatch) -> list:
     """Patch the jobs' analytic fit (the UsdPreviewSurface baseline) to record each fit's step count."""
-    from mtlx2neural.pipeline import jobs
+    from mtlx2neural.pipeline import material_training
 
-    fits, original = [], jobs.fit_analytic
+    fits, original = [], material_training.fit_analytic
 
     def fit(*args, **kwargs):
         fits.append(kwargs.get("iterations"))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(jobs, "fit_analytic", fit)
+    monkeypatch.setattr(material_training, "fit_analytic", fit)
     return fits
 
 
@@ -195,8 +195,8 @@ def test_budget_met_by_the_smallest_decoder(tmp_path, monkeypatch):
     runs = count_trainings(monkeypatch)
     s = convert_asset(asset, ConvertOptions(train=TINY, material="Red", progress=False, device="cpu",
                                           max_error=10.0, workers=1))[0]
-    assert runs == ["2x16"] and s["decoder"] == "2x16" and s["budget_met"] is True
-    assert s["budget"]["flip_by_decoder"] == {"2x16": s["flip_mean"]} and not s.get("warnings")
+    assert runs == ["2x16"] and s.decoder == "2x16" and s.budget_met is True
+    assert s.budget["flip_by_decoder"] == {"2x16": s.flip_mean} and not s.warnings
 
 
 def test_preview_iterations_zero_fits_no_preview_and_drops_an_old_one(tmp_path, monkeypatch):
@@ -215,9 +215,9 @@ def test_preview_iterations_zero_fits_no_preview_and_drops_an_old_one(tmp_path, 
         fits.clear()
         s = convert_asset(asset, ConvertOptions(train=off, material="Red", progress=False, device="cpu", workers=1,
                                                 max_error=max_error))[0]
-        assert fits == [] and "preview_flip" not in s and not (folder / "analytic_baseline.pt").exists()
+        assert fits == [] and s.preview_flip is None and not (folder / "analytic_baseline.pt").exists()
         assert preview_flip_in_layer(usda, "/Materials/Red") is None
-        assert any("preview_iterations = 0" in n for n in s["export_notes"])
+        assert any("preview_iterations = 0" in n for n in s.export_notes)
 
 
 def test_preview_iterations_per_preset():
@@ -271,7 +271,7 @@ def test_identical_materials_train_once_and_unbound_ones_are_skipped(three_stage
     out_dir = three_stage.parent / "three_neural"
     a = json.loads((out_dir / "World.Looks.A" / "summary.json").read_text())
     b = json.loads((out_dir / "World.Looks.B" / "summary.json").read_text())
-    assert "shared_with" not in a and b["shared_with"] == "/World/Looks/A"
+    assert a["shared_with"] is None and b["shared_with"] == "/World/Looks/A"
     assert b["material"] == "/World/Looks/B" and b["content_hash"] == a["content_hash"]
     assert b["source_hash"] != a["source_hash"]  # the cache key names the material
     assert b["steps"] == a["steps"] and b["flip_mean"] == a["flip_mean"]
@@ -370,16 +370,16 @@ def test_process_pool_trains_two_materials_in_two_workers(tmp_path, capfd):
     summaries = convert_asset(asset, ConvertOptions(train=TINY, device="cpu", workers=2))
     assert os.environ.get("OMP_NUM_THREADS") == env  # set for the workers only
     out, err = capfd.readouterr()  # file descriptors: the workers' output too
-    assert [s["material"] for s in summaries] == ["Red", "Blue"]  # scene order, whatever finished first
-    assert [s["cached"] for s in summaries] == [False, False]
-    workers = {s["worker"] for s in summaries}
+    assert [s.material for s in summaries] == ["Red", "Blue"]  # scene order, whatever finished first
+    assert [s.cached for s in summaries] == [False, False]
+    workers = {s.worker for s in summaries}
     assert len(workers) == 2 and not any(w.endswith(f":{os.getpid()}") for w in workers)
-    assert all(s["threads"] == max(1, len(os.sched_getaffinity(0)) // 2) for s in summaries)
+    assert all(s.threads == max(1, len(os.sched_getaffinity(0)) // 2) for s in summaries)
     assert "[1/2]" in out and "[2/2]" in out
     # One bar per material, drawn by the parent from the workers' progress messages (phase, loss).
     assert "Red:" in err and "Blue:" in err and "loss=" in err
     for s in summaries:
-        assert m2n.load_neural(s["usd"], s["material"]).usd_info["material"] == "/Materials/" + s["material"]
+        assert m2n.load_neural(s.usd, s.material).usd_info["material"] == "/Materials/" + s.material
 
 
 @pytest.mark.slow
@@ -399,13 +399,13 @@ def test_ray_local_cluster_runs_the_same_jobs(tmp_path, capsys):
                                                            workers="ray://remote.invalid:10001"))
     finally:
         ray.shutdown()
-    assert not shipped[0]["cached"] and shipped[0]["flip_mean"] == summaries[0]["flip_mean"]
+    assert not shipped[0].cached and shipped[0].flip_mean == summaries[0].flip_mean
     assert {"checkpoint.pt", "summary.json", "training_curves.csv", "view0_flip.png"} <= \
         {p.name for p in folder.iterdir()}
     out = capsys.readouterr().out
-    assert [s["material"] for s in summaries] == ["/World/Looks/A", "/World/Looks/B", "/World/Looks/C"]
-    assert all(not s["cached"] and s["steps"] == 20 and s["threads"] == 1 for s in summaries)
-    assert not any(s["worker"].endswith(f":{os.getpid()}") for s in summaries)
+    assert [s.material for s in summaries] == ["/World/Looks/A", "/World/Looks/B", "/World/Looks/C"]
+    assert all(not s.cached and s.steps == 20 and s.threads == 1 for s in summaries)
+    assert not any(s.worker.endswith(f":{os.getpid()}") for s in summaries)
     assert "[3/3]" in out
 
 
@@ -417,7 +417,8 @@ def test_a_job_carries_the_stage_and_trains_on_the_rasterised_mesh(tmp_path):
     # Local: the helpers this test alone uses.
     from materials import usd_quad_reading_position
 
-    from mtlx2neural.pipeline.jobs import make_job, train_material
+    from mtlx2neural.pipeline.jobs import make_job
+    from mtlx2neural.pipeline.material_training import train_material
     from mtlx2neural.pipeline.plan import plan_materials
     from mtlx2neural.scene import load_asset
 
@@ -430,4 +431,4 @@ def test_a_job_carries_the_stage_and_trains_on_the_rasterised_mesh(tmp_path):
     assert src.stage_file == str(path) and src.bound_prims == ["/World/Quad"]
     _, summary = train_material(src, cfg, tmp_path / "M", "cpu", False, False, False, plan.digest,
                                 resolution=(4, 4), preview=False)
-    assert any("rasterised from the bound meshes' UV layout (/World/Quad)" in n for n in summary["notes"])
+    assert any("rasterised from the bound meshes' UV layout (/World/Quad)" in n for n in summary.notes)

@@ -5,14 +5,17 @@ small renders: the decisions are checked, not the fidelity; about 30 s on 2 shar
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
 import pytest
 
 from mtlx2neural.commands.convert import print_summaries
-from mtlx2neural.pipeline import jobs
+from mtlx2neural.material_record import MaterialRecord
+from mtlx2neural.pipeline import budget, in_scene_measure, material_training
 from mtlx2neural.pipeline.convert import convert_asset
+from mtlx2neural.pipeline.in_scene_measure import measure_in_scene
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
 
@@ -66,9 +69,9 @@ def Xform "World"
 def small_renders(monkeypatch) -> None:
     """Both measures at 32 px and 4 samples: these tests check what is recorded and decided, not the
     figures' precision (the defaults take ~10x longer on 2 shared cores)."""
-    many, in_scene = jobs.compare_many, jobs.compare_in_scene
-    monkeypatch.setattr(jobs, "compare_many", lambda *a, **k: many(*a, **k, res=32, spp=4))
-    monkeypatch.setattr(jobs, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
+    many, in_scene = material_training.compare_many, in_scene_measure.compare_in_scene
+    monkeypatch.setattr(material_training, "compare_many", lambda *a, **k: many(*a, **k, res=32, spp=4))
+    monkeypatch.setattr(in_scene_measure, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
 
 
 def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp_path, monkeypatch, capsys):
@@ -77,9 +80,9 @@ def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp
     small_renders(monkeypatch)
     first = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1))
     (s,) = first
-    flip = s["flip_in_scene"]
-    assert 0.0 < flip < 1.0 and math.isfinite(s["flip_mean"])  # both figures, side by side
-    rec = s["in_scene"]
+    flip = s.flip_in_scene
+    assert 0.0 < flip < 1.0 and math.isfinite(s.flip_mean)  # both figures, side by side
+    rec = s.in_scene
     assert rec["measured"] and rec["camera"].startswith("/World/Cam") and rec["prims"] == ["/World/Quad"]
     assert rec["lights"][0].startswith("/World/Sun: distant") and rec["triangles"] == 2
     assert (rec["res"], rec["spp"]) == (32, 4)
@@ -97,22 +100,22 @@ def test_summary_and_layer_record_the_in_scene_figure_and_the_budget_uses_it(tmp
 
     # --max-error checks the in-scene figure: made exact (0), it meets a budget of 1e-9 with the
     # smallest decoder, which the analytic views' figure (> 0 after 4 steps) would miss with all three.
-    real = jobs.compare_in_scene
+    real = in_scene_measure.compare_in_scene
 
     def exact(*args, **kwargs):
         return {label: {**r, "flip": 0.0} for label, r in real(*args, **kwargs).items()}
 
-    monkeypatch.setattr(jobs, "compare_in_scene", exact)
+    monkeypatch.setattr(in_scene_measure, "compare_in_scene", exact)
     trained = []
-    train = jobs.train_material
-    monkeypatch.setattr(jobs, "train_material", lambda src, cfg, *a, **k: trained.append(cfg.decoder)
+    train = budget.train_material
+    monkeypatch.setattr(budget, "train_material", lambda src, cfg, *a, **k: trained.append(cfg.decoder)
                         or train(src, cfg, *a, **k))
     budgeted = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu", workers=1,
                                                    max_error=1e-9))
     (b,) = budgeted
-    assert trained == ["2x16"] and b["decoder"] == "2x16" and b["budget_met"] is True
-    assert b["budget"]["metric"] == "flip_in_scene" and b["budget"]["flip_by_decoder"] == {"2x16": 0.0}
-    assert b["flip_mean"] > 1e-9  # the analytic figure, still recorded, would have missed the budget
+    assert trained == ["2x16"] and b.decoder == "2x16" and b.budget_met is True
+    assert b.budget["metric"] == "flip_in_scene" and b.budget["flip_by_decoder"] == {"2x16": 0.0}
+    assert b.flip_mean > 1e-9  # the analytic figure, still recorded, would have missed the budget
     capsys.readouterr()
     print_summaries(first)
     print_summaries(budgeted)
@@ -127,9 +130,10 @@ def test_mtlx_input_has_no_in_scene_figure_and_budgets_on_the_analytic_views():
     class Src:
         stage_file, bound_prims = None, []
 
-    assert jobs.measure_in_scene(None, {}, (1, 1), Src()) == {}
-    assert jobs.budget_error({"flip_mean": 0.2}) == 0.2
-    assert jobs.budget_error({"flip_mean": 0.2, "flip_in_scene": 0.3}) == 0.3
+    assert measure_in_scene(None, {}, (1, 1), Src()) == {}
+    record = MaterialRecord("M", "M", "m.mtlx", "", flip_mean=0.2)
+    assert record.budget_error() == 0.2
+    assert dataclasses.replace(record, flip_in_scene=0.3).budget_error() == 0.3
 
 
 def test_a_scene_showing_nothing_lit_records_why_and_no_figure(tmp_path, monkeypatch):
@@ -149,7 +153,7 @@ def test_a_scene_showing_nothing_lit_records_why_and_no_figure(tmp_path, monkeyp
         stage_file, bound_prims = str(asset), ["/World/Quad"]
 
     small_renders(monkeypatch)
-    out = jobs.measure_in_scene(Grey(), {"neural": Grey()}, (1, 1), Src())
+    out = measure_in_scene(Grey(), {"neural": Grey()}, (1, 1), Src())
     assert "flip_in_scene" not in out and out["in_scene"]["measured"] is False
     assert "shows nothing lit" in out["in_scene"]["why"] and out["in_scene"]["camera"].startswith("/World/Cam")
-    assert jobs.budget_error({"flip_mean": 0.2, **out}) == 0.2
+    assert MaterialRecord("M", "M", "m.usda", "", flip_mean=0.2, **out).budget_error() == 0.2

@@ -16,6 +16,7 @@ import pytest
 from cli_helpers import run_cli
 from test_partial_failure import two_material_stage
 
+from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.pipeline import jobs
 from mtlx2neural.pipeline.workers import run_jobs
 from mtlx2neural.train.config import preset
@@ -45,7 +46,7 @@ def _fail_training_of(monkeypatch, name: str, stub: bool = False) -> None:
     def train(src, *args, **kwargs):
         if src.name == name:
             raise FloatingPointError("non-finite loss at step 3: {'loss_brdf': nan}")
-        return (None, {"material": src.name}) if stub else real(src, *args, **kwargs)
+        return (None, MaterialRecord(src.name, src.material, src.source_file, "")) if stub else real(src, *args, **kwargs)
 
     monkeypatch.setattr(jobs, "train_material", train)
     if stub:
@@ -83,13 +84,13 @@ def test_library_result_lists_the_training_failure(tmp_path, monkeypatch):
     _fail_training_of(monkeypatch, "/World/Looks/Glaze", stub=True)
     exported = []
     monkeypatch.setattr(pipeline_convert, "_export",  # the export is the slow test's; here: what reaches it
-                        lambda summaries, trained, *a: (exported.extend(t[1]["material"] for t in trained),
+                        lambda summaries, trained, *a: (exported.extend(t[1].material for t in trained),
                                                         (tmp_path / "layer.usda", [SimpleNamespace(notes=[])] * len(trained)))[1])
     options = ConvertOptions(train=preset("fast", iterations=0), allow_untrained=True, device="cpu", workers=1,
                              progress=False)
     summaries = pipeline_convert.convert_asset(asset, options)
     assert exported == ["/World/Looks/Paint"]
-    assert [s["material"] for s in summaries] == ["/World/Looks/Paint"]
+    assert [s.material for s in summaries] == ["/World/Looks/Paint"]
     (failure,) = summaries.failed
     assert failure["material"] == "/World/Looks/Glaze" and failure["node"] is None
     assert failure["reason"].startswith("training failed (FloatingPointError): non-finite loss")

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 import mtlx2neural as m2n
-from mtlx2neural.pipeline import jobs
+from mtlx2neural.pipeline import in_scene_measure, material_training
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
@@ -60,10 +60,10 @@ def converted(tmp_path_factory):
     asset_dir = tmp_path_factory.mktemp("udim_pipeline") / "udim"
     shutil.copytree(SAMPLE, asset_dir)
     asset = asset_dir / "udim_tiles.usda"
-    tiles, in_scene = jobs.compare_tiles, jobs.compare_in_scene
+    tiles, in_scene = material_training.compare_tiles, in_scene_measure.compare_in_scene
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(jobs, "compare_tiles", lambda *a, **k: tiles(*a, **k, res=32, spp=4))
-        mp.setattr(jobs, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
+        mp.setattr(material_training, "compare_tiles", lambda *a, **k: tiles(*a, **k, res=32, spp=4))
+        mp.setattr(in_scene_measure, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
         (s,) = convert_asset(asset, ConvertOptions(train=CFG, progress=False, device="cpu", workers=1))
     return s, asset, asset_dir / "udim_tiles_neural.usda"
 
@@ -91,13 +91,13 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(conver
 
     # Only the tiles the mesh overlaps trained; 1012 is on disk but untouched.
     assert (asset_dir / f"base.{UNTOUCHED}.png").is_file()
-    assert s["udim_tiles"] == TRAINED and f"UDIM tiles trained: {TRAINED}" in s["notes"]
-    assert sorted(map(int, s["flip_per_tile"])) == TRAINED and len(s["flip_per_view"]) == 3 * len(TRAINED)
-    assert math.isfinite(s["held_out_log_l1"]) and s["in_scene"]["measured"] and 0 < s["flip_in_scene"] < 1
+    assert s.udim_tiles == TRAINED and f"UDIM tiles trained: {TRAINED}" in s.notes
+    assert sorted(map(int, s.flip_per_tile)) == TRAINED and len(s.flip_per_view) == 3 * len(TRAINED)
+    assert math.isfinite(s.held_out_log_l1) and s.in_scene["measured"] and 0 < s.flip_in_scene < 1
     folder = asset_dir / "udim_tiles_neural" / "World.Looks.UdimTiles"
     assert json.loads((folder / "summary.json").read_text())["udim_tiles"] == TRAINED
     assert all((folder / f"tile{t}_view0_neural.png").is_file() for t in TRAINED)
-    assert (folder / "analytic_baseline.pt").is_file() and 0 < s["preview_flip"] < 1  # one map per tile
+    assert (folder / "analytic_baseline.pt").is_file() and 0 < s.preview_flip < 1  # one map per tile
     exported = folder / "neural"
     assert sorted(p.name for p in exported.glob("latents_0.*.exr")) == [f"latents_0.{t}.exr" for t in TRAINED]
     assert (exported / "materialx" / "NeuralMaterial_UdimTiles.mtlx").is_file()  # the node reads every tile

@@ -44,11 +44,11 @@ def test_the_instant_is_given_or_read_from_a_summary(tmp_path):
     assert torch.allclose(base_colour(load_reference(str(path), application=app)), torch.full((1, 3), 0.4), atol=1e-6)
     assert torch.allclose(base_colour(m2n.load_reference(str(path), frame=12, fps=30)), torch.full((1, 3), 0.4),
                           atol=1e-6)
-    # What a conversion writes into summary.json for a material that reads time/frame (pipeline.jobs).
-    summary = {"application": {"frame": 12.0, "fps": 30.0, "time": 0.4, "nodes": ["time"]}}
-    assert application_of(summary) == app
+    # What a conversion records (MaterialRecord.application) for a material that reads time/frame.
+    recorded = {"frame": 12.0, "fps": 30.0, "time": 0.4, "nodes": ["time"]}
+    assert application_of(recorded) == app
     assert application_of({}) is None and application_of(None) is None
-    assert application_of({"application": {"frame": 3.0}}) is None  # incomplete: not guessed
+    assert application_of({"frame": 3.0}) is None  # incomplete: not guessed
 
 
 @pytest.mark.parametrize("frame", [1.0, 48.0])

@@ -37,7 +37,7 @@ def report(tmp_path_factory):
     s = convert_asset(asset, ConvertOptions(train=preset("fast", iterations=30, batch=256, probe_every=15),
                                             material="Plastic",
                                             progress=False, device="cpu", workers=1))
-    layer = Path(s[0]["usd"])
+    layer = Path(s[0].usd)
     out = d / "rep"
     rc = main(["report", str(layer), "-o", str(out), "--analytic-iterations", "10", "--res", "24", "--spp", "1",
                "--texel", "0.5,0.5", "--texel", "0.25,0.75", "--train-sizes"])

@@ -23,6 +23,7 @@ from pxr import Usd
 
 from mtlx2neural.export import export_asset
 from mtlx2neural.export.load import load_neural
+from mtlx2neural.material_record import MaterialRecord, write_record
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.pipeline.layout import (
     SNAPSHOT_NAME,
@@ -47,9 +48,9 @@ def random_model(seed: int) -> NeuralMaterial:
     return m.train(False)
 
 
-def summary(name: str) -> dict:
-    return {"material": name, "mtlx_material": name, "source_hash": "0" * 64, "flip_mean": 0.125, "steps": 30,
-            "device": "cpu", "device_name": "cpu (test)", "train_seconds": 1.5}
+def summary(name: str) -> MaterialRecord:
+    return MaterialRecord(name, name, "", "0" * 64, flip_mean=0.125, steps=30, device="cpu",
+                          device_name="cpu (test)", train_seconds=1.5)
 
 
 def save_checkpoint(model: NeuralMaterial, path: Path) -> Path:
@@ -211,7 +212,8 @@ def test_a_stage_snapshot_finds_its_conversions_layer_and_checkpoint(tmp_path, c
 
 def test_the_reference_renders_at_the_conversions_instant_or_the_given_one(tmp_path, capsys):
     """A material whose base colour is the ``time`` node: render reads the instant the conversion baked it
-    at from its summary.json (what pipeline.jobs writes), and --frame/--fps override it."""
+    at from its record (summary.json, as a conversion writes it), and --frame/--fps override it; a record
+    of another version is an error naming it, not a silent frame 1."""
     # Local: the shared MaterialX snippets, for this test only.
     from materials import FOOTER, HEADER, standard_surface
 
@@ -222,8 +224,9 @@ def test_the_reference_renders_at_the_conversions_instant_or_the_given_one(tmp_p
     default = render_asset(asset, tmp_path / "default.exr", **KW)["mean"]  # frame 1 at 24 fps: t = 1/24
     folder = resolve_output(asset).folder / material_folder("Clock")
     folder.mkdir(parents=True)
-    (folder / "summary.json").write_text(json.dumps(
-        {"material": "Clock", "application": {"frame": 12.0, "fps": 24.0, "time": 0.5, "nodes": ["time"]}}))
+    record = MaterialRecord("Clock", "Clock", str(asset), "",
+                            application={"frame": 12.0, "fps": 24.0, "time": 0.5, "nodes": ["time"]})
+    write_record(folder, record)
     converted = render_asset(asset, tmp_path / "converted.exr", **KW)["mean"]  # t = 0.5
     given = render_asset(asset, tmp_path / "given.exr", frame=1.0, **KW)["mean"]  # --frame 1 at the 24 fps
     # Same seed and light samples: the diffuse part scales 12x with the base colour, the specular part does

@@ -1,0 +1,220 @@
+"""Training one material: the neural model, its measures and the UsdPreviewSurface fallback's fit.
+
+:func:`train_material` compiles the material's graph, builds its training stack, trains the neural
+decoder (:class:`~mtlx2neural.train.trainer.Trainer`), fits the analytic baseline of the layer's
+UsdPreviewSurface fallback (:func:`fit_preview`), measures both against the reference BRDF and
+writes the material's folder: ``checkpoint.pt``, ``training_curves.csv``, PNGs of every view,
+``analytic_baseline.pt`` and the :class:`~mtlx2neural.material_record.MaterialRecord`
+(``summary.json``).
+
+Fidelity is measured twice for a USD source whose material is bound to meshes: on the analytic
+views (``flip_mean``: the unit sphere, three views, :func:`~mtlx2neural.render.renderer.compare`)
+and in the scene (``flip_in_scene``, :mod:`.in_scene_measure`).
+
+A UDIM material (its graph reads a ``<UDIM>`` texture set) trains only its tiles
+(:func:`mtlx2neural.train.udim.build_training_stack`: those its bound meshes overlap, every tile on
+disk for ``.mtlx`` input), and every measure reads uv inside them: the held-out error draws uv over
+the trained tiles, the analytic views are rendered once per trained tile (the sphere's uv shifted to
+the tile, :func:`mtlx2neural.render.udim_view.compare_tiles`; ``flip_per_view`` runs tile by tile,
+``flip_per_tile`` holds each tile's mean, the PNGs are ``tile<UDIM>_view<i>_*.png``) and the in-scene
+render reads the meshes' own uv, kept inside the trained tiles
+(:class:`~mtlx2neural.render.udim_view.ClampToTiles`). Its analytic baseline has one map per trained
+tile too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import platform
+import time
+from pathlib import Path
+
+import torch
+
+from mtlx2neural.baseline.analytic_model import (
+    BASELINE_FILE,
+    fit_analytic,
+    save_analytic,
+)
+from mtlx2neural.graph import compile_material
+from mtlx2neural.graph.geometry import bind_geometry
+from mtlx2neural.graph.ops import Application
+from mtlx2neural.material_record import RECORD_FILE, MaterialRecord, write_record
+from mtlx2neural.pipeline.devices import device_name
+from mtlx2neural.pipeline.in_scene_measure import measure_in_scene
+from mtlx2neural.pipeline.plan import latent_resolution
+from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.render.flip_probe import FlipProbe
+from mtlx2neural.render.renderer import compare_many, save_png
+from mtlx2neural.render.udim_view import compare_tiles
+from mtlx2neural.textures.footprint import footprint_targets
+from mtlx2neural.train.config import TrainConfig
+from mtlx2neural.train.directions import half_difference_pairs
+from mtlx2neural.train.losses import log_l1
+from mtlx2neural.train.trainer import Trainer
+from mtlx2neural.train.udim import build_training_stack, draw_uv, is_udim_stack
+
+
+def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345) -> float:
+    """Log-L1 between the neural model at level 0 and the reference averaged over a level-0
+    texel's footprint (the training target, up to 64 points), uv uniform (over the trained tiles of
+    a UDIM ``stack``: a uniform tile, then a uniform point in it, as the training draws them),
+    half/difference directions, on draws the training never saw."""
+
+    g = torch.Generator().manual_seed(seed)
+    wi, wo = half_difference_pairs(n, g)
+    uv = draw_uv(n, stack.tiles if is_udim_stack(stack) else None, g)
+    level = torch.zeros(n, dtype=torch.long)
+    with torch.no_grad():
+        target = footprint_targets(ref, stack, wi, wo, uv, level, 64, g) if stack.channels else ref.eval(wi, wo)
+        return float(log_l1(model.eval(wi, wo, uv), target))
+
+
+
+def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
+                   allow_missing_textures: bool, digest: str, resolution: tuple[int, int] | None = None,
+                   extra: dict | None = None, preview: bool = True, application: Application | None = None,
+                   listener=None) -> tuple:
+    """Train one material into ``folder``; returns (model, :class:`MaterialRecord`) and writes the record
+    (``summary.json``). ``listener(step, total, log record)``: called at every logged step (a pool
+    worker's progress bar).
+
+    ``application``: the instant ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps); a graph
+    that reads them records it in the record's ``application`` (frame, fps, time in seconds, nodes).
+
+    ``resolution`` is the latent grid (default: :func:`mtlx2neural.pipeline.plan.latent_resolution`);
+    ``extra``: values of further :class:`MaterialRecord` fields (hashes, options, planning warnings; its
+    ``notes`` are put before the stack's). ``preview``:
+    after training, also fit the analytic baseline of the layer's UsdPreviewSurface fallback
+    (:func:`fit_preview`, ``cfg.preview_iterations`` steps, saved beside the checkpoint) and record its
+    HDR FLIP (``preview_flip``, measured on the same renders as the neural model's ``flip_mean``);
+    with ``cfg.preview_iterations = 0`` there is none (and no baseline file is left in ``folder``).
+    """
+
+    t0 = time.time()
+    folder.mkdir(parents=True, exist_ok=True)
+    # An interrupted run must not leave an old record (and its hash) beside a new checkpoint.
+    (folder / RECORD_FILE).unlink(missing_ok=True)
+    preview = preview and cfg.preview_iterations > 0
+    if not preview:  # a baseline of an earlier run would otherwise be exported as this run's fallback
+        (folder / BASELINE_FILE).unlink(missing_ok=True)
+    compiled = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures, application=application)
+    geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
+    ref = ReferenceMaterial(compiled)
+    stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                              resolution=resolution or latent_resolution(compiled, cfg))
+    tiles = list(stack.tiles) if is_udim_stack(stack) else None
+    trainer = Trainer(ref, stack, cfg, folder, device=device)
+    if resume:
+        trainer.resume()
+    if progress:
+        print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid"
+              f"{f' per UDIM tile, tiles {tiles}' if tiles else ''}, "
+              f"{stack.levels[0].shape[0]} varying channels, decoder {cfg.decoder}, "
+              f"{cfg.iterations} steps x {cfg.batch}", flush=True)
+    # FLIP against training time for the report (not for a UDIM stack: its views are per tile).
+    probe = FlipProbe(ref, tuple(stack.resolution)) if not tiles else None
+    model = trainer.run(progress=progress, listener=listener, probe=probe)
+    train_seconds = time.time() - t0
+    models = {"neural": model}
+    if preview:  # a UDIM stack gives the baseline one map per tile too
+        analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
+        models["analytic"] = analytic
+    if tiles:  # the sphere's uv shifted into each trained tile: the views once per tile
+        renders = compare_tiles(ref, models, tuple(stack.resolution), tiles)
+    else:  # without the baseline, the same renders as compare(..., label="neural")
+        renders = compare_many(ref, models, texels=tuple(stack.resolution))
+    errors, preview_errors = renders["neural"], renders.get("analytic")
+    in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
+                                tuple(stack.resolution), src, folder)
+    for i, e in enumerate(errors):
+        name = f"tile{e['tile']}_view{i % (len(errors) // len(tiles))}" if tiles else f"view{i}"
+        save_png(folder / f"{name}_reference.png", e["reference"])
+        save_png(folder / f"{name}_neural.png", e["neural"])
+        save_png(folder / f"{name}_flip.png", e["flip_map"], linear=False)
+    extra = dict(extra or {})
+    record = MaterialRecord(
+        material=src.name, mtlx_material=src.material, source=src.source_file, source_hash=digest,
+        bound_prims=list(src.bound_prims), resolution=list(stack.resolution),
+        varying_channels=int(stack.levels[0].shape[0]), decoder=cfg.decoder, config=dataclasses.asdict(cfg),
+        steps=trainer.step, seconds=round(time.time() - t0, 1), train_seconds=round(train_seconds, 2),
+        final_loss_brdf=trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
+        held_out_log_l1=held_out_error(ref, model, stack), device=device, device_name=device_name(device),
+        threads=torch.get_num_threads(), worker=f"{platform.node()}:{os.getpid()}",
+        flip_per_view=[round(e["flip"], 4) for e in errors],
+        flip_mean=round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
+        relmse_mean=round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
+        **in_scene,
+        notes=list(extra.pop("notes", [])) + list(stack.notes) + list(stack_notes)
+        + ([geometry_note] if geometry_note else []))
+    if tiles:
+        record.udim_tiles = tiles
+        record.flip_per_tile = {str(t): round(float(sum(e["flip"] for e in errors if e["tile"] == t))
+                                              / sum(1 for e in errors if e["tile"] == t), 4) for t in tiles}
+    if preview:
+        record = dataclasses.replace(record, **preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
+    if compiled.reads_application:
+        app = compiled.application
+        record.application = {"frame": app.frame, "fps": app.fps, "time": app.time,
+                               "nodes": list(compiled.reads_application)}
+    record = dataclasses.replace(record, **extra)
+    flip_notes = sorted({f"view {e['view']}: {e['flip_note']}" for e in errors if e.get("flip_note")})
+    if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
+        record.warnings = [*record.warnings, *(f"HDR FLIP: {n}" for n in flip_notes)]
+    write_record(folder, record)
+    return model, record
+
+
+PREVIEW_ITERATIONS = TrainConfig.preview_iterations
+"""Default Adam steps of the analytic baseline behind the UsdPreviewSurface fallback (batch
+:data:`PREVIEW_BATCH`; a run takes ``TrainConfig.preview_iterations``, 100 in the fast preset).
+Measured on the samples (2 shared CPU cores, one torch thread): 200 steps reach the 300-step
+default's HDR FLIP within 0.002 (CarPaint 0.088 / 0.087, Plastic 0.028 / 0.027) in about a third of
+its time."""
+PREVIEW_BATCH = 2048
+
+
+def fit_preview(ref, stack, folder: Path, seed: int = 0, iterations: int = PREVIEW_ITERATIONS):
+    """Fit the analytic baseline (Lambert + GGX, :func:`~mtlx2neural.baseline.analytic_model.fit_analytic`,
+    ``iterations`` Adam steps) to ``ref`` on ``stack``'s grid and save it as
+    ``folder/analytic_baseline.pt``; returns (model, seconds the fit took)."""
+    t0 = time.time()
+    analytic = fit_analytic(ref, stack, iterations=iterations, batch=PREVIEW_BATCH, seed=seed)
+    save_analytic(analytic, folder / BASELINE_FILE)
+    return analytic, time.time() - t0
+
+
+def preview_record(errors: list[dict], fit_seconds: float, iterations: int = PREVIEW_ITERATIONS) -> dict:
+    """The record's ``preview_flip`` (mean HDR FLIP of the analytic baseline against the reference
+    over the views, as ``flip_mean`` for the neural model) and ``preview`` (per view, fit seconds)."""
+    flips = [e["flip"] for e in errors]
+    return {"preview_flip": round(float(sum(flips) / len(flips)), 4),
+            "preview": {"model": "analytic Lambert + GGX (UsdPreviewSurface fallback)", "file": BASELINE_FILE,
+                        "iterations": iterations, "flip_per_view": [round(f, 4) for f in flips],
+                        "fit_seconds": round(fit_seconds, 2)}}
+
+
+def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, resolution, seed: int,
+                record: MaterialRecord, iterations: int = PREVIEW_ITERATIONS,
+                application: Application | None = None) -> MaterialRecord:
+    """Fit (``iterations`` steps), save and measure the preview baseline for a material trained without
+    it (the chosen decoder of an error budget, :func:`~mtlx2neural.pipeline.budget.train_within_budget`);
+    returns ``record`` with the fit's figures."""
+    compiled = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures, application=application)
+    bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
+    ref = ReferenceMaterial(compiled)
+    stack, _ = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                    resolution=tuple(resolution))
+    analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
+    if is_udim_stack(stack):
+        errors = compare_tiles(ref, {"analytic": analytic}, tuple(stack.resolution), list(stack.tiles))["analytic"]
+    else:
+        errors = compare_many(ref, {"analytic": analytic}, texels=tuple(stack.resolution))["analytic"]
+    scene = measure_in_scene(ref, {"analytic": analytic}, tuple(stack.resolution), src)
+    return dataclasses.replace(record, **preview_record(errors, seconds, iterations),
+                               preview_flip_in_scene=scene.get("preview_flip_in_scene"))
+
