@@ -13,15 +13,10 @@ The runtime (``NeuralMaterial.slang``, ``NeuralLayers.slang``) and the templates
 top-level ``codegen/`` folder (see :mod:`.paths`).
 """
 
-from mtlx2neural.codegen.generate import (
-           coopmat_blob,
-           coopvec_blob,
-           fp16_blob,
-           generate_slang,
-           identifier,
-)
+from mtlx2neural.codegen.generate import generate_slang, identifier
 from mtlx2neural.codegen.paths import codegen_path, runtime_path
 from mtlx2neural.codegen.spec import NetworkSpec, as_spec
+from mtlx2neural.codegen.weight_layout import coopmat_blob, coopvec_blob, fp16_blob
 from mtlx2neural.codegen.write import write_material_shader
 
 __all__ = ["NetworkSpec", "as_spec", "codegen_path", "coopmat_blob", "coopvec_blob", "fp16_blob", "generate_slang", "identifier",

@@ -22,8 +22,9 @@ from string import Template
 
 import numpy as np
 
-from mtlx2neural.codegen.generate import coopvec_blob, fp16_blob, identifier
+from mtlx2neural.codegen.generate import identifier
 from mtlx2neural.codegen.paths import runtime_path, template
+from mtlx2neural.codegen.weight_layout import coopvec_blob, fp16_blob
 
 OPS = {"eval": 0, "pdf": 1, "sample": 2, "albedo": 3}
 _lock = threading.Lock()

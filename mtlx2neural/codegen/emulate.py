@@ -14,7 +14,7 @@ operations in float and rounds each result). GPUs fuse the FMA (one rounding), w
 from this by at most one FP16 ulp per FMA in rare double-rounding cases.
 
 :func:`mlp_coopmat` / :func:`decode_coopmat` follow the cooperative-matrix path (``NM_<name>_CoopMat``):
-inputs and weights in half, padded to the tile with zeros (:func:`~.generate.padded_layers`), one
+inputs and weights in half, padded to the tile with zeros (:func:`~.weight_layout.padded_layers`), one
 ``coopMatMulAdd`` per K tile whose products are summed exactly and rounded once to the accumulator
 type (float32 or float16; hardware sums in an implementation-defined order and precision, the
 spirv-run interpreter exactly like this), then bias and ReLU per element in the accumulator type.
@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mtlx2neural.codegen.generate import COOPMAT_TILE, padded_layers
 from mtlx2neural.codegen.spec import Layer, NetworkSpec
+from mtlx2neural.codegen.weight_layout import COOPMAT_TILE, padded_layers
 
 F16_MAX = np.float32(65504.0)
 

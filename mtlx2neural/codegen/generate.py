@@ -2,7 +2,9 @@
 
 ``generate_slang(model_or_export_dir, name)`` returns the text of ``NeuralMaterial_<name>.slang``.
 It fills the templates in ``codegen/templates/`` and imports the runtime modules
-``NeuralMaterial`` and ``NeuralLayers`` from ``codegen/slang/`` (see :mod:`.paths`).
+``NeuralMaterial`` and ``NeuralLayers`` from ``codegen/slang/`` (see :mod:`.paths`). The networks'
+code comes from :func:`.network_emitter.emit_mlp` (one storage per path below), their weight orders
+and binaries from :mod:`.weight_layout`.
 
 Weight storage choices (documented in the module header too):
 
@@ -34,12 +36,25 @@ from string import Template
 
 import numpy as np
 
+from mtlx2neural.codegen.network_emitter import (
+    SLANG,
+    CoopMatTiles,
+    CoopVecMatrices,
+    Stream16,
+    Stream32,
+    describe,
+    emit_mlp,
+)
 from mtlx2neural.codegen.paths import template
-from mtlx2neural.codegen.spec import Layer, NetworkSpec, as_spec
-
-MATRIX_ALIGN = 64  # bytes: cooperative-vector matrix offsets
-BIAS_ALIGN = 16    # bytes: bias offsets and row strides
-COOPMAT_TILE = 16  # M = N = K of the cooperative-matrix tiles (16x16x16 FP16)
+from mtlx2neural.codegen.spec import NetworkSpec, as_spec
+from mtlx2neural.codegen.weight_layout import (
+    COOPMAT_TILE,
+    coopmat_blob,
+    coopvec_blob,
+    fp16_blob,
+    stream16,
+    stream32,
+)
 
 
 def identifier(name: str) -> str:
@@ -67,111 +82,6 @@ def _array(ctype: str, name: str, items: list[str], per_line: int = 8) -> str:
 # ------------------------------------------------------------------------------------------
 # Access-order weight streams
 # ------------------------------------------------------------------------------------------
-
-def stream32(layers: list[Layer]) -> tuple[np.ndarray, list[int]]:
-    """FP32 access order: per layer, per neuron (bias, weights); returns (values, layer bases)."""
-    vals, bases, n = [], [], 0
-    for l in layers:
-        bases.append(n)
-        block = np.concatenate([l.bias[:, None], l.weight], 1).astype(np.float32).ravel()
-        vals.append(block)
-        n += block.size
-    return np.concatenate(vals), bases
-
-
-def stream16(layers: list[Layer]) -> tuple[np.ndarray, list[int]]:
-    """FP16 access order as [n, 2] pairs: per layer, per neuron pair (bias pair, then one pair
-    per input); an odd output count is padded with a zero neuron. Returns (pairs, layer bases)."""
-    vals, bases, n = [], [], 0
-    for l in layers:
-        m, k = l.shape
-        m2 = (m + 1) // 2
-        w = np.zeros((2 * m2, k + 1), np.float32)
-        w[:m, 0], w[:m, 1:] = l.bias, l.weight
-        pairs = w.reshape(m2, 2, k + 1).transpose(0, 2, 1).reshape(-1, 2)  # [(p, k), 2]
-        bases.append(n)
-        vals.append(pairs.astype(np.float16))
-        n += pairs.shape[0]
-    return np.concatenate(vals), bases
-
-
-def fp16_blob(spec: NetworkSpec) -> tuple[bytes, dict[str, int]]:
-    """The FP16 access-order streams of every network as one little-endian binary (for the
-    ``*_FP16Buffer`` variant); returns (bytes, {network: byte offset}), offsets 16-aligned."""
-    spec = spec.fp16()
-    blob, offsets = bytearray(), {}
-    for name, layers in spec.networks():
-        blob += b"\0" * (-len(blob) % 16)
-        offsets[name] = len(blob)
-        blob += stream16(layers)[0].astype("<f2").tobytes()
-    blob += b"\0" * (-len(blob) % 16)
-    return bytes(blob), offsets
-
-
-def _round_up(n: int, m: int) -> int:
-    return (n + m - 1) // m * m
-
-
-def padded_layers(spec: NetworkSpec, row_multiple: int, col_multiple: int) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
-    """Every layer's FP16-rounded weight matrix and bias, zero-padded: the one definition of the
-    padding of the matrix paths (:func:`coopvec_blob`, :func:`coopmat_blob`, the emulation).
-
-    Returns {network: [(W [round_up(out, row_multiple), round_up(in, col_multiple)], bias
-    [round_up(out, row_multiple)]), ...]} as float32 arrays holding FP16 values; W is indexed
-    [output, input] as torch's ``Linear.weight``."""
-    out = {}
-    for name, layers in spec.fp16().networks():
-        entries = []
-        for l in layers:
-            m, k = l.shape
-            w = np.zeros((_round_up(m, row_multiple), _round_up(k, col_multiple)), np.float32)
-            b = np.zeros(w.shape[0], np.float32)
-            w[:m, :k], b[:m] = l.weight, l.bias
-            entries.append((w, b))
-        out[name] = entries
-    return out
-
-
-def _matrix_blob(spec: NetworkSpec, row_multiple: int, col_multiple: int) -> tuple[bytes, dict]:
-    """Row-major FP16 matrices (padded by :func:`padded_layers`; matrices 64-byte aligned,
-    biases 16-byte aligned) and the per-layer layout (see :func:`coopvec_blob`)."""
-    blob, layout = bytearray(), {}
-    shapes = {name: [l.shape for l in layers] for name, layers in spec.networks()}
-    for name, entries in padded_layers(spec, row_multiple, col_multiple).items():
-        out = []
-        for (w, b), (m, k) in zip(entries, shapes[name]):
-            blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
-            entry = {"matrix": len(blob), "shape": [m, k], "padded": list(w.shape), "row_stride": 2 * w.shape[1]}
-            blob += w.astype("<f2").tobytes()
-            blob += b"\0" * (-len(blob) % BIAS_ALIGN)
-            entry["bias"] = len(blob)
-            blob += b.astype("<f2").tobytes() if row_multiple > 1 else b[:m].astype("<f2").tobytes()
-            out.append(entry)
-        layout[name] = out
-    blob += b"\0" * (-len(blob) % MATRIX_ALIGN)
-    return bytes(blob), layout
-
-
-def coopvec_blob(spec: NetworkSpec) -> tuple[bytes, dict]:
-    """Row-major FP16 matrices and biases of every layer for the coherent path.
-
-    Returns (bytes, layout) where layout[network] is a list of per-layer dicts with the byte
-    ``matrix`` and ``bias`` offsets, ``shape`` [out, in], ``padded`` [out, in rounded up to 8]
-    and ``row_stride`` in bytes (rows padded to 16 bytes, biases unpadded)."""
-    return _matrix_blob(spec, 1, BIAS_ALIGN // 2)
-
-
-def coopmat_blob(spec: NetworkSpec, tile: int = COOPMAT_TILE) -> tuple[bytes, dict]:
-    """FP16 weights of every layer for the cooperative-matrix path (``NM_<name>_CoopMat``).
-
-    Each layer's matrix W [out, in] is zero-padded to [round_up(out, tile), round_up(in,
-    tile)] and stored **row-major** (one row per output neuron; row stride = padded inputs),
-    which is the K x N operand B = W^T stored **column-major** with stride = padded inputs, as
-    the shader loads it; matrices are 64-byte aligned. The bias follows, zero-padded to the
-    padded output count, 16-byte aligned. Returns (bytes, layout) as :func:`coopvec_blob`
-    (``row_stride`` in bytes = 2 x padded inputs)."""
-    return _matrix_blob(spec, tile, tile)
-
 
 # ------------------------------------------------------------------------------------------
 # Code
@@ -219,46 +129,6 @@ def _sampler_inputs(ctx: _Ctx) -> str:
         f"    NM_UNROLL for (int i = 0; i < {c}; i++) x[3 + i] = lat.v[i];", "}"])
 
 
-def _mlp32(layers, bases, weights: str, x: str) -> tuple[list[str], str]:
-    lines, cur = [], x
-    for i, (l, b) in enumerate(zip(layers, bases)):
-        m, k = l.shape
-        out = f"h{i}"
-        lines.append(f"    float {out}[{m}]; nmDense32<{k}, {m}>({weights}(), {b}, {cur}, {out});")
-        if i < len(layers) - 1:
-            lines.append(f"    nmRelu32<{m}>({out});")
-        cur = out
-    return lines, cur
-
-
-def _mlp16(layers, bases, x: str) -> tuple[list[str], str]:
-    lines, cur = [], x
-    for i, (l, b) in enumerate(zip(layers, bases)):
-        m, k = l.shape
-        m2 = (m + 1) // 2
-        lines.append(f"    half2 p{i}[{m2}]; nmDense16<{k}, {m2}>(w, {b}, {cur}, p{i});")
-        if i < len(layers) - 1:
-            lines.append(f"    half h{i}[{2 * m2}]; nmReluUnpack16<{m2}, {2 * m2}>(p{i}, h{i});")
-            cur = f"h{i}"
-        else:
-            lines.append(f"    float y[{m}]; nmUnpackOutput16<{m2}, {m}>(p{i}, y);")
-    return lines, "y"
-
-
-def _mlp_coop(layers, entries, x: str) -> list[str]:
-    lines, cur = [], x
-    for i, (l, e) in enumerate(zip(layers, entries)):
-        m, k = l.shape
-        call = f"nmCoopDense<{k}, {m}>({cur}, wb, base + {e['matrix']}u, base + {e['bias']}u)"
-        if i < len(layers) - 1:
-            call = f"nmCoopRelu<{m}>({call})"
-        lines.append(f"    CoopVec<half, {m}> v{i} = {call};")
-        cur = f"v{i}"
-    m = layers[-1].shape[0]
-    lines.append(f"    float y[{m}]; nmCoopToFloat<{m}>({cur}, y);")
-    return lines
-
-
 _RGB = "return float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]));"
 _RGB_COS = _RGB[:-1] + " * max(wo.z, 0.0);"  # analytic_cosine: the network predicts f, the cosine is exact
 
@@ -286,18 +156,20 @@ def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layo
                            f"{{ return float3(0.0); }}")
             continue
         tag = {"decoder": "Dec", "albedo": "Alb", "sampler": "Smp"}[net]
-        body, cur = _mlp32(nets32[net], stream32(nets32[net])[1], f"{p}_{tag}32", "x")
+        body, cur = emit_mlp(describe(net, nets32[net]), Stream32(f"{p}_{tag}32()"), SLANG, "x")
         out += [f"public {rtype} {p}_{fn}32({lat}, {args})", "{", f"    float x[{k}]; " + inputs.format(fw=f"{p}_Frame32") + ";",
                 *body, f"    float y[{nets32[net][-1].shape[0]}] = {cur};", f"    {ret}", "}", ""]
-        body16, _ = _mlp16(nets16[net], stream16(nets16[net])[1], "xh")
+        net16 = describe(net, nets16[net])
+        body16, _ = emit_mlp(net16, Stream16("w"), SLANG, "xh")
         out += [f"public {rtype} {p}_{fn}16<W : INMWeights16>(W w, {lat}, {args})", "{",
                 f"    float x[{k}]; " + inputs.format(fw=f"{p}_Frame16") + ";",
                 f"    half xh[{k}]; nmToHalfArray<{k}>(x, xh);", *body16, f"    {ret}", "}", ""]
         if layout is not None:
+            body_cv, _ = emit_mlp(net16, CoopVecMatrices(layout[net]), SLANG, "xv")
             out += [f"public {rtype} {p}_{fn}Coop(ByteAddressBuffer wb, uint base, {lat}, {args})", "{",
                     f"    float x[{k}]; " + inputs.format(fw=f"{p}_Frame16") + ";",
                     f"    CoopVec<half, {k}> xv = nmCoopFromFloat<{k}>(x);",
-                    *_mlp_coop(nets16[net], layout[net], "xv"), f"    {ret}", "}", ""]
+                    *body_cv, f"    {ret}", "}", ""]
     return "\n".join(out)
 
 
@@ -310,7 +182,7 @@ def _coopmat_functions(ctx: _Ctx, spec32: NetworkSpec, layout: dict) -> str:
                          _RGB_COS if spec32.analytic_cosine else _RGB),
              "albedo": ("albedo", "float3", "float3 wi", f"{p}_albedoInputs({p}_Frame16(), lat, wi, x)", _RGB),
              "sampler": ("proxy", "NMProxy", "float3 wi", f"{p}_samplerInputs(lat, wi, x)", "return nmProxyFromRaw(y);")}
-    out = []
+    out, nets = [], dict(spec32.networks())
     for net, (fn, rtype, args, inputs, ret) in kinds.items():
         head = f"public {rtype} {p}_{fn}CM(ByteAddressBuffer wb, uint base, {tile}, {lat}, {args})"
         if net not in layout:
@@ -319,13 +191,7 @@ def _coopmat_functions(ctx: _Ctx, spec32: NetworkSpec, layout: dict) -> str:
         entries = layout[net]
         k, kp = entries[0]["shape"][1], entries[0]["padded"][1]
         body = [f"    float x[{k}]; {inputs};", f"    {p}_cmStoreInputs<{k}, {kp}>(t, x);"]
-        for i, e in enumerate(entries):
-            (m, _), (mp, kp) = e["shape"], e["padded"]
-            body.append(f"    {p}_cmLayer<{kp}, {mp}>(t, wb, base + {e['matrix']}u);")
-            if i < len(entries) - 1:
-                body.append(f"    {p}_cmHidden<{mp}>(t, wb, base + {e['bias']}u);")
-            else:
-                body.append(f"    float y[{m}]; {p}_cmOutput<{m}>(t, wb, base + {e['bias']}u, y);")
+        body += emit_mlp(describe(net, nets[net]), CoopMatTiles(entries, p), SLANG, "x")[0]
         out += [head, "{", *body, f"    {ret}", "}", ""]
     return "\n".join(out)
 

@@ -4,7 +4,8 @@
 ``genglsl``) or ``neural_bsdf.slang.in`` (``genslang``) with the same :class:`NetworkSpec` that
 :mod:`.generate` turns into the Slang modules: the frame layer, the decoder MLP and the sampler
 MLP in FP32, fully unrolled with every weight a literal (the shortest decimal that reads back as
-the float32 weight; zero weights left out). Unrolled, nothing is indexed at run time: on Mesa's
+the float32 weight; zero weights left out), written by :func:`.network_emitter.emit_mlp` in its
+:class:`~.network_emitter.Literal` storage. Unrolled, nothing is indexed at run time: on Mesa's
 llvmpipe a 3x64 decoder written as loops over constant arrays took 4.4x as long per frame (11.7 s
 against 2.6 s at 256², 2 shared cores), a 2x32 one about as long. The hand-written parts of the templates (proxy
 sampling and pdf, the level choice, the BSDF function) follow the Slang runtime
@@ -30,14 +31,23 @@ from string import Template
 import numpy as np
 
 from mtlx2neural.codegen.generate import identifier
+from mtlx2neural.codegen.network_emitter import (
+    GLSL,
+    SLANG,
+    Literal,
+    affine,
+    describe,
+    emit_mlp,
+)
 from mtlx2neural.codegen.paths import template
 from mtlx2neural.codegen.spec import NetworkSpec
 from mtlx2neural.errors import InputError
 
 LANGUAGES = {
-    # target -> (template, type names, sampler type)
-    "genglsl": ("neural_bsdf.glsl.in", {"vec2": "vec2", "vec3": "vec3", "vec4": "vec4"}, "sampler2D"),
-    "genslang": ("neural_bsdf.slang.in", {"vec2": "float2", "vec3": "float3", "vec4": "float4"}, "SamplerTexture2D"),
+    # target -> (template, type names, sampler type, the networks' syntax)
+    "genglsl": ("neural_bsdf.glsl.in", {"vec2": "vec2", "vec3": "vec3", "vec4": "vec4"}, "sampler2D", GLSL),
+    "genslang": ("neural_bsdf.slang.in", {"vec2": "float2", "vec3": "float3", "vec4": "float4"}, "SamplerTexture2D",
+                 SLANG),
 }
 """The MaterialX targets with an implementation, and how their code differs."""
 
@@ -119,12 +129,6 @@ def function_name(name: str) -> str:
     return f"mx_neural_{prefix(name)}_bsdf"
 
 
-def _literal(x: float) -> str:
-    """The shortest decimal that reads back as the float32 ``x``, as a GLSL/Slang float literal."""
-    text = str(np.float32(x))
-    return text if any(ch in text for ch in ".e") else text + ".0"
-
-
 def _check_finite(spec: NetworkSpec) -> None:
     arrays = [("the frame layer", spec.frame)] if spec.frame is not None else []
     for net, layers in (("decoder", spec.decoder), ("sampler", spec.sampler)):
@@ -134,36 +138,9 @@ def _check_finite(spec: NetworkSpec) -> None:
             raise InputError(f"{what} holds non-finite weights; the model cannot be written as a shader")
 
 
-def _affine(weights: np.ndarray, bias: float, inputs: list[str]) -> str:
-    """``bias + sum(w * input)`` with the weights as literals (zero weights left out)."""
-    terms = [_literal(bias)]
-    for w, x in zip(weights, inputs):
-        if w != 0:
-            lit = _literal(w)
-            terms.append(f"- {lit[1:]} * {x}" if lit.startswith("-") else f"+ {lit} * {x}")
-    return " ".join(terms)
-
-
-def _mlp(layers, inputs: list[str], name: str, p: str) -> tuple[list[str], list[str]]:
-    """Lines of the MLP ``layers`` (ReLU hidden layers, linear last layer) on the float
-    expressions ``inputs``, unrolled with every weight a literal (so that no array is indexed at
-    run time); returns (lines, the output variables)."""
-    lines, cur = [], inputs
-    for i, layer in enumerate(layers):
-        last = i == len(layers) - 1
-        out = []
-        for o in range(layer.shape[0]):
-            var = f"{name}{i}_{o}"
-            expr = _affine(layer.weight[o], float(layer.bias[o]), cur)
-            lines.append(f"    float {var} = {expr if last else f'{p}_relu({expr})'};")
-            out.append(var)
-        cur = out
-    return lines, cur
-
-
 def _network_functions(spec: NetworkSpec, lang: str, p: str, P: str) -> str:
     t = LANGUAGES[lang][1]
-    vec3 = t["vec3"]
+    vec3, syntax = t["vec3"], LANGUAGES[lang][3]
     c, f = spec.latent_channels, spec.frames
     slots = max(f, 1)
     _check_finite(spec)
@@ -176,7 +153,7 @@ def _network_functions(spec: NetworkSpec, lang: str, p: str, P: str) -> str:
                 f"    s.n[0] = {vec3}(0.0, 0.0, 1.0);"]
     lat = [f"lat[{i}]" for i in range(c)]
     for k in range(f):
-        v = [_affine(spec.frame[6 * k + j], 0.0, lat) for j in range(6)]
+        v = [affine(syntax, spec.frame[6 * k + j], 0.0, lat) for j in range(6)]
         out += [f"    s.n[{k}] = {p}_normalizeClamped({vec3}({v[0]}, {v[1]}, {v[2]} + 1.0), 1e-6);",
                 f"    s.t[{k}] = {p}_normalizeClamped({vec3}({v[3]} + 1.0, {v[4]}, {v[5]}), 1e-6);",
                 f"    s.b[{k}] = cross(s.n[{k}], s.t[{k}]);"]
@@ -186,11 +163,13 @@ def _network_functions(spec: NetworkSpec, lang: str, p: str, P: str) -> str:
     x = [f"{d}{axis}{k}" for d in ("wi", "wo") for k in range(slots) for axis in "tbn"]
     lines = [f"    float {d}t{k} = dot({d}, s.t[{k}]), {d}b{k} = dot({d}, s.b[{k}]), {d}n{k} = dot({d}, s.n[{k}]);"
              for d in ("wi", "wo") for k in range(slots)]
-    body, y = _mlp(spec.decoder, x + [f"s.lat[{i}]" for i in range(c)], "d", p)
+    body, y = emit_mlp(describe("decoder", spec.decoder), Literal(f"{p}_relu", "d"), syntax,
+                       x + [f"s.lat[{i}]" for i in range(c)])
     out += [f"// Decoder: [wi in each frame (t, b, n), wo likewise, latent] -> exp(min(y, 30) - 3){cos}.",
             f"{vec3} {p}_decode({P}_Point s, {vec3} wi, {vec3} wo)", "{", *lines, *body,
             f"    return {vec3}({p}_act({y[0]}), {p}_act({y[1]}), {p}_act({y[2]})){cos};", "}", ""]
-    body, y = _mlp(spec.sampler, ["wi.x", "wi.y", "wi.z"] + [f"s.lat[{i}]" for i in range(c)], "q", p)
+    body, y = emit_mlp(describe("sampler", spec.sampler), Literal(f"{p}_relu", "q"), syntax,
+                       ["wi.x", "wi.y", "wi.z"] + [f"s.lat[{i}]" for i in range(c)])
     out += ["// Sampler network: [wi, latent] -> the proxy's 9 raw parameters.",
             f"void {p}_sampler({P}_Point s, {vec3} wi, out float y[9])", "{", *body,
             *[f"    y[{i}] = {v};" for i, v in enumerate(y)], "}"]

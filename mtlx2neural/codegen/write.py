@@ -21,15 +21,10 @@ import shutil
 from pathlib import Path
 
 from mtlx2neural.atomic import atomic_path
-from mtlx2neural.codegen.generate import (
-    coopmat_blob,
-    coopvec_blob,
-    fp16_blob,
-    generate_slang,
-    identifier,
-)
+from mtlx2neural.codegen.generate import generate_slang, identifier
 from mtlx2neural.codegen.paths import RUNTIME_FILES, runtime_path
 from mtlx2neural.codegen.spec import as_spec
+from mtlx2neural.codegen.weight_layout import coopmat_blob, coopvec_blob, fp16_blob
 
 
 def write_material_shader(model_or_export, folder, name: str, *, coherent: bool = True) -> list[Path]:

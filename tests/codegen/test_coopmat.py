@@ -38,12 +38,7 @@ from mtlx2neural.codegen.engine import (
     engine_file_names,
     write_engine_files,
 )
-from mtlx2neural.codegen.generate import (
-    COOPMAT_TILE,
-    coopmat_blob,
-    coopvec_blob,
-    generate_slang,
-)
+from mtlx2neural.codegen.generate import generate_slang
 from mtlx2neural.codegen.paths import examples_path
 from mtlx2neural.codegen.spirv_tools import (
     find_spirv_run,
@@ -53,6 +48,7 @@ from mtlx2neural.codegen.spirv_tools import (
     runtime_array,
     spirv_val,
 )
+from mtlx2neural.codegen.weight_layout import COOPMAT_TILE, coopmat_blob, coopvec_blob
 
 COOPMAT_EXT = "SPV_KHR_cooperative_matrix"
 COOPVEC_EXT = "SPV_NV_cooperative_vector"
