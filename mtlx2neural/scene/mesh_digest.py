@@ -25,6 +25,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from mtlx2neural.scene.mesh_reading import attribute_value, texcoords
+
 __all__ = ["mesh_digest"]
 
 
@@ -34,8 +36,6 @@ def mesh_digest(stage, prim_paths: Iterable[str], primvars: Iterable[str] = ()) 
     # Local: pxr loads its plugins on import; only a material that reads geometry gets here.
     from pxr import Usd, UsdGeom
 
-    # Local: the mesh readers live beside the texel-density measure, which shares them.
-    from mtlx2neural.scene.texel_density import _get, _texcoords
 
     h = hashlib.sha256()
 
@@ -59,17 +59,17 @@ def mesh_digest(stage, prim_paths: Iterable[str], primvars: Iterable[str] = ()) 
             put("missing", b"")
             continue
         if prim.IsA(UsdGeom.Subset):
-            put_array("subset", _get(UsdGeom.Subset(prim).GetIndicesAttr()), np.int64)
+            put_array("subset", attribute_value(UsdGeom.Subset(prim).GetIndicesAttr()), np.int64)
             prim = prim.GetParent()
         if not prim.IsA(UsdGeom.Mesh):
             put("type", prim.GetTypeName().encode())
             continue
         mesh = UsdGeom.Mesh(prim)
-        put_array("points", _get(mesh.GetPointsAttr()), np.float64)
-        put_array("counts", _get(mesh.GetFaceVertexCountsAttr()), np.int64)
-        put_array("indices", _get(mesh.GetFaceVertexIndicesAttr()), np.int64)
+        put_array("points", attribute_value(mesh.GetPointsAttr()), np.float64)
+        put_array("counts", attribute_value(mesh.GetFaceVertexCountsAttr()), np.int64)
+        put_array("indices", attribute_value(mesh.GetFaceVertexIndicesAttr()), np.int64)
         put("orientation", str(mesh.GetOrientationAttr().Get()).encode())
-        uv, how = _texcoords(mesh)
+        uv, how = texcoords(mesh)
         put("uv_interpolation", str(how).encode())
         put_array("uv", uv, np.float64)
         api = UsdGeom.PrimvarsAPI(mesh)
@@ -82,7 +82,7 @@ def mesh_digest(stage, prim_paths: Iterable[str], primvars: Iterable[str] = ()) 
             else:
                 put(f"primvar:{name}", b"absent")
         put("normals_interpolation", str(mesh.GetNormalsInterpolation()).encode())
-        put_array("normals", _get(mesh.GetNormalsAttr()), np.float64)
+        put_array("normals", attribute_value(mesh.GetNormalsAttr()), np.float64)
         xf = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
         put_array("transform", np.array(xf), np.float64)
     return h.hexdigest()

@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtlx2neural.scene.mesh_reading import mesh_triangles
+
 SPHERE_SEGMENTS = (48, 24)
 """(around, pole to pole) quads of a tessellated ``Sphere`` gprim."""
 
@@ -106,9 +108,8 @@ def read_stage_view(stage, prims) -> StageView:
     # Local: pxr's plugins load only when a stage is read (a .mtlx conversion never needs them).
     from pxr import Usd, UsdGeom
 
-    # Local: the stage opener and the mesh reader are pxr-bound modules of this layer.
+    # Local: the stage opener is a pxr-bound module of this layer.
     from mtlx2neural.scene.usd_stage import open_stage
-    from mtlx2neural.scene.uv_raster import _mesh_triangles
 
     if not isinstance(stage, Usd.Stage):
         stage = open_stage(str(stage))
@@ -120,7 +121,7 @@ def read_stage_view(stage, prims) -> StageView:
         if prim and prim.IsA(UsdGeom.Sphere):
             found = _sphere_triangles(prim)
         else:
-            found = _mesh_triangles(stage, path, (), need_uv=False)
+            found = mesh_triangles(stage, path, (), need_uv=False)
             if not isinstance(found, str):
                 tuv, corners = found
                 found = (corners["position:world"], tuv, corners["normal:world"])

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtlx2neural.scene.mesh_reading import fan_triangles, object_to_world, read_topology
 from mtlx2neural.scene.usd_stage import is_stage, open_stage, stage_view
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
@@ -116,59 +117,30 @@ def surface_density(stage, prim_paths) -> SurfaceDensity:
 
 
 def mesh_density(stage, path) -> MeshDensity | str:
-    """The areas of the mesh (or GeomSubset of a mesh) at ``path``, or a reason why it cannot be measured."""
-    from pxr import Usd, UsdGeom
-
-    prim = stage.GetPrimAtPath(str(path))
-    if not prim or not prim.IsValid():
-        return "no such prim"
-    faces = None
-    if prim.IsA(UsdGeom.Subset):
-        subset = UsdGeom.Subset(prim)
-        if subset.GetElementTypeAttr().Get() not in (None, UsdGeom.Tokens.face):
-            return "GeomSubset of non-face elements"
-        faces = np.asarray(subset.GetIndicesAttr().Get(Usd.TimeCode.Default()) or [], dtype=np.int64)
-        prim = prim.GetParent()
-    if not prim.IsA(UsdGeom.Mesh):
-        return f"not a mesh ({prim.GetTypeName() or 'untyped'})"
-    mesh = UsdGeom.Mesh(prim)
-    points = _get(mesh.GetPointsAttr())
-    counts = _get(mesh.GetFaceVertexCountsAttr())
-    indices = _get(mesh.GetFaceVertexIndicesAttr())
-    if points is None or counts is None or indices is None or len(points) == 0:
-        return "mesh has no points or faces"
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    counts = np.asarray(counts, dtype=np.int64)
-    indices = np.asarray(indices, dtype=np.int64)
-    if counts.sum() != len(indices) or (len(indices) and (indices.min() < 0 or indices.max() >= len(points))):
-        return "malformed topology (faceVertexCounts/faceVertexIndices do not match the points)"
-    uv, how = _texcoords(mesh)
-    if uv is None:
-        return how
-    if how == "faceVarying":
-        if len(uv) != len(indices):
-            return f"texture coordinates: {len(uv)} faceVarying values for {len(indices)} face-vertices"
-    elif len(uv) != len(points):
-        return f"texture coordinates: {len(uv)} {how} values for {len(points)} points"
-    keep = np.ones(len(counts), dtype=bool)
-    if faces is not None:
-        keep[:] = False
-        keep[faces[(faces >= 0) & (faces < len(counts))]] = True
-    holes = _get(mesh.GetHoleIndicesAttr())
-    if holes is not None and len(holes):
-        holes = np.asarray(holes, dtype=np.int64)
-        keep[holes[(holes >= 0) & (holes < len(counts))]] = False
-    tris = _fan_triangles(counts, keep)  # [T, 3] face-vertex positions
+    """The areas of the mesh (or GeomSubset of a mesh) at ``path``, or a reason why it cannot be measured
+    (hole faces left out)."""
+    topo = read_topology(stage, path)
+    if isinstance(topo, str):
+        return topo
+    if topo.uv is None:
+        return topo.uv_how
+    if (why := topo.uv_count_error()) is not None:
+        return why
+    tris = fan_triangles(topo.counts, topo.keep & ~topo.holes)  # [T, 3] face-vertex positions
     if len(tris) == 0:
-        return "no polygons" + (" in the subset" if faces is not None else "")
-    xf = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+        return "no polygons" + (" in the subset" if topo.subset else "")
+    # Local: pxr loads its plugins on import; only a stage's meshes get here.
+    from pxr import UsdGeom
+
+    points, indices = topo.points, topo.indices
+    xf = object_to_world(stage, path)
     world = np.hstack([points, np.ones((len(points), 1))]) @ xf
     world = world[:, :3] / world[:, 3:4]
     mpu = UsdGeom.GetStageMetersPerUnit(stage)
     corners = world[indices[tris]]  # [T, 3, 3]
     world_area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
                                       axis=1).sum() * mpu * mpu
-    t = uv[tris] if how == "faceVarying" else uv[indices[tris]]  # [T, 3, 2]
+    t = topo.uv_corners(tris)  # [T, 3, 2]
     e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
     uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     if not (uv_area > 0 and math.isfinite(uv_area)):
@@ -176,60 +148,3 @@ def mesh_density(stage, path) -> MeshDensity | str:
     if not (world_area > 0 and math.isfinite(world_area)):
         return "mesh has no surface area"
     return MeshDensity(str(path), float(world_area), float(uv_area))
-
-
-def _get(attr):
-    """The attribute's value at the default time, else at its earliest time sample (animated meshes)."""
-    from pxr import Usd
-
-    value = attr.Get(Usd.TimeCode.Default())
-    return attr.Get(Usd.TimeCode.EarliestTime()) if value is None else value
-
-
-def uv_primvar(mesh):
-    """The primvar a mesh's UV layout is read from (the UV set every tool here uses): ``st`` when it has a
-    value, else the first ``texCoord2[fdh][]`` primvar with one; None when there is none."""
-    from pxr import Sdf, UsdGeom
-
-    api = UsdGeom.PrimvarsAPI(mesh)
-    pv = api.GetPrimvar("st")
-    if not (pv and pv.HasValue()):
-        uv_types = (Sdf.ValueTypeNames.TexCoord2fArray, Sdf.ValueTypeNames.TexCoord2dArray,
-                    Sdf.ValueTypeNames.TexCoord2hArray)
-        pv = next((p for p in api.GetPrimvarsWithValues() if p.GetTypeName() in uv_types), None)
-    return pv
-
-
-def _texcoords(mesh):
-    """(flattened [N, 2] float64 texture coordinates, interpolation) of :func:`uv_primvar`, or (None, why not)."""
-    from pxr import Usd, UsdGeom
-
-    pv = uv_primvar(mesh)
-    if pv is None:
-        return None, "no st primvar (nor any texCoord2f[] primvar)"
-    name = pv.GetPrimvarName()
-    how = pv.GetInterpolation()
-    if how not in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying, UsdGeom.Tokens.faceVarying):
-        return None, f"primvar {name} has {how} interpolation: its texture coordinates span no area"
-    values = pv.ComputeFlattened(Usd.TimeCode.Default())
-    if values is None:
-        values = pv.ComputeFlattened(Usd.TimeCode.EarliestTime())
-    if values is None or len(values) == 0:
-        return None, f"primvar {name} has no values"
-    uv = np.asarray(values, dtype=np.float64)
-    if uv.ndim != 2 or uv.shape[1] != 2:
-        return None, f"primvar {name} is not 2D ({pv.GetTypeName()})"
-    return uv, str(how)
-
-
-def _fan_triangles(counts: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """[T, 3] face-vertex positions of the fan triangles (0, k, k+1) of every kept polygon."""
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    n_tris = np.where(keep, np.maximum(counts - 2, 0), 0)
-    total = int(n_tris.sum())
-    if total == 0:
-        return np.zeros((0, 3), dtype=np.int64)
-    first = np.repeat(starts, n_tris)
-    offsets = np.repeat(np.cumsum(n_tris) - n_tris, n_tris)
-    k = np.arange(total, dtype=np.int64) - offsets + 1  # 1 .. count-2 within each polygon
-    return np.stack([first, first + k, first + k + 1], axis=1)

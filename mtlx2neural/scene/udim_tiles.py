@@ -19,6 +19,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from mtlx2neural.imaging.udim import udim_number
+from mtlx2neural.scene.mesh_reading import mesh_triangles
 
 _EPS = 1e-9  # overlap below this (in uv units) is a shared edge, not area
 
@@ -74,13 +75,11 @@ def triangle_tiles(tuv: np.ndarray) -> tuple[list[int], int]:
 def touched_tiles(stage, prim_paths: Iterable[str]) -> tuple[list[int], list[str]]:
     """(sorted UDIM numbers of the tiles the UVs of the meshes / GeomSubsets ``prim_paths`` on
     ``stage`` overlap, notes naming prims left out or UVs outside every tile)."""
-    # Local: the mesh reader lives with the rasteriser, which imports pxr lazily too.
-    from mtlx2neural.scene.uv_raster import _mesh_triangles
 
     tiles: set[int] = set()
     notes = []
     for path in prim_paths:
-        found = _mesh_triangles(stage, path, ())
+        found = mesh_triangles(stage, path, ())
         if isinstance(found, str):
             notes.append(f"{path}: {found}: its UDIM tiles are not known")
             continue

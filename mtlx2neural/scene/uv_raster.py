@@ -56,6 +56,7 @@ import numpy as np
 import torch
 
 from mtlx2neural.imaging.grid_lookup import bilinear_periodic
+from mtlx2neural.scene.mesh_reading import mesh_triangles, object_to_world, uv_primvar
 
 FRAME_KEYS = tuple(f"{kind}:{space}" for kind in ("position", "normal", "tangent", "bitangent")
                    for space in ("object", "world"))
@@ -139,40 +140,6 @@ def sphere_maps(resolution: tuple[int, int]) -> GeometryMaps:
 def _normalise(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > 0, n, 1.0)
-
-
-def _primvar(api, name: str, n_points: int, n_faces: int, n_fv: int):
-    """(values [K, C] float64, interpolation) of primvar ``name``, or None when absent/unusable."""
-    from pxr import Usd
-
-    pv = api.GetPrimvar(name)
-    if not (pv and pv.HasValue()):
-        return None
-    values = pv.ComputeFlattened(Usd.TimeCode.Default())
-    if values is None:
-        values = pv.ComputeFlattened(Usd.TimeCode.EarliestTime())
-    if values is None or len(values) == 0:
-        return None
-    arr = np.asarray(values, dtype=np.float64)
-    arr = arr.reshape(len(arr), -1)
-    how = str(pv.GetInterpolation())
-    expected = {"constant": 1, "uniform": n_faces, "vertex": n_points, "varying": n_points, "faceVarying": n_fv}
-    if how == "constant":
-        arr = arr[:1]
-    if len(arr) != expected.get(how, -1):
-        return None
-    return arr, how
-
-
-def _corner_values(arr, how, tris, indices, face_of_tri):
-    """[T, 3, C] per-corner values of a primvar for fan triangles ``tris`` (face-vertex positions)."""
-    if how == "constant":
-        return np.broadcast_to(arr[0], (len(tris), 3, arr.shape[1]))
-    if how == "uniform":
-        return np.repeat(arr[face_of_tri][:, None, :], 3, axis=1)
-    if how == "faceVarying":
-        return arr[tris]
-    return arr[indices[tris]]
 
 
 class _Canvas:
@@ -311,103 +278,6 @@ def _hits(px: np.ndarray, py: np.ndarray):
     return tuple(np.concatenate(o) for o in out)
 
 
-def _mesh_triangles(stage, path: str, primvars: Iterable[str], need_uv: bool = True):
-    """(uv [T,3,2], corners {key: [T,3,C]}) of the mesh or GeomSubset at ``path``, or a reason why not.
-    ``need_uv=False`` (rendering the mesh, :mod:`.stage_render`): a mesh without UVs reads uv 0."""
-    from pxr import Usd, UsdGeom
-
-    # Local: the mesh readers live beside the texel-density measure, which shares them.
-    from mtlx2neural.scene.texel_density import _fan_triangles, _get, _texcoords
-
-    prim = stage.GetPrimAtPath(str(path))
-    if not prim or not prim.IsValid():
-        return "no such prim"
-    faces = None
-    if prim.IsA(UsdGeom.Subset):
-        faces = np.asarray(UsdGeom.Subset(prim).GetIndicesAttr().Get(Usd.TimeCode.Default()) or [], dtype=np.int64)
-        prim = prim.GetParent()
-    if not prim.IsA(UsdGeom.Mesh):
-        return f"not a mesh ({prim.GetTypeName() or 'untyped'})"
-    mesh = UsdGeom.Mesh(prim)
-    points, counts, indices = (_get(a) for a in (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(),
-                                                 mesh.GetFaceVertexIndicesAttr()))
-    if points is None or counts is None or indices is None or len(points) == 0:
-        return "mesh has no points or faces"
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    counts = np.asarray(counts, dtype=np.int64)
-    indices = np.asarray(indices, dtype=np.int64)
-    if counts.sum() != len(indices) or indices.min() < 0 or indices.max() >= len(points):
-        return "malformed topology (faceVertexCounts/faceVertexIndices do not match the points)"
-    uv, how = _texcoords(mesh)
-    if uv is None and not need_uv:
-        uv, how = np.zeros((len(points), 2)), "vertex"
-    if uv is None:
-        return f"no UVs ({how})"
-    if len(uv) != (len(indices) if how == "faceVarying" else len(points)):
-        return f"texture coordinates: {len(uv)} {how} values do not match the mesh"
-    keep = np.ones(len(counts), dtype=bool)
-    if faces is not None:
-        keep[:] = False
-        keep[faces[(faces >= 0) & (faces < len(counts))]] = True
-    tris = _fan_triangles(counts, keep)
-    if len(tris) == 0:
-        return "no polygons"
-    face_of_fv = np.repeat(np.arange(len(counts)), counts)
-    face_of_tri = face_of_fv[tris[:, 0]]
-    xf = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
-    world_pts = np.hstack([points, np.ones((len(points), 1))]) @ xf
-    world_pts = world_pts[:, :3] / world_pts[:, 3:4]
-    tuv = uv[tris] if how == "faceVarying" else uv[indices[tris]]
-    p_obj = points[indices[tris]]  # [T, 3, 3]
-    left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
-    e1, e2 = p_obj[:, 1] - p_obj[:, 0], p_obj[:, 2] - p_obj[:, 0]
-    face_n = _normalise(np.cross(e1, e2)) * (-1.0 if left else 1.0)
-    api = UsdGeom.PrimvarsAPI(mesh)
-    n_fv = len(indices)
-    normals = _primvar(api, "normals", len(points), len(counts), n_fv)  # primvars:normals wins over normals
-    raw = _get(mesh.GetNormalsAttr()) if normals is None else None
-    if raw is not None:
-        how_n = str(mesh.GetNormalsInterpolation())
-        if len(raw) == {"faceVarying": n_fv, "uniform": len(counts)}.get(how_n, len(points)):
-            normals = (np.asarray(raw, dtype=np.float64).reshape(-1, 3), how_n)
-    n_obj = (_normalise(_corner_values(*normals, tris, indices, face_of_tri)) if normals is not None
-             else np.repeat(face_n[:, None], 3, axis=1))
-    # dP/du, dP/dv of each triangle from its UV derivatives.
-    d1, d2 = tuv[:, 1] - tuv[:, 0], tuv[:, 2] - tuv[:, 0]
-    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
-    det = np.where(det == 0, 1e-30, det)[:, None]
-    dpdu = (d2[:, 1:2] * e1 - d1[:, 1:2] * e2) / det
-    dpdv = (d1[:, 0:1] * e2 - d2[:, 0:1] * e1) / det
-    t_obj = dpdu[:, None, :] - (n_obj * dpdu[:, None, :]).sum(-1, keepdims=True) * n_obj
-    t_obj = _normalise(t_obj)
-    b_obj = np.cross(n_obj, t_obj)
-    hand = np.sign((b_obj * dpdv[:, None, :]).sum(-1, keepdims=True))
-    b_obj = b_obj * np.where(hand == 0, 1.0, hand)
-    lin = xf[:3, :3]  # row-vector convention: world = p @ lin (+ translation)
-    inv_t = np.linalg.inv(lin).T
-    corners = {"position:object": p_obj, "position:world": world_pts[indices[tris]],
-               "normal:object": n_obj, "normal:world": _normalise(n_obj @ inv_t),
-               "tangent:object": t_obj, "tangent:world": _normalise(t_obj @ lin),
-               "bitangent:object": b_obj, "bitangent:world": _normalise(b_obj @ lin)}
-    for name in primvars:
-        found = _primvar(api, name, len(points), len(counts), n_fv)
-        if found is not None:
-            corners[f"primvar:{name}"] = _corner_values(*found, tris, indices, face_of_tri).astype(np.float64)
-    return tuv, corners
-
-
-def _object_to_world(stage, path: str) -> np.ndarray:
-    """The 4x4 local-to-world matrix (row-vector convention) of the mesh at ``path`` (a GeomSubset's parent)
-    at the default time."""
-    # Local: pxr loads its plugins on import; only drawing real meshes needs it.
-    from pxr import Usd, UsdGeom
-
-    prim = stage.GetPrimAtPath(str(path))
-    if prim.IsA(UsdGeom.Subset):
-        prim = prim.GetParent()
-    return np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64)
-
-
 def rasterise_meshes(stage, prim_paths: Iterable[str], resolution: tuple[int, int],
                      primvars: Iterable[str] = (), transforms_read: bool = False) -> GeometryMaps:
     """Draw every mesh (or GeomSubset) of ``prim_paths`` on ``stage`` into one (H, W) UV layout
@@ -420,12 +290,12 @@ def rasterise_meshes(stage, prim_paths: Iterable[str], resolution: tuple[int, in
     drawn, notes, transforms = [], [], []
     primvars = list(dict.fromkeys(primvars))
     for path in prim_paths:
-        found = _mesh_triangles(stage, path, primvars)
+        found = mesh_triangles(stage, path, primvars)
         if isinstance(found, str):
             notes.append(f"{path}: {found}: left out of the geometry maps")
             continue
         tuv, corners = found
-        xf = _object_to_world(stage, path)
+        xf = object_to_world(stage, path)
         overlap = canvas.draw(tuv, corners, len(drawn))
         differ = [drawn[k] for k in sorted(canvas.under) if not np.allclose(transforms[k], xf, rtol=0, atol=1e-9)]
         if differ and transforms_read:
@@ -500,7 +370,7 @@ class GeometrySource:
         for path in self.prims:
             prim = self.stage().GetPrimAtPath(path)
             if prim and (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.Subset)):
-                found.append(_object_to_world(self.stage(), path))
+                found.append(object_to_world(self.stage(), path))
         if not found or any(not np.allclose(m, found[0], rtol=0, atol=1e-9) for m in found[1:]):
             return None
         return torch.from_numpy(found[0].astype(np.float32)).reshape(16)
@@ -521,9 +391,6 @@ class GeometrySource:
         None: no UVs)}; empty for the sphere (one layout, no primvars)."""
         if self.is_sphere:
             return {}
-        # Local: the UV-set rule lives beside the texel-density measure, which shares it.
-        from mtlx2neural.scene.texel_density import uv_primvar
-
         out = {}
         for path, mesh in self._meshes():
             pv = uv_primvar(mesh) if mesh else None
