@@ -25,9 +25,12 @@ uv inside the set's tiles.
 from __future__ import annotations
 
 import glob
+import math
 import os
 import re
 from dataclasses import dataclass
+
+import torch
 
 from mtlx2neural.errors import InputError
 
@@ -56,6 +59,29 @@ def tile_of_udim(udim: int) -> tuple[int, int]:
         raise ValueError(f"UDIM number {udim} is below 1001.")
     k = udim - 1001
     return k % 10, k // 10
+
+
+def udim_at(u: float, v: float) -> int | None:
+    """UDIM number of the tile holding the point ``(u, v)``, or None where no UDIM tile is (u outside
+    ``[0, 10)``, v < 0, or not finite)."""
+    if not (math.isfinite(u) and math.isfinite(v) and 0 <= u < _MAX_TU and v >= 0):
+        return None
+    return udim_number(int(math.floor(u)), int(math.floor(v)))
+
+
+def udim_of_uv(uv: torch.Tensor) -> torch.Tensor:
+    """:func:`udim_at` for a batch: UDIM numbers [N] (int64) of uv [N, 2], -1 where no UDIM tile is."""
+    tu, tv = torch.floor(uv[:, 0]), torch.floor(uv[:, 1])
+    ok = (tu >= 0) & (tu < _MAX_TU) & (tv >= 0) & torch.isfinite(uv).all(-1)
+    return torch.where(ok, 1001 + tu + 10 * tv, torch.full_like(tu, -1)).long()
+
+
+def check_tiles(tiles) -> list[int]:
+    """``tiles`` as a sorted list of UDIM numbers; ValueError unless they are distinct and >= 1001."""
+    out = sorted(int(t) for t in tiles)
+    if not out or out[0] < 1001 or len(set(out)) != len(out):
+        raise ValueError(f"UDIM tiles must be distinct numbers >= 1001, got {out}")
+    return out
 
 
 def tile_path(pattern: str, tu: int, tv: int) -> str:

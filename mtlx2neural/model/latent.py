@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from mtlx2neural.imaging.grid_lookup import bilinear_periodic
+from mtlx2neural.imaging.udim import check_tiles, udim_of_uv
 
 
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
@@ -33,14 +34,6 @@ def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
         h, w = shapes[-1]
         shapes.append((max(1, math.ceil(h / 2)), max(1, math.ceil(w / 2))))
     return shapes
-
-
-def udim_of_uv(uv: torch.Tensor) -> torch.Tensor:
-    """UDIM numbers [N] (int64) of uv [N,2]: ``1001 + floor(u) + 10 * floor(v)``; uv with u outside
-    [0, 10) or v < 0 (no UDIM tile) give -1."""
-    tu, tv = torch.floor(uv[:, 0]), torch.floor(uv[:, 1])
-    ok = (tu >= 0) & (tu < 10) & (tv >= 0) & torch.isfinite(uv).all(-1)
-    return torch.where(ok, 1001 + tu + 10 * tv, torch.full_like(tu, -1)).long()
 
 
 def bilinear_clamp(grid: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
@@ -74,9 +67,7 @@ class LatentPyramid(nn.Module):
         self.levels = nn.ParameterList(
             nn.Parameter(torch.randn(*lead, channels, h, w) * init_std) for h, w in level_shapes(height, width))
         if tiles is not None:
-            tiles = sorted(int(t) for t in tiles)
-            if not tiles or tiles[0] < 1001 or len(set(tiles)) != len(tiles):
-                raise ValueError(f"UDIM tiles must be distinct numbers >= 1001, got {tiles}")
+            tiles = check_tiles(tiles)
             self.register_buffer("tiles", torch.tensor(tiles, dtype=torch.long))
         else:
             self.tiles = None

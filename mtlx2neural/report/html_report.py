@@ -53,7 +53,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.export.load import _neural_prims, load_neural
 from mtlx2neural.export.usd_writer import register_schema
 from mtlx2neural.imaging.mip_chain import read_mip_chain
-from mtlx2neural.imaging.udim import tile_of_udim
+from mtlx2neural.imaging.udim import tile_of_udim, udim_at
 from mtlx2neural.material_record import (
     RECORD_FILE,
     MaterialRecord,
@@ -420,8 +420,8 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
         texels_at = [(tu + 0.5, tv + 0.5) for tu, tv in map(tile_of_udim, tiles)] if tiles else [(0.5, 0.5)]
     for u, v in texels_at:
         if tiles:  # the tile holding (u, v): its analytic fit at local uv, the others at true uv
-            t = 1001 + int(math.floor(u)) + 10 * int(math.floor(v))
-            if not (0 <= u < 10 and v >= 0 and t in tiles):
+            t = udim_at(u, v)
+            if t not in tiles:
                 raise InputError(f"--texel {u:g},{v:g}: not in a UDIM tile {prim} was trained on ({tiles})")
             tu, tv = tile_of_udim(t)
             theta, brdf, pdf = polar_slices(TileView(reference, t), analytics[t], TileView(neural, t),

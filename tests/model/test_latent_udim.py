@@ -8,18 +8,13 @@ import torch
 
 from mtlx2neural.imaging.grid_lookup import bilinear_periodic
 from mtlx2neural.model.checkpoint import model_arguments
-from mtlx2neural.model.latent import LatentPyramid, bilinear_clamp, udim_of_uv
+from mtlx2neural.model.latent import LatentPyramid, bilinear_clamp
 from mtlx2neural.model.neural_material import NeuralMaterial
 
 
 def _pyramid(tiles, seed=0):
     torch.manual_seed(seed)
     return LatentPyramid(4, 6, channels=3, init_std=1.0, tiles=tiles)
-
-
-def test_udim_numbers_of_uv():
-    uv = torch.tensor([[0.5, 0.5], [1.0, 0.0], [9.99, 0.2], [0.2, 1.0], [-0.1, 0.5], [10.0, 0.5], [0.5, -0.01]])
-    assert udim_of_uv(uv).tolist() == [1001, 1002, 1010, 1011, -1, -1, -1]
 
 
 def test_each_tile_reads_its_own_grid_at_frac_uv():
