@@ -44,7 +44,7 @@ def applied_schemas(prim) -> list[str]:
     return list(listop.GetAddedOrExplicitItems()) if listop else []
 
 
-def _neural_prims(stage):
+def neural_prims(stage):
     """Prims with the API or the variant set; all prims, since a Material from a referenced ``.mtlx``
     file (which usd-core cannot compose) is only an ``over`` here."""
     from pxr import Usd
@@ -125,7 +125,7 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
     stage = Usd.Stage.Open(str(path), load=Usd.Stage.LoadNone)
     if stage is None:
         raise InputError(f"{path}: cannot open the USD layer")
-    prim = _choose(path, _neural_prims(stage), material)
+    prim = _choose(path, neural_prims(stage), material)
     vset = prim.GetVariantSets().GetVariantSet(VARIANT_SET)
     if vset and vset.GetVariantSelection() != NEURAL:
         with Usd.EditContext(stage, stage.GetSessionLayer()):

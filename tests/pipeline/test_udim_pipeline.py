@@ -157,10 +157,10 @@ def test_report_of_a_udim_layer_goes_tile_by_tile(converted, tmp_path, monkeypat
     are timed with torch (the slangpy harness compiles four shaders: ~30 s more on 2 shared cores),
     on the one-tile stand-in either way."""
     from mtlx2neural.errors import InputError
-    from mtlx2neural.report import html_report
+    from mtlx2neural.report import cost_table
     from mtlx2neural.report.html_report import write_report
 
-    monkeypatch.setattr(html_report, "shader_available", lambda: (False, "not timed in this test"))
+    monkeypatch.setattr(cost_table, "shader_available", lambda: (False, "not timed in this test"))
 
     _, _, layer = converted
     out = write_report(layer, tmp_path / "report", analytic_iterations=10, res=16, spp=1)
