@@ -106,6 +106,7 @@ def register(shaders: bool = True) -> bool:
     False (with a warning) when the registry was built before this call.
     """
     global _registered
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Plug, Tf, Usd
 
     if not _registered:
@@ -123,6 +124,7 @@ def register(shaders: bool = True) -> bool:
 
 def _register_shader() -> None:
     """Add NeuralBSDF.usda to Sdr, exactly as its filesystem discovery plugin would find it."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdr
 
     reg = Sdr.Registry()

@@ -11,6 +11,7 @@ each function-local import.
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -104,13 +105,51 @@ def test_imports_point_down_the_data_flow():
     assert not upward, "imports that run up (or across) the layering:\n" + "\n".join(upward)
 
 
+def _third_party_local_imports(path: Path):
+    """(line, module, has a reason comment) for every function-local import of a module outside the
+    standard library and mtlx2neural. A comment counts when it sits on the import's line or on the
+    lines just above the run of import statements the import belongs to."""
+    source = path.read_text()
+    lines = source.splitlines()
+    tree = ast.parse(source)
+    top = {id(node) for node in tree.body}
+    for node in tree.body:
+        if isinstance(node, ast.If):
+            top.update(id(n) for n in node.body)
+    for node in ast.walk(tree):
+        if not isinstance(node, (ast.Import, ast.ImportFrom)) or id(node) in top:
+            continue
+        module = (node.module or "") if isinstance(node, ast.ImportFrom) else node.names[0].name
+        root = module.split(".")[0]
+        if root in ("mtlx2neural", "") or root in sys.stdlib_module_names:
+            continue
+        first = node.lineno - 1
+        while first > 0 and lines[first - 1].strip().startswith(("import ", "from ")):
+            first -= 1
+        context = lines[max(0, first - 2): node.lineno]
+        yield node.lineno, module, any("#" in text for text in context)
+
+
 def test_function_local_imports_say_why():
     silent = []
     for path, _ in _modules():
         for line, _, local, reason in _imports(path):
             if local and not reason:
                 silent.append(f"{path.relative_to(PACKAGE.parent)}:{line}")
-    assert not silent, "function-local imports without a comment saying why:\n" + "\n".join(silent)
+        for line, module, reason in _third_party_local_imports(path):
+            if not reason:
+                silent.append(f"{path.relative_to(PACKAGE.parent)}:{line} ({module})")
+    assert not silent, ("function-local imports without a comment saying why (move a third-party import to "
+                        "the top unless importing it late matters):\n" + "\n".join(silent))
+
+
+def test_the_local_import_check_wants_a_reason(tmp_path):
+    """The walker itself: a silent local third-party import is found, a commented block is not."""
+    probe = tmp_path / "probe.py"
+    probe.write_text("def f():\n    import numpy\n\n\ndef g():\n    # Local: a reason.\n    import numpy\n"
+                     "    import torch\n    import pxr.Usd\n    import os\n")
+    assert [(line, reason) for line, _, reason in _third_party_local_imports(probe)] == \
+        [(2, False), (7, True), (8, True), (9, True)]
 
 
 @pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")), ids=lambda p: str(p.relative_to(PACKAGE)))

@@ -46,6 +46,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 import torch
 from torch import nn
 
@@ -291,7 +292,6 @@ def fit_analytic(reference, stack, iterations: int = 300, batch: int = 4096, see
 
 def _write_image(path: Path, img: np.ndarray) -> None:
     """Write [H, W, C] float32 as a half-float EXR (linear, raw)."""
-    import OpenImageIO as oiio
 
     out = oiio.ImageOutput.create(str(path))
     if out is None:
@@ -319,6 +319,7 @@ def author_preview_surface(stage, material_path, textures: dict, ior: float, pre
     n * 0.5 + 0.5 encoding, tangent space). Ancestors missing on the stage are authored as ``over``.
     Returns the UsdPreviewSurface shader.
     """
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf, UsdShade
 
     t = Sdf.ValueTypeNames

@@ -28,6 +28,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 import torch
 
 from mtlx2neural.atomic import atomic_path
@@ -55,7 +56,6 @@ def tile_file(pattern, udim: int) -> Path:
 
 
 def _spec(width: int, height: int, group: int, channels: int, wrap: str = "periodic"):
-    import OpenImageIO as oiio
 
     s = oiio.ImageSpec(width, height, 4, "half")
     s.tile_width = s.tile_height = TILE
@@ -71,7 +71,6 @@ def _spec(width: int, height: int, group: int, channels: int, wrap: str = "perio
 def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels: int,
                      wrap: str = "periodic") -> None:
     """Write ``images`` ([H_j, W_j, 4] float16, finest first) as the MIP levels of one EXR at ``path``."""
-    import OpenImageIO as oiio
 
     out = oiio.ImageOutput.create(str(path))
     if out is None:

@@ -47,6 +47,7 @@ def applied_schemas(prim) -> list[str]:
 def neural_prims(stage):
     """Prims with the API or the variant set; all prims, since a Material from a referenced ``.mtlx``
     file (which usd-core cannot compose) is only an ``over`` here."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Usd
 
     return [p for p in Usd.PrimRange.Stage(stage, Usd.PrimAllPrimsPredicate)
@@ -82,6 +83,7 @@ def _resolved(asset_path, prim, name: str, path) -> Path:
     authored path anchored at the layer's folder, so that the reader's error names the file. A
     ``<UDIM>`` pattern (which USD leaves unresolved) is anchored at the layer that authored it
     (``UsdShade.UdimUtils``), the token kept."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import UsdShade
 
     p = asset_path.resolvedPath
@@ -116,6 +118,7 @@ def _read_weights(manifest_file: Path, weights_file: Path, prim, path):
 def load_neural(path, material: str | None = None, device: str = "cpu") -> ExportedNeuralMaterial:
     """The neural material ``material`` (prim path, prim name or MaterialX name; optional when the layer
     holds one) of the exported layer ``path``, in eval mode on ``device``."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Usd
 
     register_schema()  # the attributes are read the same way without it

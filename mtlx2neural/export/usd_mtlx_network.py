@@ -41,6 +41,7 @@ TEXCOORD_PRIMVAR = "st"
 
 def _define_shader(stage, path):
     """A ``def Shader`` at ``path`` whose missing ancestors are authored as ``over``."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf, UsdShade
 
     prim = stage.OverridePrim(path)
@@ -53,6 +54,7 @@ def author_mtlx_network(stage, material, name: str, latent_assets: list[str]):
     """Author the MaterialX network of material ``name`` (module docstring) under the UsdShade
     ``material`` at ``stage``'s edit target; ``latent_assets``: the latent textures' asset paths as the
     layer states them (relative to it), in channel order. Returns the neural BSDF's Shader."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf
 
     t = Sdf.ValueTypeNames

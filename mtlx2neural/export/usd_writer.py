@@ -159,6 +159,7 @@ def _define_shader(stage, path):
     """A ``def Shader`` at ``path`` whose missing ancestors are authored as ``over``, not ``def``
     (``UsdShade.Shader.Define`` would define them, which matters under a Material that only a
     usdMtlx-enabled USD composes)."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf, UsdShade
 
     prim = stage.OverridePrim(path)
@@ -172,6 +173,7 @@ def _set(prim, name: str, type_name, value) -> None:
 
 
 def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Gf, Sdf, Vt
 
     a, t = m.architecture, Sdf.ValueTypeNames
@@ -207,6 +209,7 @@ def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
 
 
 def _neural_shader(stage, material, m: ExportedMaterial, rel) -> None:
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf
 
     t = Sdf.ValueTypeNames
@@ -245,6 +248,7 @@ def _neural_extras(stage, material, m: ExportedMaterial, rel) -> None:
 
 
 def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> None:
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf, UsdShade
 
     shader = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("MaterialX"))
@@ -255,6 +259,7 @@ def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> No
 
 
 def _mtlx_prim_paths(materials, reserved=()) -> list[str]:
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Tf
 
     names, paths = {p.rsplit("/", 1)[-1] for p in reserved}, []
@@ -280,6 +285,7 @@ class KeptMaterials:
 
 def _copy_kept(old_path: Path, layer, kept: dict[str, dict]) -> None:
     """Copy each kept material's prim spec from the previous layer (ancestors as ``over``)."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf
 
     old = Sdf.Layer.OpenAsAnonymous(str(old_path))  # not the registry's copy, which may be stale
@@ -309,6 +315,7 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
     record's ``skippedMaterials`` (those materials keep their original network only).
     Returns ``out_usda``. The input is only read.
     """
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 
     asset = Path(asset).resolve()

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Generator
 
 import MaterialX as mx
+import numpy as np
 
 from mtlx2neural.errors import InputError, UnsupportedNodeError
 from mtlx2neural.graph.ir import Const, Input, IRGraph, IRNode, Ref
@@ -223,7 +224,6 @@ class Expander:
         working = self.working_space or "lin_rec709"
         if not needs_conversion(colorspace, working):
             return value
-        import numpy as np
 
         rgb = convert(np.array([value[:3]], dtype=np.float32), colorspace, working)[0]
         return tuple(float(x) for x in rgb) + tuple(value[3:])

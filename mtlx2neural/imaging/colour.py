@@ -70,6 +70,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import PyOpenColorIO as OCIO
+import torch
 
 from mtlx2neural.errors import InputError
 
@@ -431,7 +432,6 @@ def convert_torch(x, src: str, dst: str = DEFAULT_WORKING_SPACE):
 
     The conversion runs on the CPU (OpenColorIO); gradients do not flow through it.
     """
-    import torch
 
     s, d = canonical_colorspace(src), canonical_colorspace(dst)
     _check_resolved(s, src)

@@ -45,6 +45,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
+import OpenImageIO as oiio
 import torch
 
 from mtlx2neural.errors import InputError, missing_reason, unreadable_reason
@@ -86,7 +87,6 @@ def openimageio():
     pending error message ..."), which corrupts machine-readable output such as
     ``inspect --json``. That is switched off; errors are retrieved where they occur.
     """
-    import OpenImageIO as oiio
 
     oiio.attribute("oiio:print_uncaught_errors", 0)
     return oiio

@@ -68,6 +68,7 @@ _sources: dict[tuple[str, str, str], _OracleSource] = {}  # keyed by (XML hash, 
 
 
 def _mx():
+    # Local: MaterialX's shader generators load with the first oracle only.
     import MaterialX as mx
     import MaterialX.PyMaterialXGenShader as mxgen
     import MaterialX.PyMaterialXGenSlang as mxslang
@@ -574,6 +575,7 @@ class _OracleSource:
 
 
 def _oracle_source(document, material: str) -> _OracleSource:
+    # Local: MaterialX's shader generators load with the first oracle only.
     import MaterialX as mx
 
     uri = document.getSourceUri()

@@ -51,6 +51,7 @@ class _Texture:
 
 def _oiio():
     try:
+        # Local: OpenImageIO is checked here so that a missing module is named.
         import OpenImageIO as oiio
     except ImportError as exc:  # pragma: no cover - OpenImageIO is a project dependency
         raise OracleUnsupported(f"reading image textures needs OpenImageIO: {exc}") from exc

@@ -130,6 +130,7 @@ class LayerRecord:
 
 def read_layer_record(layer: Path) -> LayerRecord | None:
     """The record of the mtlx2neural layer at ``layer``; None when the file is not one (or not USD)."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf
 
     try:

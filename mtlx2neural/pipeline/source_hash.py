@@ -39,6 +39,8 @@ import json
 import os
 from pathlib import Path
 
+import MaterialX as mx
+
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats import FORMAT_VERSION
 from mtlx2neural.imaging.packages import local_file
@@ -91,7 +93,6 @@ def settings_for_hash(cfg) -> dict:
 
 def _put_input(put, source) -> None:
     """Feed the material's own input (name, MaterialX document, referenced files' contents) to ``put``."""
-    import MaterialX as mx
 
     put("material", f"{source.name}\0{source.material}")
     put("document", mx.writeToXmlString(source.document))

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 import torch
 
 from mtlx2neural.errors import InputError
@@ -91,7 +92,6 @@ class EnvironmentMap:
     @classmethod
     def from_file(cls, path, scale: float = 1.0) -> EnvironmentMap:
         """Read an HDR/EXR lat-long map with OpenImageIO (first 3 channels; 1 channel is grey)."""
-        import OpenImageIO as oiio
 
         path = Path(path)
         if not path.is_file():

@@ -35,6 +35,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import OpenImageIO as oiio
 import torch
 
 from mtlx2neural.contract import Material, ShadingPoint
@@ -252,7 +253,6 @@ def compare_many(reference: Material, models: dict, texels: tuple[int, int], vie
 def save_png(path, img: np.ndarray, exposure: float = 1.0, linear: bool = True) -> None:
     """Write an 8-bit PNG: a linear HDR image is exposed, clamped and sRGB-encoded;
     ``linear=False`` writes display-ready values as they are (e.g. FLIP's colour-mapped error)."""
-    import OpenImageIO as oiio
 
     x = img if img.ndim == 3 else np.repeat(img[..., None], 3, -1)
     x = np.clip(x * exposure, 0, 1)

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 from pxr import Sdf
 
 from mtlx2neural.atomic import atomic_path
@@ -95,7 +96,6 @@ def make_lights(spec: str | None):
 
 def write_exr(path, img: np.ndarray) -> None:
     """Write a float32 [H, W, 3] image with OpenImageIO: a temporary file, then os.replace."""
-    import OpenImageIO as oiio
 
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
