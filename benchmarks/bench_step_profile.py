@@ -49,6 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fidelity import CASES, TEXTURED
 from bench_tradeoff import config_overrides
 
+import mtlx2neural.train.targets as targets_mod
 import mtlx2neural.train.trainer as trainer_mod
 from mtlx2neural.graph import compile_material
 from mtlx2neural.model.mlp import parse_hidden
@@ -155,8 +156,8 @@ def build(case: str, preset_name: str, seed: int = 0, **overrides):
 
 def instrument(tr, s: Sections):
     """Wrap what ``tr.train_step`` calls so that ``s`` records each part (module docstring)."""
-    for fn in ("draw_uv", "sample_levels", "half_difference_pairs"):
-        setattr(trainer_mod, fn, s.wrap("draw", getattr(trainer_mod, fn)))
+    for mod, fn in ((trainer_mod, "draw_uv"), (targets_mod, "sample_levels"), (trainer_mod, "half_difference_pairs")):
+        setattr(mod, fn, s.wrap("draw", getattr(mod, fn)))
     trainer_mod.lobe_directions = s.wrap("lobe", trainer_mod.lobe_directions)
     tr._targets = s.wrap("targets_rest", tr._targets)
     ref = tr.ref

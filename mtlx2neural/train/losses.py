@@ -1,20 +1,96 @@
-"""Training losses.
+"""Every training loss: the decoder's BRDF loss, the sampler's KL loss and the albedo head's loss.
 
-The BRDF loss is L1 between log(1 + x / EPS) of prediction and target. The
-log compresses the huge dynamic range of near-specular lobes (values of 1e3 and
-more next to 1e-3), so one near-delta sample cannot dominate a batch with a
-gradient spike, and the offset EPS keeps the log finite and its gradient
-bounded (<= 1/EPS) where the target is black. Dividing by EPS makes the loss
-linear below EPS and logarithmic above it.
+Conventions shared by all three (the reference's contract, :mod:`mtlx2neural.contract`):
+
+* BRDF values are *cosine-weighted*: ``f(wi, wo) * max(0, wo.z)``, ``[N, 3]`` linear RGB, as
+  :meth:`ReferenceMaterial.eval` and the decoder return them (the trainer's targets are the
+  footprint-filtered, mollified reference values of that kind: :mod:`mtlx2neural.train.targets`).
+* Directions ``wi`` (to the viewer) and ``wo`` (to the light) are unit ``[N, 3]`` vectors in the
+  local shading frame: z the shading normal (z-up), x the tangent.
+* Densities are per steradian of ``wo`` (no cosine).
+* Each loss is a scalar mean over the batch (the KL: a weighted sum whose weights sum to 1).
+
+**BRDF** (:func:`log_l1`): L1 between log(1 + x / EPS) of prediction and target. The log
+compresses the huge dynamic range of near-specular lobes (values of 1e3 and more next to 1e-3),
+so one near-delta sample cannot dominate a batch with a gradient spike, and the offset EPS keeps
+the log finite and its gradient bounded (<= 1/EPS) where the target is black. Dividing by EPS
+makes the loss linear below EPS and logarithmic above it.
+
+**Sampler** (:func:`sampler_kl`): KL(neural BRDF || learned proxy) up to a constant, scored on
+the sampler's own directions mixed defensively with cosine ones (``KL_DEFENSIVE``); gradients reach
+the sampler only. The uniform-direction estimator it replaced, and the measurement, are in
+docs/history/paper-choices-2026-12-02.md.
+
+**Albedo head** (:func:`albedo_loss`): squared error of the predicted directional albedo against
+one-sample Monte Carlo estimates of the reference's.
+
+:func:`brdf_and_sampler_losses` is the BRDF and sampler losses of one step together: the unit the
+trainer compiles with ``torch.compile``.
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 
+from mtlx2neural.model import proxy
+from mtlx2neural.reference.vec import cosine_sample
+
 EPS = 1e-2  # radiance scale (f * cos) below which errors count linearly
+KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine density (defensive mixture)
+KL_LOG_FLOOR = 1e-4  # added to the sampler's density inside the KL's log: a sample it cannot reach costs log(1e-4)
 
 
 def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
-    """Mean |log1p(pred/eps) - log1p(target/eps)| over all elements (inputs must be >= 0)."""
+    """Mean |log1p(pred/eps) - log1p(target/eps)| over all elements (inputs must be >= 0; negative
+    values are clamped to 0). ``pred`` and ``target`` are cosine-weighted BRDF values f * cos [N, 3],
+    linear RGB; ``eps`` is in the same units."""
     return (torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)).abs().mean()
+
+
+def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """The sampler's loss: KL(neural BRDF || learned proxy) up to a constant (a scalar, in nats).
+
+    Scored on directions drawn from the sampler itself (the paper's estimator), mixed defensively with
+    cosine sampling: each row's ``wo`` comes from the learned proxy (detached) or, where
+    ``u[:, 2] < KL_DEFENSIVE``, from the cosine density, and is weighted by f / r with f the decoder's
+    cosine-weighted BRDF (mean over RGB) and r = (1 - KL_DEFENSIVE) q + KL_DEFENSIVE cos / pi the
+    mixture's density per steradian; the weights are normalised over the batch, and rows whose ``wo``
+    falls at or below the horizon or whose density is not positive weigh 0. The loss is
+    ``-sum(w * log(q(wo) + KL_LOG_FLOOR))`` with q the sampler's density.
+
+    ``decoder`` and ``sampler`` are the model's networks; ``latent`` [N, D] the rows' latents (detached
+    here, so the sampler cannot pull the latents towards what it can sample; the decoder runs without
+    gradient); ``wi`` [N, 3] unit, local frame; ``u`` [N, 3] uniform random numbers in [0, 1). The
+    gradient reaches the sampler's parameters only.
+    """
+    lat_d = latent.detach()
+    with torch.no_grad():
+        params_d = sampler(wi, lat_d)
+        wo_s = torch.where((u[:, 2] < KL_DEFENSIVE)[:, None], cosine_sample(u[:, :2]),
+                           proxy.sample(wi, params_d, u[:, :2]))
+        wo_s = torch.nn.functional.normalize(torch.nan_to_num(wo_s, nan=0.0), dim=-1)
+        density = ((1.0 - KL_DEFENSIVE) * proxy.pdf(wi, wo_s, params_d)
+                   + KL_DEFENSIVE * wo_s[:, 2].clamp_min(0.0) / math.pi)
+        ok = (wo_s[:, 2] > 0) & (density > 0) & torch.isfinite(density)
+        w = torch.where(ok, decoder(lat_d, wi, wo_s).mean(-1) / density.clamp_min(1e-12), torch.zeros_like(density))
+        w = w / w.sum().clamp_min(1e-12)
+    q = sampler.pdf(wi, wo_s, lat_d)
+    return -(w * torch.log(q + KL_LOG_FLOOR)).sum()
+
+
+def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u):
+    """(BRDF loss, sampler loss) of one step's batch, given the latents: :func:`log_l1` between the
+    decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the filtered reference, f * cos, linear
+    RGB), then :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame."""
+    loss_brdf = log_l1(decoder(latent, wi, wo), target)
+    return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
+
+
+def albedo_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The albedo head's loss: mean squared error over rows and channels between the predicted
+    directional albedo ``pred`` [N, 3] (f * cos integrated over wo, linear RGB, at each row's ``wi``) and
+    ``target`` [N, 3], one-sample Monte Carlo estimates of the reference's (its sample weight, so
+    unbiased but noisy: the squared error's minimiser is their mean)."""
+    return ((pred - target) ** 2).mean()

@@ -10,9 +10,14 @@ with ``grazing_fraction``, extra rows with wi near the horizon), a footprint-fil
 and mollified reference target (the cone narrows with the paper's cosine decay, then stays
 at a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
 against the current neural BRDF, scored on the sampler's own samples mixed with cosine ones
-(latents detached; docs/history/paper-choices-2026-12-02.md).
+(latents detached; docs/history/paper-choices-2026-12-02.md), plus the albedo head's loss when it
+has one (every loss: ``train.losses``).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
+
+What differs between a uniform, a textured and a UDIM material lives outside the trainer, chosen
+once from the parameter stack: the targets and MIP levels of the rows (``train.targets``) and the
+latents' grid and bake (``train.latent_init``).
 """
 
 from __future__ import annotations
@@ -26,29 +31,23 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.atomic import atomic_path
-from mtlx2neural.contract import ShadingPoint
-from mtlx2neural.model import proxy
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
-from mtlx2neural.reference.vec import cosine_sample
-from mtlx2neural.textures.footprint import (
-    SIGMA_TEXELS,
-    footprint_targets,
-    sample_levels,
-)
 from mtlx2neural.textures.parameter_stack import ParameterStack
 from mtlx2neural.train.config import TrainConfig
-from mtlx2neural.train.directions import (
-    cone_jitter,
-    grazing_directions,
-    half_difference_pairs,
+from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
+from mtlx2neural.train.latent_init import (
+    freeze_encoder,
+    is_textured,
+    latent_init_for,
+    noise_latents,
 )
-from mtlx2neural.train.losses import log_l1
-from mtlx2neural.train.mollify import cone_mean, lobe_directions
+from mtlx2neural.train.losses import albedo_loss, brdf_and_sampler_losses
+from mtlx2neural.train.mollify import lobe_directions
 from mtlx2neural.train.replay import RowReplay
+from mtlx2neural.train.targets import targets_for
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
-KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine density (defensive mixture)
 GRAD_CLIP = 10.0  # global gradient-norm cap
 GRAZING_MAX_COS = 0.25  # cfg.grazing_fraction's viewers: within ~14 degrees of the horizon
 GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
@@ -63,50 +62,26 @@ def _lr(cfg: TrainConfig, step: int) -> float:
     return cfg.lr_end + 0.5 * (cfg.lr_start - cfg.lr_end) * (1.0 + math.cos(math.pi * t))
 
 
-def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u):
-    """The two batches of one step, given the latents.
-
-    BRDF: log-L1 between the decoder and the (filtered) reference target.
-    Sampler: KL(neural BRDF || proxy) up to a constant, scored on directions drawn from the sampler itself
-    (the paper's estimator), mixed defensively with cosine sampling: each row's ``wo`` comes from the
-    learned proxy (detached) or, where ``u[:, 2] < KL_DEFENSIVE``, from the cosine density, and is
-    weighted by f / r with r = (1 - KL_DEFENSIVE) q + KL_DEFENSIVE cos / pi the mixture's density, the
-    weights normalised over the batch. ``u`` [N,3] uniform random numbers. The latent is detached so the
-    sampler cannot pull the latents towards what it can sample. (The uniform-direction estimator it
-    replaced, and the measurement, are in docs/history/paper-choices-2026-12-02.md.)
-    """
-    loss_brdf = log_l1(decoder(latent, wi, wo), target)
-    lat_d = latent.detach()
-    with torch.no_grad():
-        params_d = sampler(wi, lat_d)
-        wo_s = torch.where((u[:, 2] < KL_DEFENSIVE)[:, None], cosine_sample(u[:, :2]),
-                           proxy.sample(wi, params_d, u[:, :2]))
-        wo_s = torch.nn.functional.normalize(torch.nan_to_num(wo_s, nan=0.0), dim=-1)
-        density = ((1.0 - KL_DEFENSIVE) * proxy.pdf(wi, wo_s, params_d)
-                   + KL_DEFENSIVE * wo_s[:, 2].clamp_min(0.0) / math.pi)
-        ok = (wo_s[:, 2] > 0) & (density > 0) & torch.isfinite(density)
-        w = torch.where(ok, decoder(lat_d, wi, wo_s).mean(-1) / density.clamp_min(1e-12), torch.zeros_like(density))
-        w = w / w.sum().clamp_min(1e-12)
-    q = sampler.pdf(wi, wo_s, lat_d)
-    loss_kl = -(w * torch.log(q + 1e-4)).sum()
-    return loss_brdf, loss_kl
-
-
 def _atomic_save(obj, path: Path) -> None:
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
 
 
 class Trainer:
+    """One material's training run: the model, the optimiser, the step loop, checkpoints and curves
+    (module docstring). ``stack`` is the material's parameter stack (a UDIM ``TiledStack`` for a UDIM
+    material); ``device`` where the model and batches live (random numbers are drawn on the CPU)."""
+
     def __init__(self, reference, stack: ParameterStack, cfg: TrainConfig, out_dir: Path, device="cpu"):
         self.ref, self.stack, self.cfg = reference, stack, cfg
         self.out_dir = Path(out_dir)
         self.device = torch.device(device)
-        self.textured = stack.levels[0].shape[0] > 0
+        self.textured = is_textured(stack)
         # A UDIM material (train.udim.TiledStack): one latent pyramid per trained tile, uv drawn over them.
         self.tiles = list(stack.tiles) if is_udim_stack(stack) else None
+        self.latent_init = latent_init_for(stack)  # the latents' grid and bake for this kind of material
         torch.manual_seed(cfg.seed)  # the model's initial weights
-        self.model = NeuralMaterial(stack.resolution if self.textured else (1, 1), stack.levels[0].shape[0],
+        self.model = NeuralMaterial(self.latent_init.resolution, stack.levels[0].shape[0],
                                     cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head,
                                     cfg.analytic_cosine, tiles=self.tiles).to(self.device)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
@@ -115,6 +90,7 @@ class Trainer:
         self.history: list[dict] = []
         self.clipped_steps = 0
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
+        self.targets = targets_for(reference, stack, cfg, self.gen)  # the rows' levels and targets for this kind
         self.replay = RowReplay(cfg.batch, cfg.target_reuse)
         # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md, "Training throughput"); it costs
         # tens of seconds of compilation, so only the long presets turn it on.
@@ -123,7 +99,6 @@ class Trainer:
 
             torch._logging.set_logs(dynamo=logging.ERROR)  # the reference's data-dependent branches break graphs
         self._losses = torch.compile(brdf_and_sampler_losses) if cfg.compile else brdf_and_sampler_losses
-        self._reference_eval = torch.compile(reference.eval) if cfg.compile and not self.textured else reference.eval
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
 
@@ -174,42 +149,19 @@ class Trainer:
         return math.radians(max(cfg.mollify_degrees * decay, cfg.mollify_min_degrees))
 
     def _targets(self, wi, wo, uv, level):
-        cfg = self.cfg
-        angle = self.mollify_angle()
-        if self.textured:
-            if cfg.mollify_mis and angle > 0:  # the cone mean at every footprint point, one pair each
-                def point_eval(wi_p, wo_p, at):
-                    return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, at)
-
-                return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
-                                         point_eval, one_call=cfg.footprint_one_call)
-            wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
-            return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen,
-                                     one_call=cfg.footprint_one_call)
-        if angle <= 0:
-            return self._reference_eval(wi, wo)
-        if cfg.mollify_mis:
-            return cone_mean(self.ref, wi, wo, angle, max(1, cfg.mollify_samples // 2), self.gen)
-        k = cfg.mollify_samples
-        wo_k = cone_jitter(wo, angle, k, self.gen)
-        return self._reference_eval(wi.repeat_interleave(k, 0), wo_k).view(-1, k, 3).mean(1)
+        """[N, 3] this step's targets (f * cos, linear RGB) at the rows: the material kind's
+        (``train.targets``) at the current mollification angle."""
+        return self.targets.brdf(wi, wo, uv, level, self.mollify_angle())
 
     def albedo_targets(self, wi: torch.Tensor, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """One-sample Monte Carlo estimates [N,3] of the reference's directional albedo (f * cos integrated
         over wo, linear RGB) at each row's point: the reference's sample weight at ``wi`` (local frame).
 
-        A textured material is sampled at a point of the row's footprint: ``uv`` plus a Gaussian offset of
-        the level's standard deviation (``textures.footprint``), so the estimate's mean is the albedo
-        averaged over the footprint, as the BRDF targets are (the albedo is linear in the BRDF). A uniform
-        material ignores ``uv`` and ``level``."""
-        g, dev = self.gen, wi.device
-        u = torch.rand(wi.shape[0], 2, generator=g).to(dev)
-        if not self.textured:
-            return self.ref.sample(wi, u)[1]
-        h, w = self.stack.resolution
-        sigma = SIGMA_TEXELS * torch.pow(2.0, level.to(uv.dtype))[:, None] / uv.new_tensor([w, h])
-        pts = uv + sigma * torch.randn(uv.shape, generator=g, dtype=uv.dtype).to(dev)
-        return self.ref.sample(wi, u, ShadingPoint(uv=pts))[1]
+        A textured material is sampled at a point of the row's footprint (``uv`` plus a Gaussian offset of
+        the level's standard deviation), so the estimate's mean is the albedo averaged over the
+        footprint, as the BRDF targets are; a uniform material ignores ``uv`` and ``level``
+        (``train.targets``)."""
+        return self.targets.albedo(wi, uv, level)
 
     def _latent(self, uv, level):
         if self.baked:
@@ -218,50 +170,33 @@ class Trainer:
 
     def _direct_latents(self) -> None:
         """No encoder phase (the ablation's "vanilla" model): latents start as small Gaussian
-        noise (std 0.1, seeded) and are optimised directly from the first step."""
-        g = torch.Generator().manual_seed(self.cfg.seed + 1)
-        with torch.no_grad():
-            for lv in self.model.latents.levels:
-                lv.copy_(0.1 * torch.randn(lv.shape, generator=g))
+        noise (std 0.1, seeded with ``seed + 1``) and are optimised directly from the first step."""
+        noise_latents(self.model, self.cfg.seed + 1)
         self.baked = True
-        for p in self.model.encoder.parameters():
-            p.requires_grad_(False)
+        freeze_encoder(self.model)
 
     def bake(self) -> None:
         """Phase 2: run the encoder over every texel of every level into the latent pyramid."""
         self._encode_latents()
         self.baked = True
         # The encoder is no longer used: keep optimising latents, decoder and sampler.
-        for p in self.model.encoder.parameters():
-            p.requires_grad_(False)
+        freeze_encoder(self.model)
 
     def _encode_latents(self) -> None:
         """The encoder over every texel of every level, into the latent pyramid (no flag changes: before
         the bake, the latents are not trained on, so a probe may fill them early)."""
-        with torch.no_grad():
-            for k, lv in enumerate(self.model.latents.levels):
-                if self.tiles is not None and self.textured:  # one [C, H, W] stack level per tile
-                    for t, tile_stack in enumerate(self.stack.stacks):
-                        raw = tile_stack.levels[k].float().reshape(tile_stack.levels[k].shape[0], -1).T
-                        lv[t].copy_(self.model.encoder(raw).T.reshape(lv[t].shape))
-                elif self.textured:
-                    raw = self.stack.levels[k].float().reshape(self.stack.levels[k].shape[0], -1).T
-                    codes = torch.cat([self.model.encoder(raw[s:s + 65536]) for s in range(0, raw.shape[0], 65536)])
-                    lv.copy_(codes.T.reshape(lv.shape))
-                else:
-                    lv.copy_(self.model.encoder(torch.zeros(1, 0)).T.reshape(lv.shape[-3:]).expand_as(lv))
+        self.latent_init.encode(self.model)
 
     def draw_rows(self, batch: int) -> tuple[torch.Tensor, ...]:
         """Fresh training rows for a BRDF batch of ``batch``: ``(uv, level, wi, wo, target)`` with
         ``batch`` plus ``grazing_fraction * batch`` rows (uv in [0,1]^2, or over the UDIM tiles; level a
-        pyramid index; wi/wo unit vectors in the local shading frame; target [N,3] the footprint-filtered,
-        mollified reference BRDF f without the cosine, linear RGB)."""
+        pyramid index; wi/wo unit vectors in the local shading frame, z-up; target [N,3] the
+        footprint-filtered, mollified reference BRDF f * cos, the cosine included, linear RGB)."""
         cfg, g, dev = self.cfg, self.gen, self.device
         n_graze = round(cfg.grazing_fraction * batch)
         b = batch + n_graze
         uv = draw_uv(b, self.tiles, g).to(dev)
-        level = sample_levels(b, len(self.stack.levels), cfg.level_rate, g, dev) if self.textured \
-            else torch.zeros(b, dtype=torch.long, device=dev)
+        level = self.targets.levels(b, dev)
         wi, wo = half_difference_pairs(b, g, dev)
         if n_graze > 0:  # extra rows whose viewer is near the horizon (their wo stays as drawn, above it)
             wi = torch.cat([wi[:batch], grazing_directions(n_graze, GRAZING_MAX_COS, g, dev)])
@@ -272,8 +207,7 @@ class Trainer:
         rows = torch.cat([torch.arange(n_lobe, device=dev), batch + torch.arange(n_graze_lobe, device=dev)])
         if len(rows) > 0:
             with torch.no_grad():
-                ws, ok = lobe_directions(self.ref, wi[rows], self.mollify_angle(), g,
-                                         uv[rows] if self.textured else None)
+                ws, ok = lobe_directions(self.ref, wi[rows], self.mollify_angle(), g, self.targets.lobe_uv(uv[rows]))
             wo = wo.index_copy(0, rows, torch.where(ok[:, None], ws, wo[rows]))
         with torch.no_grad():
             target = self._targets(wi, wo, uv, level)
@@ -290,7 +224,7 @@ class Trainer:
         if cfg.albedo_head:
             with torch.no_grad():
                 weight = self.albedo_targets(wi, uv, level)
-            loss = loss + ((self.model.decoder.predict_albedo(latent, wi) - weight) ** 2).mean()
+            loss = loss + albedo_loss(self.model.decoder.predict_albedo(latent, wi), weight)
         for group in self.opt.param_groups:
             group["lr"] = _lr(cfg, self.step)
         self.opt.zero_grad(set_to_none=True)

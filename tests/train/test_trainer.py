@@ -143,7 +143,7 @@ def test_learned_sampler_beats_cosine_on_a_glossy_material(carpaint, tmp_path):
 def test_compiled_losses_match_eager():
     """The torch.compile fast path (balanced/paper presets) against its eager twin."""
     from mtlx2neural.model.neural_material import NeuralMaterial
-    from mtlx2neural.train.trainer import brdf_and_sampler_losses
+    from mtlx2neural.train.losses import brdf_and_sampler_losses
 
     torch.manual_seed(0)
     m = NeuralMaterial((1, 1), 0, 8, 2, "2x16")

@@ -1,0 +1,95 @@
+"""The training losses (mtlx2neural.train.losses): log-L1 BRDF loss, the sampler's KL with its defensive
+mixture, the albedo head's squared error; small seeded CPU tensors."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from mtlx2neural.model.neural_material import NeuralMaterial
+from mtlx2neural.train.losses import (
+    EPS,
+    KL_DEFENSIVE,
+    albedo_loss,
+    brdf_and_sampler_losses,
+    log_l1,
+    sampler_kl,
+)
+
+
+def _batch(n: int = 256, seed: int = 1):
+    """A tiny seeded model (uniform material, 2x16 decoder, albedo head) and one batch of rows: latents
+    [n, 8] (requiring grad), wi and wo unit vectors above the horizon, targets f * cos >= 0, u [n, 3]."""
+    torch.manual_seed(0)
+    m = NeuralMaterial((1, 1), 0, 8, 2, "2x16", albedo_head=True)
+    g = torch.Generator().manual_seed(seed)
+    latent = torch.randn(n, 8, generator=g, requires_grad=True)
+    wi, wo = (torch.nn.functional.normalize(torch.rand(n, 3, generator=g) + 0.05, dim=-1) for _ in range(2))
+    target = torch.rand(n, 3, generator=g)
+    u = torch.rand(n, 3, generator=g)
+    return m, latent, wi, wo, target, u
+
+
+def test_log_l1_is_zero_on_the_target_linear_below_eps_and_clamps_negatives():
+    g = torch.Generator().manual_seed(2)
+    x = torch.rand(64, 3, generator=g)
+    assert float(log_l1(x, x)) == 0.0
+    # Far below EPS the loss is |pred - target| / EPS to first order: 1e-5 against 0 gives 1e-3 (rel. error
+    # of log1p's linearisation ~ x / (2 EPS) = 5e-4; 1e-3 relative leaves margin).
+    tiny = torch.full((8, 3), 1e-5)
+    assert math.isclose(float(log_l1(tiny, torch.zeros_like(tiny))), 1e-5 / EPS, rel_tol=1e-3)
+    # Negative values count as 0 (prediction and target alike): exact.
+    assert float(log_l1(-x, torch.zeros_like(x))) == 0.0
+    assert float(log_l1(x, -x)) == float(log_l1(x, torch.zeros_like(x)))
+
+
+def test_sampler_kl_is_finite_and_its_gradient_reaches_the_sampler_only():
+    m, latent, wi, _, _, u = _batch()
+    loss = sampler_kl(m.decoder, m.sampler, latent, wi, u)
+    assert loss.ndim == 0 and math.isfinite(loss.item())
+    loss.backward()
+    assert latent.grad is None  # the latents are detached: the sampler cannot pull them
+    assert all(p.grad is None for p in m.decoder.parameters())  # the decoder runs without gradient
+    grads = [p.grad for p in m.sampler.parameters()]
+    assert all(gr is not None and bool(torch.isfinite(gr).all()) for gr in grads)
+    assert sum(float(gr.abs().sum()) for gr in grads) > 0
+
+
+def test_sampler_kl_weights_are_normalised_and_the_defensive_share_is_used():
+    """The KL's weights f / r are normalised over the batch, so scaling the BRDF by 2 (exact in floating
+    point) leaves the loss bit-identical; rows drawn from the cosine density only (u[:, 2] below
+    KL_DEFENSIVE everywhere) and from the proxy only give finite, different losses."""
+    m, latent, wi, _, _, u = _batch(seed=3)
+    base = sampler_kl(m.decoder, m.sampler, latent, wi, u)
+    scaled = sampler_kl(lambda lat, a, b: 2.0 * m.decoder(lat, a, b), m.sampler, latent, wi, u)
+    assert torch.equal(base, scaled)
+    cosine_only = u.clone()
+    cosine_only[:, 2] = 0.5 * KL_DEFENSIVE
+    proxy_only = u.clone()
+    proxy_only[:, 2] = 0.5 * (1.0 + KL_DEFENSIVE)
+    a = sampler_kl(m.decoder, m.sampler, latent, wi, cosine_only)
+    b = sampler_kl(m.decoder, m.sampler, latent, wi, proxy_only)
+    assert math.isfinite(a.item()) and math.isfinite(b.item()) and a.item() != b.item()
+
+
+def test_brdf_and_sampler_losses_are_the_two_losses():
+    """The compiled unit is log-L1 of the decoder against the target, then the sampler's KL: the same
+    values, bit for bit, as the two functions called alone."""
+    m, latent, wi, wo, target, u = _batch(seed=4)
+    loss_brdf, loss_kl = brdf_and_sampler_losses(m.decoder, m.sampler, latent, wi, wo, target, u)
+    assert torch.equal(loss_brdf, log_l1(m.decoder(latent, wi, wo), target))
+    assert torch.equal(loss_kl, sampler_kl(m.decoder, m.sampler, latent, wi, u))
+    loss_brdf.backward()
+    assert latent.grad is not None and float(latent.grad.abs().sum()) > 0  # the BRDF loss trains the latents
+
+
+def test_albedo_loss_is_the_mean_squared_error():
+    m, latent, wi, _, _, _ = _batch(seed=5)
+    pred = m.decoder.predict_albedo(latent, wi)
+    assert albedo_loss(pred, pred.detach()).item() == 0.0
+    # An error of 0.5 in every channel: 0.25, exact in float32.
+    assert albedo_loss(pred, pred.detach() + 0.5).item() == 0.25
+    loss = albedo_loss(pred, torch.zeros_like(pred))
+    loss.backward()
+    assert latent.grad is not None and any(p.grad is not None for p in m.decoder.albedo.parameters())
