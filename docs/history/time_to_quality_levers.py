@@ -7,7 +7,8 @@ Run:  OMP_NUM_THREADS=1 python docs/history/time_to_quality_levers.py --seeds 0,
 A variant is LABEL:ITERATIONS[:FIELD=VALUE,...] on the ``fast`` preset. Each run is trained as
 ``benchmarks/bench_fidelity.py`` trains (``train_and_model``) and compared by ``render.compare``
 (unit sphere, each view's directional light, 96², 32 spp); it prints one Markdown row per run with
-the wall and process-CPU seconds of the training alone.
+the wall and process-CPU seconds of the training alone. The ``footprint_one_call`` switch this page
+compared is gone (one call is the only path now); check out commit 8b30aed to rerun that variant.
 """
 
 from __future__ import annotations

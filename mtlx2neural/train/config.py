@@ -63,10 +63,6 @@ class TrainConfig:
     """Cap on reference samples (a Latin hypercube over the footprint) per footprint-filtered target
     (fast and standard: 8). Fewer points make each step cheaper and each target noisier, and keep less
     of a sparse bright footprint's energy (BENCHMARKS.md, "Setting notes")."""
-    footprint_one_call: bool = True
-    """Evaluate a textured material's footprint points of every level in one reference call per step
-    instead of one per level: the same targets' estimator, in about half the data time on a 256² grid.
-    False: one call per level."""
     target_reuse: int = field(default=1, metadata={"metavar": "K"})
     """Steps each training row (its directions, point and reference target) is trained on: each step
     draws a K-th of the batch fresh and reuses the rest from the K - 1 steps before

@@ -90,17 +90,19 @@ class TexturedTargets:
     def brdf(self, wi, wo, uv, level, angle: float) -> torch.Tensor:
         """[N, 3] f * cos at (``wi``, ``wo``) averaged over each row's footprint (``uv``, ``level``) and
         over the mollification cone of half-angle ``angle`` (radians): with ``mollify_mis`` the cone mean
-        by MIS at every footprint point (one pair each), else ``wo`` jittered once in the cone."""
+        by MIS at every footprint point (one pair each), else ``wo`` jittered once in the cone. Every level's
+        points go to the reference in one call (``one_call``: half the data time of one call per level on
+        a 256² grid, the same estimator)."""
         cfg = self.cfg
         if cfg.mollify_mis and angle > 0:  # the cone mean at every footprint point, one pair each
             def point_eval(wi_p, wo_p, at):
                 return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, at)
 
             return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
-                                     point_eval, one_call=cfg.footprint_one_call)
+                                     point_eval, one_call=True)
         wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
         return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen,
-                                 one_call=cfg.footprint_one_call)
+                                 one_call=True)
 
     def albedo(self, wi: torch.Tensor, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """[N, 3] one-sample estimates of the directional albedo at ``wi``, each at a point of the row's

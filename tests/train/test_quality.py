@@ -25,11 +25,11 @@ GUARD_RUN = {"iterations": 400, "batch": 128, "footprint_samples": 4}
 # untrained network ~0.8 held-out. Bounds: held-out 20% and FLIP 10% above the worse seed (FLIP moves
 # less between a good and a broken run: 0.39 against 0.45), room for thread-count and platform float
 # noise, while an error twice the measured one, a quarter of the steps or a tenth of the learning rate
-# is outside them. With footprint_one_call (the default since 2026-12-03; one reference call per step)
+# is outside them. With every level's footprint points in one reference call per step (since 2026-12-03)
 # seed 1 gives 0.340 / 0.330. Over seeds 1-6 the run is bimodal either way: FLIP 0.24-0.40 and held-out
 # 0.30-0.35 at four or five seeds, ~0.44 / 0.44-0.46 at the others (seed 5 both ways, seed 2 with one
 # call), so the guard's seed is fixed and a seed change needs the bounds re-measured
-# (docs/history/time-to-quality-2026-12-03.md, "footprint_one_call by default").
+# (docs/history/time-to-quality-2026-12-03.md, "footprint_one_call by default"; the switch is gone since).
 FLIP_BOUND = 0.44
 HELD_OUT_BOUND = 0.41
 HELD_OUT_EPS = 0.01  # log(x + eps): f * cos below ~0.01 counts as black (the dark texels' diffuse is ~0.02)

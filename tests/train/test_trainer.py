@@ -9,6 +9,7 @@ import pytest
 import torch
 from materials import layered_spheres_material
 
+from mtlx2neural.textures.footprint import footprint_targets
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.trainer import Trainer, TrainingInterrupted
@@ -205,10 +206,10 @@ def test_mollification_cone_follows_the_papers_cosine_decay(carpaint, tmp_path):
         assert math.isclose(math.degrees(tr.mollify_angle()), degrees, rel_tol=1e-9), (step, degrees)
 
 
-def test_footprint_one_call_is_wired_and_keeps_the_targets(tmp_path):
-    """``footprint_one_call`` reaches the footprint targets: without mollification (the plain
-    reference at each point, no random numbers drawn after the offsets) a step's targets are the
-    per-level ones; a few mollified steps with it stay finite."""
+def test_textured_targets_are_the_footprint_means(tmp_path):
+    """Without mollification (the plain reference at each point, no random numbers drawn after the
+    offsets) a step's targets are the per-level footprint means of textures/footprint.py, computed
+    there one level at a time; a few mollified steps stay finite."""
     ref = _tiny_textured(tmp_path)
     stack = build_parameter_stack(ref.compiled, resolution=(4, 4))
     assert len(stack.levels) == 3 and stack.texel_ratio == (4.0, 4.0)
@@ -217,17 +218,15 @@ def test_footprint_one_call_is_wired_and_keeps_the_targets(tmp_path):
     wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=g) + torch.tensor([-0.5, -0.5, 0.1]), dim=-1)
     wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=g) + torch.tensor([-0.5, -0.5, 0.1]), dim=-1)
     uv, level = torch.rand(n, 2, generator=g), torch.arange(n) % 3
-    targets = {}
-    for one_call in (False, True):
-        cfg = preset("fast", iterations=60, batch=256, seed=1, mollify_degrees=0.0, mollify_min_degrees=0.0,
-                     footprint_one_call=one_call)
-        targets[one_call] = Trainer(ref, stack, cfg, tmp_path / f"t{one_call}")._targets(wi, wo, uv, level)
-    assert bool((targets[False] > 0).any())
-    # Same points and values; float32 summation order only.
-    torch.testing.assert_close(targets[True], targets[False], atol=1e-6, rtol=1e-5)
+    cfg = preset("fast", iterations=60, batch=256, seed=1, mollify_degrees=0.0, mollify_min_degrees=0.0)
+    got = Trainer(ref, stack, cfg, tmp_path / "t")._targets(wi, wo, uv, level)
+    per_level = footprint_targets(ref, stack, wi, wo, uv, level, cfg.footprint_samples,
+                                  torch.Generator().manual_seed(cfg.seed), one_call=False)
+    assert bool((per_level > 0).any())
+    # Same points (the trainer's generator starts at the seed too) and values; float32 summation order only.
+    torch.testing.assert_close(got, per_level, atol=1e-6, rtol=1e-5)
     # With the mollified targets (the presets' cone MIS): a few steps stay finite.
-    tr = Trainer(ref, stack, preset("fast", iterations=5, batch=128, seed=1, footprint_one_call=True),
-                 tmp_path / "run")
+    tr = Trainer(ref, stack, preset("fast", iterations=5, batch=128, seed=1), tmp_path / "run")
     tr.run(progress=False)  # raises FloatingPointError on a non-finite loss
     assert tr.step == 5
 
