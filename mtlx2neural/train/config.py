@@ -11,7 +11,7 @@ from mtlx2neural.errors import InputError
 @dataclass
 class TrainConfig:
     """Training settings. Each field's docstring is its documentation (the command line's help
-    and README's option table, :mod:`mtlx2neural.commands.options_cli`); ``metadata`` gives the
+    and docs/cli.md's option table, :mod:`mtlx2neural.commands.options_cli`); ``metadata`` gives the
     flag where it differs from ``--field-name``, a metavar, or the choices the command line offers."""
 
     iterations: int = field(default=2000, metadata={"metavar": "N"})
@@ -21,6 +21,10 @@ class TrainConfig:
     """Samples per batch; two batches (BRDF and sampler) per step."""
     decoder: str = field(default="2x32", metadata={"choices": ("2x16", "2x32", "3x64")})
     """Decoder hidden layers: 2x16, 2x32 or 3x64."""
+    brdf_loss: str = field(default="log_l1", metadata={"choices": ("log_l1", "relative_l2", "log_l1+relative_l2")})
+    """The decoder's loss on f * cos (``train.losses``): log_l1 (log-compressed L1, follows the median of
+    noisy targets), relative_l2 (squared error relative to the prediction, follows their mean, so sharp
+    lobes keep their energy), or their sum."""
     frames: int = field(default=2, metadata={"metavar": "N"})
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
@@ -184,6 +188,9 @@ def validate_config(cfg: TrainConfig, allow_untrained: bool = False) -> None:
         raise bad("max_resolution", "must be None (no cap) or at least 1 texel")
     if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int) or not 0 <= cfg.seed < 2 ** 63:
         raise bad("seed", "must be a whole number between 0 and 2^63 - 1")
+    losses = next(f.metadata["choices"] for f in dataclasses.fields(TrainConfig) if f.name == "brdf_loss")
+    if cfg.brdf_loss not in losses:
+        raise bad("brdf_loss", f"must be one of {', '.join(losses)}")
     try:
         hidden = parse_hidden(cfg.decoder)
     except (ValueError, TypeError, AttributeError):

@@ -49,6 +49,25 @@ def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.
     return (torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)).abs().mean()
 
 
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+    """Mean of (pred - target)^2 / (sg(pred)^2 + eps^2) over all elements: the relative L2 of neural
+    radiance caching (Müller et al. 2021), the prediction's scale held out of the gradient (sg: detached).
+
+    Its minimiser over noisy targets is their *mean* (for a fixed denominator it is an ordinary
+    squared error), so a sharp lobe that only a few targets hit keeps its energy, where log-L1 follows
+    the median and drops it. Dividing by the prediction's own square weighs dark and bright values
+    alike (a relative error), and ``eps`` (f * cos units, squared) keeps black predictions from
+    dividing by zero. Inputs as :func:`log_l1`: cosine-weighted BRDF values f * cos [N, 3], linear RGB;
+    negative values are clamped to 0."""
+    pred = pred.clamp_min(0)
+    return ((pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)).mean()
+
+
+BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2,
+               "log_l1+relative_l2": lambda pred, target: log_l1(pred, target) + relative_l2(pred, target)}
+"""The decoder's losses by ``TrainConfig.brdf_loss`` name."""
+
+
 def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     """The sampler's loss: KL(neural BRDF || learned proxy) up to a constant (a scalar, in nats).
 
@@ -80,11 +99,12 @@ def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torc
     return -(w * torch.log(q + KL_LOG_FLOOR)).sum()
 
 
-def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u):
-    """(BRDF loss, sampler loss) of one step's batch, given the latents: :func:`log_l1` between the
-    decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the filtered reference, f * cos, linear
-    RGB), then :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame."""
-    loss_brdf = log_l1(decoder(latent, wi, wo), target)
+def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1):
+    """(BRDF loss, sampler loss) of one step's batch, given the latents: ``brdf_loss`` (one of
+    :data:`BRDF_LOSSES`) between the decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the
+    filtered reference, f * cos, linear RGB), then :func:`sampler_kl` with the uniform numbers ``u``
+    [N, 3]. Directions unit, local frame."""
+    loss_brdf = brdf_loss(decoder(latent, wi, wo), target)
     return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
 
 

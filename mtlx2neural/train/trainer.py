@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import math
 import time
 from pathlib import Path
@@ -42,7 +43,7 @@ from mtlx2neural.train.latent_init import (
     latent_init_for,
     noise_latents,
 )
-from mtlx2neural.train.losses import albedo_loss, brdf_and_sampler_losses
+from mtlx2neural.train.losses import BRDF_LOSSES, albedo_loss, brdf_and_sampler_losses
 from mtlx2neural.train.mollify import lobe_directions
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.targets import targets_for
@@ -98,7 +99,8 @@ class Trainer:
             import logging
 
             torch._logging.set_logs(dynamo=logging.ERROR)  # the reference's data-dependent branches break graphs
-        self._losses = torch.compile(brdf_and_sampler_losses) if cfg.compile else brdf_and_sampler_losses
+        losses = functools.partial(brdf_and_sampler_losses, brdf_loss=BRDF_LOSSES[cfg.brdf_loss])
+        self._losses = torch.compile(losses) if cfg.compile else losses
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
 
