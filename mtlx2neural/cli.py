@@ -8,7 +8,7 @@
     mtlx2neural report OUT_neural.usda [--analytic-iterations N] [--texel U,V ...] [--train-sizes] [-o REPORT_DIR]
     mtlx2neural bench [NAME ...] [--list]
 
-Every flag comes from a field of an options dataclass (README's option tables list them all).
+Every flag comes from a field of an options dataclass (docs/cli.md's option tables list them all).
 Exit codes: 0 ok, 1 failure, 2 bad input or nothing convertible (the message names the
 file, prim or node and what to do), 3 a conversion that skipped some materials it cannot
 convert (printed with node and reason) and converted the others (``--strict``: 2 instead). A missed ``--max-error`` budget is not a failure: exit 0, with

@@ -36,7 +36,7 @@ EPILOG = ("exit codes: 0 every selected material converted; 3 some were skipped 
           "each is printed with its node and reason, and recorded in the layer; the others converted); "
           "2 bad input, or nothing convertible (with --strict: any material that cannot be converted), "
           "nothing written; 1 a failure during the run (a write, Ctrl-C).")
-"""The exit codes of a conversion (``--help``; README's "Exit codes and failure modes")."""
+"""The exit codes of a conversion (``--help``; docs/cli.md, "Exit codes and failure modes")."""
 
 
 def add_parser(sub) -> argparse.ArgumentParser:

@@ -1,4 +1,4 @@
-"""Command-line flags generated from options dataclasses, and README's option table.
+"""Command-line flags generated from options dataclasses, and docs/cli.md's option tables.
 
 Every field of an options dataclass (:class:`~mtlx2neural.pipeline.options.ConvertOptions`,
 :class:`~mtlx2neural.train.config.TrainConfig`, ...) becomes a flag ``--field-name``
@@ -17,7 +17,7 @@ Generated flags have no argparse default (:data:`argparse.SUPPRESS`): the namesp
 exactly the flags given, which :func:`options_from_args` turns into an instance (unset fields
 keep the dataclass's, or the base's, default).
 
-README's table: ``python -m mtlx2neural.commands.readme_tables --readme README.md`` rewrites the
+docs/cli.md's tables: ``python -m mtlx2neural.commands.readme_tables --doc docs/cli.md`` rewrites the
 text between ``<!-- options:begin -->`` and ``<!-- options:end -->`` (``--check``: exit 1 when
 it is out of date, writing nothing).
 """
@@ -36,7 +36,7 @@ from collections.abc import Callable
 from typing import Any
 
 BEGIN, END = "<!-- options:begin -->", "<!-- options:end -->"
-"""README markers around the generated option tables."""
+"""docs/cli.md's markers around the generated option tables."""
 
 _ROLE = re.compile(r":[a-z]+:`(~?)([^`]+)`")
 
@@ -121,7 +121,7 @@ def add_options(parser, cls, *, parsers: dict[str, Callable[[str], Any]] | None 
     :class:`argparse.ArgumentTypeError` with the message to show). ``bases``: nested dataclass
     field name -> (label, instance) whose values the nested flags override, shown as their
     defaults (``{"train": ("the preset's; fast", PRESETS["fast"])}``). Each action gets
-    ``table_default`` and ``table_help`` (Markdown) for README's table; its ``dest`` is
+    ``table_default`` and ``table_help`` (Markdown) for docs/cli.md's tables; its ``dest`` is
     ``prefix + field name``.
     """
     parsers, bases = parsers or {}, bases or {}
@@ -213,7 +213,7 @@ def options_from_args(cls, args: argparse.Namespace, base: Callable[[str, dict],
     return cls(**values, **extra)
 
 
-# ----------------------------------------------------------------------------- README's table
+# ----------------------------------------------------------------------------- docs/cli.md's tables
 
 
 def _cell_flags(action: argparse.Action) -> str:

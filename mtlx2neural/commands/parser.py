@@ -27,7 +27,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
 
 
 def command_parsers() -> dict[str, tuple[str, argparse.ArgumentParser]]:
-    """Each subcommand's usage line and parser, the conversion first (README's option tables)."""
+    """Each subcommand's usage line and parser, the conversion first (docs/cli.md's option tables)."""
     _, parsers = build_parser()
     order = ["convert"] + [name for name in COMMANDS if name != "convert"]
     return {name: (COMMANDS[name].USAGE, parsers[name]) for name in order}

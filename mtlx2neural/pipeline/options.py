@@ -1,7 +1,7 @@
 """What a conversion (or an inspection) is asked to do: one options dataclass per entry point, the
 single source for the library entry point (:func:`mtlx2neural.convert`), the command line (every
-field is a flag, its docstring the help: :mod:`mtlx2neural.commands.options_cli`), README's option
-table and ``summary.json``.
+field is a flag, its docstring the help: :mod:`mtlx2neural.commands.options_cli`), docs/cli.md's
+option table and ``summary.json``.
 
 Each field's docstring is its documentation; ``metadata`` names the command-line flag where it
 differs from ``--field-name`` (``flag``: names separated by ``/``), keeps a field off the command

@@ -3,7 +3,7 @@
 for :func:`mtlx2neural.report.html_report.write_report`).
 
 As with :class:`mtlx2neural.pipeline.options.ConvertOptions`, each field's docstring is its
-documentation (the command line's help and README's option table) and ``metadata`` gives the flag
+documentation (the command line's help and docs/cli.md's option table) and ``metadata`` gives the flag
 where it differs from ``--field-name``, a metavar or the choices. Field names are the keyword
 arguments of the function the options are for (:meth:`RenderOptions.kwargs`,
 :meth:`ReportOptions.kwargs`). This module imports nothing heavy: the command line's ``--help``

@@ -1,6 +1,6 @@
 """Flags generated from the options dataclasses (:mod:`mtlx2neural.commands.options_cli`): every
 field has a flag and a help, given flags (and only those) override the preset, the old flag
-names still work, and README's option tables are the generated ones."""
+names still work, and docs/cli.md's option tables are the generated ones."""
 
 from __future__ import annotations
 
@@ -40,28 +40,30 @@ def parse(*argv) -> argparse.Namespace:
     return build_parser()[0].parse_args([str(a) for a in argv])
 
 
-# ----------------------------------------------------------------------------- README
+# ----------------------------------------------------------------------------- docs/cli.md
 
 
-def test_readme_option_tables_are_up_to_date():
-    text = (ROOT / "README.md").read_text()
+def test_cli_doc_option_tables_are_up_to_date():
+    text = (ROOT / "docs" / "cli.md").read_text()
     assert text.count(BEGIN) == 1 and text.count(END) == 1
-    command_line = text.split("## Command line", 1)[1].split("\n## ", 1)[0]
-    assert BEGIN in command_line and END in command_line, "the tables belong in README's Command line section"
+    options = text.split("## Every option", 1)[1].split("\n## ", 1)[0]
+    assert BEGIN in options and END in options, "the tables belong in docs/cli.md's Every option section"
     expected = replace_between_markers(text, options_table(command_parsers()))
-    assert text == expected, ("README's option tables are out of date: run "
-                              "python -m mtlx2neural.commands.readme_tables --readme README.md")
+    assert text == expected, ("docs/cli.md's option tables are out of date: run "
+                              "python -m mtlx2neural.commands.readme_tables --doc docs/cli.md")
+    readme = (ROOT / "README.md").read_text()
+    assert BEGIN not in readme and "docs/cli.md" in readme, "README links to the tables instead of holding them"
 
 
-def test_readme_check_mode_reports_a_stale_table(tmp_path):
-    readme = tmp_path / "README.md"
-    readme.write_text(f"# x\n\n{BEGIN}\n| stale |\n{END}\n\nafter\n")
-    cmd = [sys.executable, "-m", "mtlx2neural.commands.readme_tables", "--readme", str(readme)]
+def test_check_mode_reports_a_stale_table(tmp_path):
+    doc = tmp_path / "cli.md"
+    doc.write_text(f"# x\n\n{BEGIN}\n| stale |\n{END}\n\nafter\n")
+    cmd = [sys.executable, "-m", "mtlx2neural.commands.readme_tables", "--doc", str(doc)]
     stale = subprocess.run([*cmd, "--check"], capture_output=True, text=True, timeout=120, check=False)
     assert stale.returncode == 1 and "out of date" in stale.stderr
-    assert "| stale |" in readme.read_text()  # --check writes nothing
+    assert "| stale |" in doc.read_text()  # --check writes nothing
     assert subprocess.run(cmd, capture_output=True, timeout=120, check=False).returncode == 0
-    new = readme.read_text()
+    new = doc.read_text()
     assert "| stale |" not in new and "`--lr-end LR_END`" in new and new.endswith(f"{END}\n\nafter\n")
     assert subprocess.run([*cmd, "--check"], capture_output=True, timeout=120, check=False).returncode == 0
     with pytest.raises(ValueError, match="markers"):
