@@ -1,0 +1,135 @@
+"""Energy check: does a trained model keep the reference's directional albedo at every MIP level?
+
+The directional albedo a(wi) = integral of f(wi, wo) cos(wo) dwo over the hemisphere is the share of
+light a surface reflects when lit from ``wi``; a model darker than its reference loses it. Sharp
+lobes (near-mirror metals, clear coats) are where a median-seeking loss drops it first, and a
+per-pixel image metric may not notice (a black sphere under a directional light can still score a
+moderate HDR FLIP).
+
+For each MIP level k of the model's latent pyramid, :func:`energy_check` draws ``texels`` random uv
+and, for each, one ``wi`` per view angle (``view_degrees``, from the normal; random azimuth), and
+compares
+
+- the model's albedo at (uv, lod = k): ``Material.albedo`` over its own sampler, and
+- the reference's albedo averaged over the level's footprint: ``footprint_points`` Gaussian points
+  around uv with a standard deviation of half a level-k texel, as the training targets are
+  (:mod:`mtlx2neural.textures.footprint`); the albedo is linear in the BRDF, so this is the albedo of
+  the footprint-filtered reference that level k was trained on.
+
+The level's **energy ratio** is sum(luminance of the model's albedo) / sum(luminance of the
+reference's) over all its rows: 1 keeps the energy, 0.5 loses half. Sums, not a mean of per-row
+ratios, so that a dark texel cannot dominate. Luminance weights are Rec. 709's. A uniform material has
+one level (1x1) and the reference's points all coincide.
+
+Monte Carlo noise: both albedos are estimated with ``samples`` scrambled-Sobol directions per point,
+the reference's with its own analytic sampler, the model's with its learned one; with the defaults a
+ratio is good to about 1-2 % for rough lobes and about 5 % for a near-mirror one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.textures.footprint import SIGMA_TEXELS, stratified_gaussian
+
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of linear RGB."""
+VIEW_DEGREES = (0.0, 30.0, 60.0, 80.0)
+"""Default view angles from the normal, degrees."""
+
+
+@dataclass
+class LevelEnergy:
+    """One MIP level: ``ratio`` (model / reference, summed luminance of the directional albedo),
+    ``reference`` and ``model`` (mean luminance albedo over the rows, in [0, 1] for an energy-conserving
+    material), and ``ratio_by_view`` ({view angle in degrees: ratio})."""
+
+    level: int
+    ratio: float
+    reference: float
+    model: float
+    ratio_by_view: dict[float, float] = field(default_factory=dict)
+
+
+@dataclass
+class EnergyCheck:
+    """The energy ratio of every MIP level (finest first) and the settings it was measured with."""
+
+    levels: list[LevelEnergy]
+    texels: int
+    samples: int
+    footprint_points: int
+    view_degrees: tuple[float, ...]
+
+    @property
+    def min_ratio(self) -> float:
+        """The lowest level ratio (levels whose reference albedo is black are left out: nothing to keep)."""
+        kept = [lv.ratio for lv in self.levels if math.isfinite(lv.ratio)]
+        return min(kept) if kept else float("nan")
+
+    @property
+    def worst_level(self) -> int | None:
+        kept = [lv for lv in self.levels if math.isfinite(lv.ratio)]
+        return min(kept, key=lambda lv: lv.ratio).level if kept else None
+
+    def to_json(self) -> dict:
+        """``{"min_ratio", "by_level": [ratio per level], "reference_by_level", "model_by_level"}``."""
+        return {"min_ratio": self.min_ratio, "by_level": [lv.ratio for lv in self.levels],
+                "reference_by_level": [lv.reference for lv in self.levels],
+                "model_by_level": [lv.model for lv in self.levels],
+                "texels": self.texels, "samples": self.samples, "view_degrees": list(self.view_degrees)}
+
+
+def _view_directions(n: int, degrees, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """``wi`` [n * V, 3] (V view angles per row, random azimuth; local frame, z the normal) and the
+    angle of each row."""
+    theta = torch.tensor([math.radians(d) for d in degrees]).repeat(n)
+    phi = torch.rand(theta.shape[0], generator=generator) * 2 * math.pi
+    s = torch.sin(theta)
+    wi = torch.stack([s * torch.cos(phi), s * torch.sin(phi), torch.cos(theta)], -1)
+    return wi, torch.tensor(list(degrees)).repeat(n)
+
+
+def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, texels: int = 64,
+                 samples: int = 64, footprint_points: int = 8, view_degrees=VIEW_DEGREES, seed: int = 0,
+                 params_at=None) -> EnergyCheck:
+    """The energy ratio per MIP level of ``model`` against ``reference`` (module docstring).
+
+    ``resolution``: the finest latent grid (H, W) in texels, which sets the footprints' size;
+    ``levels``: how many MIP levels to check (finest first). ``params_at``: optional ``uv [M, 2] ->
+    {name: [M, width]}`` giving the reference's parameters at points (the parameter stack's level 0
+    when it holds the textures at their own resolution, as the training does); None evaluates the
+    reference's graph at the points. Runs without gradients; seeded by ``seed``."""
+    g = torch.Generator().manual_seed(seed)
+    lum = torch.tensor(LUMINANCE)
+    h, w = resolution
+    out = []
+    for k in range(levels):
+        uv = torch.rand(texels, 2, generator=g)
+        wi, angle = _view_directions(texels, view_degrees, g)
+        uv_rows = uv.repeat_interleave(len(view_degrees), 0)
+        n = wi.shape[0]
+        # The reference over the level's footprint: P points per row, one albedo estimate each.
+        sigma = torch.tensor([SIGMA_TEXELS * 2 ** k / w, SIGMA_TEXELS * 2 ** k / h])
+        offsets = stratified_gaussian(n, footprint_points, g) * sigma
+        pts = (uv_rows[:, None, :] + offsets).reshape(-1, 2)
+        at = ShadingPoint(params=params_at(pts)) if params_at is not None else ShadingPoint(uv=pts)
+        with torch.no_grad():
+            ref = reference.albedo(wi.repeat_interleave(footprint_points, 0), at, samples=samples, seed=seed)
+            ref = ref.view(n, footprint_points, 3).mean(1)
+            mod = model.albedo(wi, ShadingPoint(uv=uv_rows, lod=torch.full((n,), float(k))),
+                               samples=samples * footprint_points, seed=seed)
+        ref_l, mod_l = (ref.float() * lum).sum(-1), (mod.float() * lum).sum(-1)
+        by_view = {}
+        for d in view_degrees:
+            sel = angle == d
+            r = float(ref_l[sel].sum())
+            by_view[float(d)] = float(mod_l[sel].sum()) / r if r > 0 else float("nan")
+        total = float(ref_l.sum())
+        out.append(LevelEnergy(k, float(mod_l.sum()) / total if total > 0 else float("nan"),
+                               float(ref_l.mean()), float(mod_l.mean()), by_view))
+    return EnergyCheck(out, texels, samples, footprint_points, tuple(float(d) for d in view_degrees))
