@@ -55,6 +55,7 @@ from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.trainer import Trainer
 from mtlx2neural.train.udim import build_training_stack, draw_uv, is_udim_stack
+from mtlx2neural.verify.energy import energy_check
 
 
 def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345) -> float:
@@ -161,11 +162,35 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         record.application = {"frame": app.frame, "fps": app.fps, "time": app.time,
                                "nodes": list(compiled.reads_application)}
     record = dataclasses.replace(record, **extra)
+    record = with_energy(record, ref, model, stack, device)
     flip_notes = sorted({f"view {e['view']}: {e['flip_note']}" for e in errors if e.get("flip_note")})
     if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
         record.warnings = [*record.warnings, *(f"HDR FLIP: {n}" for n in flip_notes)]
     write_record(folder, record)
     return model, record
+
+
+ENERGY_WARNING = 0.9
+"""An energy ratio below this at any MIP level (the neural model reflects less than 90 % of the
+reference's directional albedo there) puts a warning in the record: the material renders darker."""
+
+
+def with_energy(record: MaterialRecord, ref, model, stack, device) -> MaterialRecord:
+    """``record`` with the energy check (:mod:`mtlx2neural.verify.energy`, 64 texels x 4 views per level,
+    a few seconds) and a warning when a level keeps less than :data:`ENERGY_WARNING` of the energy.
+    A UDIM material is not checked (its levels are per tile): a note says so."""
+    if is_udim_stack(stack):
+        return dataclasses.replace(record, notes=[*record.notes, "energy check: not measured for a UDIM material"])
+    native = stack.channels and stack.texel_ratio == (1.0, 1.0)
+    check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels), device=device,
+                         params_at=(lambda pts: stack.sample(pts, 0)) if native else None)
+    record = dataclasses.replace(record, energy=check.to_json())
+    if check.min_ratio < ENERGY_WARNING:
+        record = record.with_warning(
+            f"the neural model keeps {check.min_ratio:.0%} of the reference's directional albedo at MIP level "
+            f"{check.worst_level} (energy check; under {ENERGY_WARNING:.0%} renders visibly darker): train "
+            "longer (--preset standard) or try --brdf-loss relative_l2")
+    return record
 
 
 PREVIEW_ITERATIONS = TrainConfig.preview_iterations

@@ -73,7 +73,7 @@ from mtlx2neural.scene.dependencies import input_files
 from mtlx2neural.staging import Staging
 from mtlx2neural.version import __version__
 
-SECTIONS = ("Renders", "Error versus cost", "Polar plots", "Training curves", "Latent textures", "Memory")
+SECTIONS = ("Renders", "Error versus cost", "Polar plots", "Energy", "Training curves", "Latent textures", "Memory")
 
 
 # ----------------------------------------------------------------------------- the report
@@ -122,6 +122,22 @@ def _load_reference(record: MaterialRecord, folder: Path):
     raise InputError(f"{record_path(folder)}: names no material")
 
 
+def energy_table(record: MaterialRecord) -> str:
+    """HTML of the conversion's energy check (the record's ``energy``): per MIP level, the reference's and
+    the neural model's mean directional albedo (luminance) and their ratio."""
+    energy = record.energy
+    if not energy:
+        return '<p class="note">Not measured at conversion (a UDIM material, or a record without it).</p>'
+    rows = "".join(f'<tr><td class="l">{k}</td><td>{r:.3f}</td><td>{m:.3f}</td><td>{q:.2f}</td></tr>'
+                   for k, (r, m, q) in enumerate(zip(energy["reference_by_level"], energy["model_by_level"],
+                                                     energy["by_level"])))
+    return (f'<p class="note">Directional albedo (luminance, mean over {energy["texels"]} texels x views '
+            f'{", ".join(f"{d:g}" for d in energy["view_degrees"])} degrees): the neural model against the '
+            f'reference filtered over each level\'s footprint. Lowest ratio {energy["min_ratio"]:.2f}; under 0.9 '
+            f'the neural material renders visibly darker.</p><table><tr><th class="l">MIP level</th><th>reference'
+            f'</th><th>neural</th><th>neural / reference</th></tr>{rows}</table>')
+
+
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,
                      spp: int, seed: int, texels_at=None, train_sizes: bool = False) -> tuple[str, dict]:
     """HTML of one material's report (images written into ``out``) and its numbers. ``texels_at``: the
@@ -166,7 +182,7 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     latents, latent_bytes = latent_figures(neural, tiles, out, p)
     weight_bytes = weights.stat().st_size
     e = html.escape
-    numbers = {"material": prim, "flip": flip, "cost": cost, "latent_bytes": latent_bytes,
+    numbers = {"material": prim, "flip": flip, "cost": cost, "energy": record.energy, "latent_bytes": latent_bytes,
                "weight_bytes": weight_bytes, "analytic_fit_seconds": round(fit_seconds, 2),
                "analytic_final_loss": analytic.final_loss, "udim_tiles": tiles}
     cost_rows = "".join(cost_row(r) for r in cost["rows"])
@@ -192,6 +208,8 @@ against the reference render{'; each trained UDIM tile on the sphere (its uv shi
 <p class="note">Plane of incidence, wi 45 degrees from the normal (coming from the left); radius log1p(x/0.01),
 normalised; at each chosen texel (<code>--texel U,V</code>).</p>
 {''.join(polar)}
+<h3>Energy</h3>
+{energy_table(record)}
 <h3>Training curves</h3>
 <p class="note">Losses against step; where the conversion probed its quality (<code>probe_every</code>), HDR FLIP
 against training seconds (three views at 48², 4 samples per pixel, so noisier than the table's figure).</p>

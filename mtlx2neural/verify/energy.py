@@ -96,14 +96,15 @@ def _view_directions(n: int, degrees, generator: torch.Generator) -> tuple[torch
 
 def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, texels: int = 64,
                  samples: int = 64, footprint_points: int = 8, view_degrees=VIEW_DEGREES, seed: int = 0,
-                 params_at=None) -> EnergyCheck:
+                 params_at=None, device="cpu") -> EnergyCheck:
     """The energy ratio per MIP level of ``model`` against ``reference`` (module docstring).
 
     ``resolution``: the finest latent grid (H, W) in texels, which sets the footprints' size;
     ``levels``: how many MIP levels to check (finest first). ``params_at``: optional ``uv [M, 2] ->
     {name: [M, width]}`` giving the reference's parameters at points (the parameter stack's level 0
     when it holds the textures at their own resolution, as the training does); None evaluates the
-    reference's graph at the points. Runs without gradients; seeded by ``seed``."""
+    reference's graph at the points. ``device``: where the materials live (the draws are made on the
+    CPU, so the figures do not depend on it). Runs without gradients; seeded by ``seed``."""
     g = torch.Generator().manual_seed(seed)
     lum = torch.tensor(LUMINANCE)
     h, w = resolution
@@ -116,14 +117,15 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
         # The reference over the level's footprint: P points per row, one albedo estimate each.
         sigma = torch.tensor([SIGMA_TEXELS * 2 ** k / w, SIGMA_TEXELS * 2 ** k / h])
         offsets = stratified_gaussian(n, footprint_points, g) * sigma
-        pts = (uv_rows[:, None, :] + offsets).reshape(-1, 2)
+        pts = (uv_rows[:, None, :] + offsets).reshape(-1, 2).to(device)
+        wi, uv_rows = wi.to(device), uv_rows.to(device)
         at = ShadingPoint(params=params_at(pts)) if params_at is not None else ShadingPoint(uv=pts)
         with torch.no_grad():
             ref = reference.albedo(wi.repeat_interleave(footprint_points, 0), at, samples=samples, seed=seed)
             ref = ref.view(n, footprint_points, 3).mean(1)
-            mod = model.albedo(wi, ShadingPoint(uv=uv_rows, lod=torch.full((n,), float(k))),
+            mod = model.albedo(wi, ShadingPoint(uv=uv_rows, lod=torch.full((n,), float(k), device=device)),
                                samples=samples * footprint_points, seed=seed)
-        ref_l, mod_l = (ref.float() * lum).sum(-1), (mod.float() * lum).sum(-1)
+        ref_l, mod_l = (ref.float().cpu() * lum).sum(-1), (mod.float().cpu() * lum).sum(-1)
         by_view = {}
         for d in view_degrees:
             sel = angle == d

@@ -196,7 +196,9 @@ def test_budget_met_by_the_smallest_decoder(tmp_path, monkeypatch):
     s = convert_asset(asset, ConvertOptions(train=TINY, material="Red", progress=False, device="cpu",
                                           max_error=10.0, workers=1))[0]
     assert runs == ["2x16"] and s.decoder == "2x16" and s.budget_met is True
-    assert s.budget["flip_by_decoder"] == {"2x16": s.flip_mean} and not s.warnings
+    assert s.budget["flip_by_decoder"] == {"2x16": s.flip_mean}
+    assert not [w for w in s.warnings if "budget" in w]  # met: nothing to say about it (a 30-step model
+    # is still warned about its energy, which the energy check's own tests cover)
 
 
 def test_preview_iterations_zero_fits_no_preview_and_drops_an_old_one(tmp_path, monkeypatch):
@@ -432,3 +434,15 @@ def test_a_job_carries_the_stage_and_trains_on_the_rasterised_mesh(tmp_path):
     _, summary = train_material(src, cfg, tmp_path / "M", "cpu", False, False, False, plan.digest,
                                 resolution=(4, 4), preview=False)
     assert any("rasterised from the bound meshes' UV layout (/World/Quad)" in n for n in summary.notes)
+
+
+def test_the_record_carries_the_energy_check_and_warns_when_dark(tmp_path):
+    """A 30-step model of a red plastic is far darker than its reference: the record holds the energy
+    check (one ratio per MIP level of a uniform material: one) and a warning naming it."""
+    asset = tmp_path / "two.mtlx"
+    asset.write_text(TWO_MTLX)
+    (s,) = convert_asset(asset, ConvertOptions(train=TINY, material="Red", progress=False, device="cpu"))
+    assert len(s.energy["by_level"]) == 1 and s.energy["min_ratio"] == s.energy["by_level"][0]
+    assert 0.0 <= s.energy["min_ratio"] < 0.9 and 0.0 < s.energy["reference_by_level"][0] < 1.0
+    (warning,) = [w for w in s.warnings if "energy check" in w]
+    assert f"{s.energy['min_ratio']:.0%}" in warning and warning in s.notes
