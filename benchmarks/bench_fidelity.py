@@ -56,11 +56,13 @@ from mtlx2neural.verify.sampling_efficiency import (
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT.parent / "shared/assets/materialx/resources/Materials/Examples/StandardSurface"
 TEXTURED = ROOT / "samples/textured/ceramic_and_metal.usda"
+MIRROR = ROOT / "samples/mirror/polished_metal.usda"  # python samples/make_mirror_sample.py
 CASES = {
     "Plastic": (ROOT / "samples/layered_spheres.usda", "/World/Looks/Plastic"),
     "CarPaint": (ROOT / "samples/layered_spheres.usda", "/World/Looks/CarPaint"),
     "GlazedCeramic": (TEXTURED, "/World/Looks/GlazedCeramic"),
     "BrushedMetal": (TEXTURED, "/World/Looks/BrushedMetal"),
+    "PolishedMetal": (MIRROR, "/World/Looks/PolishedMetal"),
     "wood_tiled": (EXAMPLES / "standard_surface_wood_tiled.mtlx", None),
     "brick_procedural": (EXAMPLES / "standard_surface_brick_procedural.mtlx", None),
 }

@@ -99,3 +99,26 @@ def test_udim_sample_is_the_generators_and_its_mesh_touches_three_of_four_tiles(
     report = inspect_asset(stage)
     assert report["materials"][0]["udim_tiles"] == list(mod.TRAINED)
     assert "UDIM tiles trained: 1001, 1002, 1011" in format_report(report)
+
+
+def test_mirror_sample_is_the_generators_near_mirror_textured_metal(tmp_path):
+    """samples/make_mirror_sample.py: the bundled files are what it writes, and its PolishedMetal is a
+    metal (one conductor lobe) whose roughness texture spans 0.02-0.3, mostly polished (median <= 0.1),
+    with a normal map."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    spec = importlib.util.spec_from_file_location("make_mirror_sample", SAMPLES / "make_mirror_sample.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    stage = mod.build(tmp_path / "mirror")
+    for name in ("polished_metal.usda", "polished_roughness.png", "polished_normal.png"):
+        assert (stage.parent / name).read_bytes() == (SAMPLES / "mirror" / name).read_bytes(), name
+    ref = m2n.load_reference(stage, "PolishedMetal")
+    info = ref.describe()
+    assert [k["closure"] for k in info["lobes_kept"]] == ["conductor_bsdf"]
+    assert {Path(t["file"]).name for t in info["textures"]} == {"polished_roughness.png", "polished_normal.png"}
+    rough = oiio.ImageBuf(str(SAMPLES / "mirror" / "polished_roughness.png")).get_pixels(oiio.FLOAT)
+    # 8-bit texture: the range's ends within one code value
+    assert abs(float(rough.min()) - 0.02) < 1 / 255 and abs(float(rough.max()) - 0.3) < 1 / 255
+    assert float(np.median(rough)) <= 0.1
