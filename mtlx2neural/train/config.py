@@ -24,12 +24,8 @@ class TrainConfig:
     brdf_loss: str = field(default="log_l1", metadata={"choices": ("log_l1", "relative_l2", "log_l1+relative_l2")})
     """The decoder's loss on f * cos (``train.losses``): log_l1 (log-compressed L1, follows the median of
     noisy targets), relative_l2 (squared error relative to the prediction, follows their mean, so sharp
-    lobes keep their energy), or their sum."""
-    energy_weight: float = 0.0
-    """Weight of the energy term (``train.losses.energy_mismatch``): each step also compares the model's
-    directional albedo with the reference's on an eighth of a batch of rows, four directions each,
-    drawn from the reference's sampler and the cosine. Keeps sharp lobes (near-mirror metals, clear
-    coats) from training dark; 0 turns it off."""
+    lobes keep their energy, but overshoots it), or log_l1 plus a tenth of relative_l2 (keeps a decoder
+    whose targets are mostly black from collapsing to zero)."""
     frames: int = field(default=2, metadata={"metavar": "N"})
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8

@@ -21,10 +21,6 @@ the sampler's own directions mixed defensively with cosine ones (``KL_DEFENSIVE`
 the sampler only. The uniform-direction estimator it replaced, and the measurement, are in
 docs/history/paper-choices-2026-12-02.md.
 
-**Energy** (:func:`energy_mismatch`, with ``TrainConfig.energy_weight``): the model's directional
-albedo against the reference's, row by row, estimated at shared directions; it keeps a sharp
-lobe's energy that the median-seeking log-L1 gives up.
-
 **Albedo head** (:func:`albedo_loss`): squared error of the predicted directional albedo against
 one-sample Monte Carlo estimates of the reference's.
 
@@ -43,7 +39,6 @@ from mtlx2neural.reference.vec import cosine_sample
 
 EPS = 1e-2  # radiance scale (f * cos) below which errors count linearly
 KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine density (defensive mixture)
-LUMINANCE = (0.2126, 0.7152, 0.0722)  # Rec. 709 weights of linear RGB
 KL_LOG_FLOOR = 1e-4  # added to the sampler's density inside the KL's log: a sample it cannot reach costs log(1e-4)
 
 
@@ -68,29 +63,20 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> t
     return ((pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)).mean()
 
 
-BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2,
-               "log_l1+relative_l2": lambda pred, target: log_l1(pred, target) + relative_l2(pred, target)}
+MIXED_RELATIVE_WEIGHT = 0.1
+"""Weight of relative_l2 in ``log_l1+relative_l2``: at 1 it overshoots the energy as relative_l2 does
+(CarPaint 1.19, HDR FLIP 0.130 against 0.045); at 0.1 CarPaint keeps 1.03 at 0.044 and BrushedMetal 0.89
+at 0.187 (log_l1: 0.96 / 0.85 at 0.045 / 0.174; BENCHMARKS.md, "Energy and the BRDF loss")."""
+
+
+def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """:func:`log_l1` plus :data:`MIXED_RELATIVE_WEIGHT` times :func:`relative_l2`: log-L1's shape, and a
+    mean-seeking pull that keeps the prediction from collapsing where most targets are black."""
+    return log_l1(pred, target) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
+
+
+BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2, "log_l1+relative_l2": mixed_log_l1}
 """The decoder's losses by ``TrainConfig.brdf_loss`` name."""
-
-
-def energy_mismatch(pred: torch.Tensor, target: torch.Tensor, density: torch.Tensor, k: int) -> torch.Tensor:
-    """The energy term: squared luminance difference of the model's and the target's directional albedo,
-    relative to the batch's mean albedo (a scalar, unitless).
-
-    ``pred`` and ``target`` [M*K, 3] are f * cos (linear RGB) of the model and of the (filtered,
-    mollified) reference at the *same* K directions per row, drawn with per-steradian ``density``
-    [M*K] (0: a failed draw, weighted 0). Each row's albedo difference is the Monte Carlo mean of
-    (pred - target) / density over its K directions: an unbiased estimate of the integral of the
-    difference over the hemisphere, whose noise shrinks as the model's shape approaches the
-    reference's. Its square, averaged over rows and divided by the squared mean albedo of the targets
-    (detached), is 0 only when every row keeps its energy, darker or brighter alike; the shape is left
-    to the pointwise loss."""
-    w = torch.where(density > 0, 1.0 / density.clamp_min(1e-12), torch.zeros_like(density))[:, None]
-    lum = torch.tensor(LUMINANCE, dtype=pred.dtype, device=pred.device)
-    diff = (((pred - target) * w).view(-1, k, 3).mean(1) * lum).sum(-1)
-    with torch.no_grad():
-        albedo = ((target * w).view(-1, k, 3).mean(1) * lum).sum(-1).mean()
-    return (diff ** 2).mean() / (albedo ** 2 + 1e-4)
 
 
 def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:

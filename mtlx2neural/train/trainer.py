@@ -32,10 +32,8 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.atomic import atomic_path
-from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
-from mtlx2neural.reference.vec import cosine_sample
 from mtlx2neural.textures.parameter_stack import ParameterStack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
@@ -49,7 +47,6 @@ from mtlx2neural.train.losses import (
     BRDF_LOSSES,
     albedo_loss,
     brdf_and_sampler_losses,
-    energy_mismatch,
 )
 from mtlx2neural.train.mollify import lobe_directions
 from mtlx2neural.train.replay import RowReplay
@@ -57,7 +54,6 @@ from mtlx2neural.train.targets import targets_for
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
 GRAD_CLIP = 10.0  # global gradient-norm cap
-ENERGY_DIRECTIONS = 4  # directions per row of the energy term (cfg.energy_weight)
 GRAZING_MAX_COS = 0.25  # cfg.grazing_fraction's viewers: within ~14 degrees of the horizon
 GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
 
@@ -231,9 +227,6 @@ class Trainer:
         u_kl = torch.rand(b, 3, generator=g).to(dev)
         loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, latent, wi, wo, target, u_kl)
         loss = loss_brdf + loss_kl
-        loss_energy = self._energy_loss() if cfg.energy_weight > 0 else None
-        if loss_energy is not None:
-            loss = loss + cfg.energy_weight * loss_energy
         if cfg.albedo_head:
             with torch.no_grad():
                 weight = self.albedo_targets(wi, uv, level)
@@ -249,31 +242,8 @@ class Trainer:
         self.opt.step()
         self.step += 1
         return {"step": self.step, "phase": "finetune" if self.baked else "encoder",
-                "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(),
-                **({"loss_energy": loss_energy.item()} if loss_energy is not None else {}), "lr": _lr(cfg, self.step),
+                "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(cfg, self.step),
                 "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
-
-    def _energy_loss(self) -> torch.Tensor:
-        """The energy term of one step (:func:`~.losses.energy_mismatch`): ``batch / 8`` fresh rows (uv,
-        level, a half/difference ``wi``), ``ENERGY_DIRECTIONS`` directions each, half from the cosine and
-        half from the reference's sampler at the row's point (density: their mixture's, per steradian),
-        the model's f * cos against this step's targets at the same directions."""
-        cfg, g, dev, k = self.cfg, self.gen, self.device, ENERGY_DIRECTIONS
-        m = max(1, cfg.batch // 8)
-        uv = draw_uv(m, self.tiles, g).to(dev).repeat_interleave(k, 0)
-        level = self.targets.levels(m, dev).repeat_interleave(k, 0)
-        wi = half_difference_pairs(m, g, dev)[0].repeat_interleave(k, 0)
-        u = torch.rand(m * k, 3, generator=g).to(dev)
-        with torch.no_grad():
-            at = ShadingPoint(uv=self.targets.lobe_uv(uv))
-            lobe = torch.nan_to_num(self.ref.sample(wi, u[:, :2], at)[0])
-            wo = torch.nn.functional.normalize(torch.where((u[:, 2] < 0.5)[:, None], cosine_sample(u[:, :2]), lobe),
-                                               dim=-1)
-            density = 0.5 * wo[:, 2].clamp_min(0.0) / math.pi + 0.5 * self.ref.pdf(wi, wo, at)
-            density = torch.where((wo[:, 2] > 0) & torch.isfinite(density), density, torch.zeros_like(density))
-            target = self._targets(wi, wo, uv, level)
-        pred = self.model.decoder(self._latent(uv, level), wi, wo)
-        return energy_mismatch(pred, target, density, k)
 
     def run(self, progress: bool = True, listener=None, probe=None) -> NeuralMaterial:
         """Train to ``cfg.iterations`` steps (from the current step), showing progress when
