@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+from pxr import Gf, Sdf, Usd, UsdGeom
 
 _spec = importlib.util.spec_from_file_location("make_textured_sample",
                                                Path(__file__).resolve().parent / "make_textured_sample.py")
@@ -73,13 +73,7 @@ def build(folder: Path, res: int = 256) -> Path:
     sh.CreateInput("specular_roughness", f).ConnectToSource(
         _textured._image(stage, looks, "roughness_tex", files["roughness"], "float"))
     sh.CreateInput("normal", v3).ConnectToSource(_textured._normal_map(stage, looks, files["normal"]))
-    mesh = UsdGeom.Mesh.Define(stage, "/World/Geo/Tray")
-    mesh.CreatePointsAttr([(-1, 0, -1), (1, 0, -1), (1, 0, 1), (-1, 0, 1)])
-    mesh.CreateFaceVertexCountsAttr([4])
-    mesh.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
-    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
-    st.Set([(0, 0), (0, 1), (1, 1), (1, 0)])
-    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    _textured.quad(stage, "/World/Geo/Tray", mat)
     stage.GetRootLayer().Save()
     os.replace(tmp, path)
     return path

@@ -92,6 +92,18 @@ def _surface(stage, mat_path):
     return mat, sh
 
 
+def quad(stage, path: str, material, offset: float = 0.0):
+    """A 2x2 quad in the y = 0 plane centred at x = ``offset``, uv over [0, 1]^2, bound to ``material``."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr([(offset - 1, 0, -1), (offset + 1, 0, -1), (offset + 1, 0, 1), (offset - 1, 0, 1)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    st.Set([(0, 0), (0, 1), (1, 1), (1, 0)])
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    return mesh
+
+
 def build(folder: Path, res: int = 1024) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     files = make_textures(folder, res)
@@ -118,14 +130,7 @@ def build(folder: Path, res: int = 1024) -> Path:
     sh.CreateInput("normal", v3).ConnectToSource(_normal_map(stage, "/World/Looks/BrushedMetal", files["metal_normal"]))
 
     for name, mat, offset in (("Vase", ceramic, -1.5), ("Plate", metal, 1.5)):
-        mesh = UsdGeom.Mesh.Define(stage, f"/World/Geo/{name}")
-        mesh.CreatePointsAttr([(offset - 1, 0, -1), (offset + 1, 0, -1), (offset + 1, 0, 1), (offset - 1, 0, 1)])
-        mesh.CreateFaceVertexCountsAttr([4])
-        mesh.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
-        st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                      UsdGeom.Tokens.faceVarying)
-        st.Set([(0, 0), (0, 1), (1, 1), (1, 0)])
-        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+        quad(stage, f"/World/Geo/{name}", mat, offset)
     stage.GetRootLayer().Save()
     os.replace(tmp, path)
     return path

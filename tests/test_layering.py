@@ -58,16 +58,21 @@ def _modules():
         yield path, rel.parts[0].removesuffix(".py")
 
 
-def _imports(path: Path):
-    """(line, imported component, is function-local, has a reason comment) for every mtlx2neural import."""
+def _parse(path: Path):
+    """(source lines, AST, ids of the module-level statements). Imports under ``if TYPE_CHECKING:`` are
+    for annotations only and count as module level."""
     source = path.read_text()
-    lines = source.splitlines()
     tree = ast.parse(source)
     top = {id(node) for node in tree.body}
-    # imports under `if TYPE_CHECKING:` are for annotations only and count as module level
     for node in tree.body:
         if isinstance(node, ast.If):
             top.update(id(n) for n in node.body)
+    return source.splitlines(), tree, top
+
+
+def _imports(path: Path):
+    """(line, imported component, is function-local, has a reason comment) for every mtlx2neural import."""
+    lines, tree, top = _parse(path)
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
             assert node.level == 0, f"{path}:{node.lineno}: use absolute imports (mtlx2neural.<package>...)"
@@ -109,13 +114,7 @@ def _third_party_local_imports(path: Path):
     """(line, module, has a reason comment) for every function-local import of a module outside the
     standard library and mtlx2neural. A comment counts when it sits on the import's line or on the
     lines just above the run of import statements the import belongs to."""
-    source = path.read_text()
-    lines = source.splitlines()
-    tree = ast.parse(source)
-    top = {id(node) for node in tree.body}
-    for node in tree.body:
-        if isinstance(node, ast.If):
-            top.update(id(n) for n in node.body)
+    lines, tree, top = _parse(path)
     for node in ast.walk(tree):
         if not isinstance(node, (ast.Import, ast.ImportFrom)) or id(node) in top:
             continue

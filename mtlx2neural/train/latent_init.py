@@ -32,6 +32,13 @@ def is_textured(stack) -> bool:
     return stack.levels[0].shape[0] > 0
 
 
+def encode_level(encoder, level: torch.Tensor) -> torch.Tensor:
+    """The encoder's codes [D, H, W] of one stack level [C, H, W], ``ENCODE_CHUNK`` texels per call."""
+    raw = level.float().reshape(level.shape[0], -1).T
+    codes = torch.cat([encoder(raw[s:s + ENCODE_CHUNK]) for s in range(0, raw.shape[0], ENCODE_CHUNK)])
+    return codes.T.reshape(-1, *level.shape[1:])
+
+
 class UniformLatents:
     """A uniform material's latents: one code on a 1x1 grid (per tile of a tiled stack)."""
 
@@ -58,11 +65,7 @@ class TexturedLatents:
         """The encoder over every texel of every stack level, into the matching level of ``model.latents``."""
         with torch.no_grad():
             for k, lv in enumerate(model.latents.levels):
-                level = self.stack.levels[k]
-                raw = level.float().reshape(level.shape[0], -1).T
-                codes = torch.cat([model.encoder(raw[s:s + ENCODE_CHUNK])
-                                   for s in range(0, raw.shape[0], ENCODE_CHUNK)])
-                lv.copy_(codes.T.reshape(lv.shape))
+                lv.copy_(encode_level(model.encoder, self.stack.levels[k]))
 
 
 class UdimLatents:
@@ -77,9 +80,7 @@ class UdimLatents:
         with torch.no_grad():
             for k, lv in enumerate(model.latents.levels):
                 for t, tile_stack in enumerate(self.stack.stacks):  # one [C, H, W] stack level per tile
-                    level = tile_stack.levels[k]
-                    raw = level.float().reshape(level.shape[0], -1).T
-                    lv[t].copy_(model.encoder(raw).T.reshape(lv[t].shape))
+                    lv[t].copy_(encode_level(model.encoder, tile_stack.levels[k]))
 
 
 def latent_init_for(stack):
