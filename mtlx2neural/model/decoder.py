@@ -86,10 +86,18 @@ class BrdfDecoder(nn.Module):
 
     def forward(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """f(wi, wo) * max(0, wo.z) [N,3] (no horizon test on ``wi``: ``NeuralMaterial.eval`` applies it)."""
+        return self.activate(self.logits(latent, wi, wo), wo)
+
+    def logits(self, latent: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        """The MLP's raw outputs [N,3] before the output activation (:meth:`activate`)."""
         x = torch.cat([*self._directions(latent, wi, wo), latent], -1)
         if self.latent_layer is not None:  # the ablation's parameter-matching layer
             x = torch.cat([x, self.latent_layer(latent)], -1)
-        y = torch.exp(self.net(x).clamp(max=30.0) - OUTPUT_OFFSET)
+        return self.net(x)
+
+    def activate(self, raw: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        """exp(min(raw, 30) - OUTPUT_OFFSET), times max(0, wo.z) with ``analytic_cosine``: f * cos [N,3]."""
+        y = torch.exp(raw.clamp(max=30.0) - OUTPUT_OFFSET)
         return y * wo[:, 2:3].clamp_min(0.0) if self.analytic_cosine else y
 
     def predict_albedo(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:

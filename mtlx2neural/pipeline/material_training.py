@@ -173,11 +173,15 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
 ENERGY_WARNING = 0.9
 """An energy ratio below this at any MIP level (the neural model reflects less than 90 % of the
 reference's directional albedo there) puts a warning in the record: the material renders darker."""
+ENERGY_WARNING_BRIGHT = 1.2
+"""An energy ratio above this at any MIP level puts a warning in the record: the material renders
+brighter (the near-mirror sample's 1.08-1.35; the reference against itself stays within 1.00-1.03)."""
 
 
 def with_energy(record: MaterialRecord, ref, model, stack, device) -> MaterialRecord:
     """``record`` with the energy check (:mod:`mtlx2neural.verify.energy`, 64 texels x 4 views per level,
-    a few seconds) and a warning when a level keeps less than :data:`ENERGY_WARNING` of the energy.
+    a few seconds) and a warning when a level keeps less than :data:`ENERGY_WARNING` of the energy or
+    more than :data:`ENERGY_WARNING_BRIGHT`.
     A UDIM material is not checked (its levels are per tile): a note says so."""
     if is_udim_stack(stack):
         return dataclasses.replace(record, notes=[*record.notes, "energy check: not measured for a UDIM material"])
@@ -189,7 +193,12 @@ def with_energy(record: MaterialRecord, ref, model, stack, device) -> MaterialRe
         record = record.with_warning(
             f"the neural model keeps {check.min_ratio:.0%} of the reference's directional albedo at MIP level "
             f"{check.worst_level} (energy check; under {ENERGY_WARNING:.0%} renders visibly darker): train "
-            "longer (--preset standard) or try --brdf-loss relative_l2")
+            "longer (--preset standard) or try --brdf-loss log_l1+relative_l2")
+    if check.max_ratio > ENERGY_WARNING_BRIGHT:
+        record = record.with_warning(
+            f"the neural model reflects {check.max_ratio:.0%} of the reference's directional albedo at MIP level "
+            f"{check.brightest_level} (energy check; over {ENERGY_WARNING_BRIGHT:.0%} renders visibly brighter): "
+            "train longer (--preset standard)")
     return record
 
 

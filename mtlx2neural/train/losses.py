@@ -110,12 +110,34 @@ def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torc
     return -(w * torch.log(q + KL_LOG_FLOOR)).sum()
 
 
+OUTPUT_FLOOR = -9.0
+"""Lowest raw decoder output (before exp(x - 3): f about 6e-6) the training leaves unpenalised. At -6 the
+sample CarPaint lost HDR FLIP (0.058 against 0.045, seed 0); at -9 it keeps it (0.046), the BrushedMetal
+and GlazedCeramic never reach the floor, and the near-mirror PolishedMetal no longer dies
+(docs/history/energy-and-loss-2026-12-04.md)."""
+
+
+def floor_penalty(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float = OUTPUT_FLOOR) -> torch.Tensor:
+    """mean(relu(floor - raw)^2) over the decoder's raw outputs ``raw`` [N, 3] (before the exp), rows whose
+    ``wo`` is at or below the horizon weighing 0 (the cosine makes their value 0 whatever ``raw`` is; a
+    penalty there would only spend the network's capacity).
+
+    Keeps the decoder alive where most targets are black. log-L1's gradient there shrinks with the
+    prediction, but Adam normalises it and keeps stepping the same way, until exp() underflows to 0 in
+    float32 and every gradient is exactly 0: the near-mirror sample trained to black that way within 50
+    steps (docs/history/energy-and-loss-2026-12-04.md). Below the floor the penalty's gradient wins and
+    the raw output stays near it; a black value is still predicted as about 6e-6, far under log-L1's EPS."""
+    below = torch.relu(floor - raw).square()
+    return (below * (wo[:, 2:3] > 0)).mean() if wo is not None else below.mean()
+
+
 def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1):
     """(BRDF loss, sampler loss) of one step's batch, given the latents: ``brdf_loss`` (one of
     :data:`BRDF_LOSSES`) between the decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the
-    filtered reference, f * cos, linear RGB), then :func:`sampler_kl` with the uniform numbers ``u``
-    [N, 3]. Directions unit, local frame."""
-    loss_brdf = brdf_loss(decoder(latent, wi, wo), target)
+    filtered reference, f * cos, linear RGB) plus :func:`floor_penalty` of its raw outputs, then
+    :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame."""
+    raw = decoder.logits(latent, wi, wo)
+    loss_brdf = brdf_loss(decoder.activate(raw, wo), target) + floor_penalty(raw, wo if decoder.analytic_cosine else None)
     return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
 
 

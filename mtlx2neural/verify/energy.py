@@ -72,13 +72,25 @@ class EnergyCheck:
         return min(kept) if kept else float("nan")
 
     @property
+    def max_ratio(self) -> float:
+        """The highest level ratio (a model brighter than its reference)."""
+        kept = [lv.ratio for lv in self.levels if math.isfinite(lv.ratio)]
+        return max(kept) if kept else float("nan")
+
+    @property
+    def brightest_level(self) -> int | None:
+        kept = [lv for lv in self.levels if math.isfinite(lv.ratio)]
+        return max(kept, key=lambda lv: lv.ratio).level if kept else None
+
+    @property
     def worst_level(self) -> int | None:
         kept = [lv for lv in self.levels if math.isfinite(lv.ratio)]
         return min(kept, key=lambda lv: lv.ratio).level if kept else None
 
     def to_json(self) -> dict:
-        """``{"min_ratio", "by_level": [ratio per level], "reference_by_level", "model_by_level"}``."""
-        return {"min_ratio": self.min_ratio, "by_level": [lv.ratio for lv in self.levels],
+        """``{"min_ratio", "max_ratio", "by_level": [ratio per level], "reference_by_level",
+        "model_by_level", "texels", "samples", "view_degrees"}``."""
+        return {"min_ratio": self.min_ratio, "max_ratio": self.max_ratio, "by_level": [lv.ratio for lv in self.levels],
                 "reference_by_level": [lv.reference for lv in self.levels],
                 "model_by_level": [lv.model for lv in self.levels],
                 "texels": self.texels, "samples": self.samples, "view_degrees": list(self.view_degrees)}

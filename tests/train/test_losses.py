@@ -13,6 +13,7 @@ from mtlx2neural.train.losses import (
     KL_DEFENSIVE,
     albedo_loss,
     brdf_and_sampler_losses,
+    floor_penalty,
     log_l1,
     sampler_kl,
 )
@@ -74,11 +75,13 @@ def test_sampler_kl_weights_are_normalised_and_the_defensive_share_is_used():
 
 
 def test_brdf_and_sampler_losses_are_the_two_losses():
-    """The compiled unit is log-L1 of the decoder against the target, then the sampler's KL: the same
-    values, bit for bit, as the two functions called alone."""
+    """The compiled unit is log-L1 of the decoder against the target plus the output floor's penalty,
+    then the sampler's KL: the same values, bit for bit, as the functions called alone."""
     m, latent, wi, wo, target, u = _batch(seed=4)
     loss_brdf, loss_kl = brdf_and_sampler_losses(m.decoder, m.sampler, latent, wi, wo, target, u)
-    assert torch.equal(loss_brdf, log_l1(m.decoder(latent, wi, wo), target))
+    raw = m.decoder.logits(latent, wi, wo)
+    assert torch.equal(m.decoder.activate(raw, wo), m.decoder(latent, wi, wo))
+    assert torch.equal(loss_brdf, log_l1(m.decoder(latent, wi, wo), target) + floor_penalty(raw, wo))
     assert torch.equal(loss_kl, sampler_kl(m.decoder, m.sampler, latent, wi, u))
     loss_brdf.backward()
     assert latent.grad is not None and float(latent.grad.abs().sum()) > 0  # the BRDF loss trains the latents
@@ -120,3 +123,46 @@ def test_relative_l2_seeks_the_mean_where_log_l1_seeks_the_median():
     relative_l2(x.expand(5, 3), target).backward()
     assert abs(float(x.grad)) < 1e-6
 
+
+
+def test_the_output_floor_keeps_a_mostly_black_fit_alive():
+    """Nine black targets for each bright one and one shared raw output: log-L1 alone keeps pushing the
+    output down (its median is black), past the floor with a gradient a thousand times smaller than at
+    the start (in the real decoder, Adam kept going until exp() underflowed and the gradient was exactly
+    0); with the floor's penalty the raw output stops within 1 of the floor."""
+    from mtlx2neural.train.losses import OUTPUT_FLOOR
+
+    # exp(OUTPUT_FLOOR - 3) is far from float32's underflow (exp(-103)) and far below log-L1's EPS
+    assert -100.0 < OUTPUT_FLOOR - 3.0 and math.exp(OUTPUT_FLOOR - 3.0) < 1e-3 * EPS
+    floor_at = -5.0  # this toy's 300 steps drift a few units; a floor within reach shows the stop
+    target = torch.zeros(100, 3)
+    target[::10] = 5.0
+    wo = torch.tensor([[0.0, 0.0, 1.0]]).expand(100, 3)
+    final = {}
+    for floor in (False, True):
+        raw = torch.zeros(1, requires_grad=True)
+        opt = torch.optim.Adam([raw], lr=5e-3 * 100)  # a large rate: the drift of many steps in few
+        for step in range(300):
+            opt.zero_grad()
+            r = raw.expand(100, 3)
+            loss = log_l1(torch.exp(r - 3.0) * wo[:, 2:3], target) + (floor_penalty(r, floor=floor_at) if floor else 0.0)
+            loss.backward()
+            if step == 0:
+                start_grad = float(raw.grad.abs())
+            opt.step()
+        final[floor] = (float(raw), float(raw.grad.abs()))
+        if not floor:
+            assert float(raw.grad.abs()) < 1e-3 * start_grad
+    assert final[False][0] < floor_at - 2.0, final
+    assert floor_at - 1.0 < final[True][0] < floor_at + 1.0 and final[True][1] > 0.0, final
+
+
+def test_the_floor_ignores_rows_below_the_horizon():
+    """A row whose wo is below the horizon renders 0 whatever its raw output: no penalty there."""
+    from mtlx2neural.train.losses import OUTPUT_FLOOR
+
+    raw = torch.full((4, 3), -20.0)
+    wo = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [1.0, 0.0, 0.0]])
+    per_row = (OUTPUT_FLOOR + 20.0) ** 2  # (floor - raw)^2
+    assert float(floor_penalty(raw, wo)) == per_row * 2 / 4
+    assert float(floor_penalty(raw)) == per_row

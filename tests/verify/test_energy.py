@@ -66,3 +66,9 @@ def test_a_black_reference_has_no_ratio(rough_metal):
     chk = energy_check(black, rough_metal, (16, 16), 1, texels=8, seed=3)
     assert np.isnan(chk.levels[0].ratio) and np.isnan(chk.min_ratio) and chk.worst_level is None
     torch.testing.assert_close(torch.tensor(chk.levels[0].reference), torch.tensor(0.0))
+
+
+def test_a_brighter_model_is_caught_too(rough_metal):
+    chk = energy_check(rough_metal, Scaled(rough_metal, 1.5), (16, 16), 2, texels=32, seed=4)
+    assert abs(chk.max_ratio - 1.5) < 0.1 and chk.brightest_level in (0, 1)
+    assert chk.to_json()["max_ratio"] == chk.max_ratio
