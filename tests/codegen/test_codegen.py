@@ -222,6 +222,7 @@ def test_fp16_matches_emulation_and_torch(model_a, inputs_a, reference_a, tmp_pa
     assert np.array_equal(fb, f[:n])
 
 
+@pytest.mark.slow
 def test_coopvec_matches_emulation_and_torch(model_a, inputs_a, reference_a, tmp_path_factory):
     _, spec, src = model_a
     (e64, _, _), _, _ = reference_a

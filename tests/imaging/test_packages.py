@@ -52,6 +52,7 @@ def test_a_packed_texture_reads_as_the_loose_file(package):
         read_image(f"{usdz}[nope.png]")
 
 
+@pytest.mark.slow
 def test_a_usdz_with_packed_textures_converts(package, capsys):
     usdz, loose = package
     loose.unlink()  # only the packed copy exists

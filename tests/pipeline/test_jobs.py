@@ -151,6 +151,7 @@ def test_choose_decoder_keeps_the_best_when_nothing_meets_the_budget():
     assert decoder == "3x64"
 
 
+@pytest.mark.slow
 def test_budget_missed_trains_every_size_and_says_so(tmp_path, capsys, monkeypatch):
     asset = tmp_path / "two.mtlx"
     asset.write_text(TWO_MTLX)
@@ -201,6 +202,7 @@ def test_budget_met_by_the_smallest_decoder(tmp_path, monkeypatch):
     # is still warned about its energy, which the energy check's own tests cover)
 
 
+@pytest.mark.slow
 def test_preview_iterations_zero_fits_no_preview_and_drops_an_old_one(tmp_path, monkeypatch):
     """``preview_iterations = 0`` fits no analytic baseline (plain and error-budget runs) and removes the
     baseline of an earlier run, which would otherwise be exported as this run's fallback."""
@@ -348,6 +350,7 @@ def test_constant_parameters_never_enter_the_encoder(tmp_path):
     assert first.in_features == 3
 
 
+@pytest.mark.slow
 def test_max_texels_caps_the_grid_and_warns(tmp_path, capsys):
     tex = textured_asset(tmp_path, size=8)
     assert main([str(tex), "--max-texels", "4", "--quiet", *CLI_TINY]) == 0
@@ -365,6 +368,7 @@ def test_max_texels_caps_the_grid_and_warns(tmp_path, capsys):
 # ----------------------------------------------------------------------------- parallel runners
 
 
+@pytest.mark.slow
 def test_process_pool_trains_two_materials_in_two_workers(tmp_path, capfd):
     asset = tmp_path / "two.mtlx"
     asset.write_text(TWO_MTLX)

@@ -93,6 +93,7 @@ def test_material_folders_stay_distinct_on_case_insensitive_file_systems():
     assert folders["/World/Blue"] == "World.Blue"  # no hash where nothing collides
 
 
+@pytest.mark.slow
 def test_convert_keeps_the_colliding_pair_apart(tmp_path, capsys):
     red, blue = "/World/Looks_A/Paint", "/World/Looks/A_Paint"
     asset = tmp_path / "pair.usda"

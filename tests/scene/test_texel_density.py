@@ -297,6 +297,7 @@ def test_cli_inspect_texel_density(tmp_path, capsys):
     assert "is not a texel density" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_convert_trains_the_planned_grid(tmp_path, capsys):
     asset = textured_scene(tmp_path, {"A": 2.0})
     args = [str(asset), "--texel-density", "8", "--quiet", "--iterations", "20", "--batch", "256", "--device", "cpu",

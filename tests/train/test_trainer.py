@@ -141,6 +141,7 @@ def test_learned_sampler_beats_cosine_on_a_glossy_material(carpaint, tmp_path):
 
 @pytest.mark.skipif(not __import__("shutil").which("g++") and not __import__("shutil").which("cc"),
                     reason="torch.compile on CPU needs a C++ compiler")
+@pytest.mark.slow
 def test_compiled_losses_match_eager():
     """The torch.compile fast path (balanced/paper presets) against its eager twin."""
     from mtlx2neural.model.neural_material import NeuralMaterial
@@ -231,6 +232,7 @@ def test_textured_targets_are_the_footprint_means(tmp_path):
     assert tr.step == 5
 
 
+@pytest.mark.slow
 def test_flip_probes_are_logged_and_leave_the_run_unchanged(carpaint, tmp_path):
     """Probing every 40 steps (the real FlipProbe, small: 24², 2 spp) logs a FLIP at steps 40, 80 and the last
     (100), before and after the bake, and the run is bit-identical to one without probes: the probe draws
