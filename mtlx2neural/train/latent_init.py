@@ -68,12 +68,8 @@ class TexturedLatents:
                 lv.copy_(encode_level(model.encoder, self.stack.levels[k]))
 
 
-class UdimLatents:
+class UdimLatents(TexturedLatents):
     """A UDIM material's latents: the tiles' shared grid, each tile encoded from its own stack."""
-
-    def __init__(self, stack):
-        self.stack = stack
-        self.resolution = stack.resolution
 
     def encode(self, model) -> None:
         """The encoder over every texel of every level of each tile's stack, into that tile's latents."""
