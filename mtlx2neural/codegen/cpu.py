@@ -45,7 +45,7 @@ def slangpy_available() -> tuple[bool, str]:
 
 def device(include: Path, defines: dict[str, str]):
     """A slangpy CPU device with ``include`` and the runtime on its include path (cached)."""
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check slangpy_available() first.
     import slangpy as spy
 
     key = (str(include), tuple(sorted(defines.items())))
@@ -60,7 +60,7 @@ def device(include: Path, defines: dict[str, str]):
 
 def float_buffer(dev, a):
     """A read-only structured buffer of ``a`` as float32 (one zero when empty)."""
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check slangpy_available() first.
     import slangpy as spy
 
     a = np.array(a, np.float32, copy=True).reshape(-1)
@@ -71,7 +71,7 @@ def float_buffer(dev, a):
 
 def out_buffer(dev, n: int):
     """A read-write float buffer of ``n`` elements."""
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check slangpy_available() first.
     import slangpy as spy
 
     usage = spy.BufferUsage.shader_resource | spy.BufferUsage.unordered_access
@@ -81,7 +81,7 @@ def out_buffer(dev, n: int):
 def pyramid_buffers(dev, levels: list[np.ndarray]) -> tuple[object, object]:
     """(texels, level table) buffers of ``NMBufferLatents<C>`` for ``levels`` (each [C, H, W],
     finest first): texels row-major (row 0 = top), C floats each; table rows (w, h, offset, 0)."""
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check slangpy_available() first.
     import slangpy as spy
 
     texels, table, off = [], [], 0
@@ -110,7 +110,7 @@ class CpuMaterial:
 
     def __init__(self, source: str, name: str, spec, variant: str = "FP32", *, unroll: bool = False,
                  cpu_coherent: bool = True, workdir=None):
-        # Local: slangpy is optional (the shader harness); importing it is the availability check.
+        # Local: slangpy is optional (the shader harness); callers check slangpy_available() first.
         import slangpy as spy
 
         self.spy = spy
@@ -218,7 +218,7 @@ class CpuMaterial:
         """(eval [N, 3], slot [N]) of a UDIM module (``codegen/templates/cpu_harness_udim.slang.in``):
         per query the module's ``udimSlot(uv)``, the tile's latent (``NMBufferTiledLatents``: ``tiles[k]``
         the pyramid of slot k, each level [C, H, W], finest first) and eval; slot -1 gives black."""
-        # Local: slangpy is optional (the shader harness); importing it is the availability check.
+        # Local: slangpy is optional (the shader harness); callers check slangpy_available() first.
         import slangpy as spy
 
         n = int(wi.shape[0])

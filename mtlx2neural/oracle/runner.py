@@ -64,7 +64,7 @@ _available: tuple[bool, str] | None = None
 
 
 def _device(cache_dir=None):
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check oracle_available() first.
     import slangpy as spy
 
     key = None if cache_dir is None else str(Path(cache_dir).resolve())
@@ -135,7 +135,7 @@ class _Kernel:
 def _compile(osrc: _OracleSource, cache_dir=None, inputs=("mxo_wi", "mxo_wo")) -> _Kernel:
     """Compile (or reuse) the kernel of `osrc`; `inputs` name its input buffers (bound, empty, by the
     first dispatch that compiles it)."""
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check oracle_available() first.
     import slangpy as spy
 
     digest = hashlib.sha256(osrc.source.encode()).hexdigest()
@@ -220,7 +220,7 @@ def mtlx_slang_eval(document, material: str, wi, wo, *, cache_dir=None) -> np.nd
     if n == 0:
         return np.zeros((0, 3), dtype=np.float64)
 
-    # Local: slangpy is optional (the shader harness); importing it is the availability check.
+    # Local: slangpy is optional (the shader harness); callers check oracle_available() first.
     import slangpy as spy
 
     usage_in = spy.BufferUsage.shader_resource

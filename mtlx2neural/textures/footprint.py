@@ -46,6 +46,13 @@ def samples_for_level(level: int, max_samples: int, texel_ratio: tuple[float, fl
     return int(min(max_samples, math.ceil(4 ** level * texel_ratio[0] * texel_ratio[1] - 1e-6)))
 
 
+def footprint_sigma(level: int, resolution: tuple[int, int], dtype=torch.float32, device=None) -> torch.Tensor:
+    """[2] standard deviation in uv (u, v) of a level-``level`` footprint on a grid of ``resolution`` (H, W)
+    finest-level texels: :data:`SIGMA_TEXELS` level-k texels per axis."""
+    h, w = resolution
+    return torch.tensor([SIGMA_TEXELS * 2 ** level / w, SIGMA_TEXELS * 2 ** level / h], dtype=dtype, device=device)
+
+
 def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
                       level: torch.Tensor, max_samples: int = 64,
                       generator: torch.Generator | None = None, point_eval=None,
@@ -76,7 +83,7 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         s = samples_for_level(int(k), max_samples, stack.texel_ratio)
         m = idx.shape[0]
         # Gaussian offsets in uv: sigma = half a level-k texel, per axis.
-        sigma = torch.tensor([SIGMA_TEXELS * 2 ** k / w, SIGMA_TEXELS * 2 ** k / h], dtype=uv.dtype, device=uv.device)
+        sigma = footprint_sigma(int(k), (h, w), uv.dtype, uv.device)
         offsets = stratified_gaussian(m, s, generator).to(uv.dtype).to(uv.device) * sigma
         pts = (uv[idx, None, :] + offsets).reshape(-1, 2)
         if one_call:

@@ -18,7 +18,7 @@ compares
 
 The level's **energy ratio** is sum(luminance of the model's albedo) / sum(luminance of the
 reference's) over all its rows: 1 keeps the energy, 0.5 loses half. Sums, not a mean of per-row
-ratios, so that a dark texel cannot dominate. Luminance weights are Rec. 709's. A uniform material has
+ratios, so that a dark texel cannot dominate. Luminance weights are Rec. 709's (``reference.vec.luminance``). A uniform material has
 one level (1x1) and the reference's points all coincide.
 
 Monte Carlo noise: both albedos are estimated with ``samples`` scrambled-Sobol directions per point,
@@ -34,10 +34,9 @@ from dataclasses import dataclass, field
 import torch
 
 from mtlx2neural.contract import ShadingPoint
-from mtlx2neural.textures.footprint import SIGMA_TEXELS, stratified_gaussian
+from mtlx2neural.reference.vec import luminance
+from mtlx2neural.textures.footprint import footprint_sigma, stratified_gaussian
 
-LUMINANCE = (0.2126, 0.7152, 0.0722)
-"""Rec. 709 luminance weights of linear RGB."""
 VIEW_DEGREES = (0.0, 30.0, 60.0, 80.0)
 """Default view angles from the normal, degrees."""
 
@@ -118,8 +117,6 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
     reference's graph at the points. ``device``: where the materials live (the draws are made on the
     CPU, so the figures do not depend on it). Runs without gradients; seeded by ``seed``."""
     g = torch.Generator().manual_seed(seed)
-    lum = torch.tensor(LUMINANCE)
-    h, w = resolution
     out = []
     for k in range(levels):
         uv = torch.rand(texels, 2, generator=g)
@@ -127,7 +124,7 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
         uv_rows = uv.repeat_interleave(len(view_degrees), 0)
         n = wi.shape[0]
         # The reference over the level's footprint: P points per row, one albedo estimate each.
-        sigma = torch.tensor([SIGMA_TEXELS * 2 ** k / w, SIGMA_TEXELS * 2 ** k / h])
+        sigma = footprint_sigma(k, resolution)
         offsets = stratified_gaussian(n, footprint_points, g) * sigma
         pts = (uv_rows[:, None, :] + offsets).reshape(-1, 2).to(device)
         wi, uv_rows = wi.to(device), uv_rows.to(device)
@@ -137,7 +134,7 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
             ref = ref.view(n, footprint_points, 3).mean(1)
             mod = model.albedo(wi, ShadingPoint(uv=uv_rows, lod=torch.full((n,), float(k), device=device)),
                                samples=samples * footprint_points, seed=seed)
-        ref_l, mod_l = (ref.float().cpu() * lum).sum(-1), (mod.float().cpu() * lum).sum(-1)
+        ref_l, mod_l = luminance(ref.float().cpu()), luminance(mod.float().cpu())
         by_view = {}
         for d in view_degrees:
             sel = angle == d
