@@ -7,9 +7,8 @@ the HLSL and SPIR-V engine files of :mod:`.engine`) goes through :func:`emit_mlp
 
 The three parts:
 
-- :class:`Network`: the MLP itself, a chain of :class:`Dense` layers ``y = W x + b`` (W indexed
-  [output, input] as torch's ``Linear.weight``), ReLU after every layer but the last, which is
-  linear (the output activation belongs to the caller: the decoder's ``exp``, the sampler's proxy
+- :class:`Network`: the MLP itself, a chain of layers ``y = W x + b`` (W indexed [output, input]
+  as torch's ``Linear.weight``), ReLU after every layer but the last, which is linear (the output activation belongs to the caller: the decoder's ``exp``, the sampler's proxy
   parameters);
 - a **weight storage**, saying where the weights are and at which precision the layers run:
 
@@ -49,52 +48,37 @@ from mtlx2neural.codegen.weight_layout import stream16, stream32
 # ------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class Dense:
-    """One layer: ``y = weight @ x + bias`` then ReLU when ``relu`` (weight [outputs, inputs])."""
-
-    weight: np.ndarray
-    bias: np.ndarray
-    relu: bool
-
-    @property
-    def outputs(self) -> int:
-        return self.weight.shape[0]
-
-    @property
-    def inputs(self) -> int:
-        return self.weight.shape[1]
-
-
-@dataclass(frozen=True)
 class Network:
-    """An MLP as every target sees it: ``name`` (``decoder``, ``sampler``, ``albedo``) and its layers,
-    input first. ``layers`` keeps the :class:`.spec.Layer` list the weight layouts are computed from."""
+    """An MLP as every target sees it: ``name`` (``decoder``, ``sampler``, ``albedo``) and its
+    :class:`.spec.Layer` list, input first: ``y = weight @ x + bias`` (weight [outputs, inputs]), ReLU
+    after every layer but the last (:meth:`relu`)."""
 
     name: str
-    dense: tuple[Dense, ...]
     layers: tuple[Layer, ...]
 
     @property
     def inputs(self) -> int:
-        return self.dense[0].inputs
+        return self.layers[0].shape[1]
 
     @property
     def outputs(self) -> int:
-        return self.dense[-1].outputs
+        return self.layers[-1].shape[0]
+
+    def relu(self, i: int) -> bool:
+        """Whether layer ``i`` is followed by a ReLU (every one but the last)."""
+        return i < len(self.layers) - 1
 
 
 def describe(name: str, layers: list[Layer]) -> Network:
-    """The :class:`Network` of the spec's ``layers``: hidden layers ReLU, the last linear. Raises
-    ValueError when the layers do not chain (a layer's inputs differ from the previous one's outputs)."""
+    """The :class:`Network` of the spec's ``layers``. Raises ValueError when the layers do not chain (a
+    layer's inputs differ from the previous one's outputs)."""
     if not layers:
         raise ValueError(f"the {name} network has no layers")
     for i in range(1, len(layers)):
         if layers[i].shape[1] != layers[i - 1].shape[0]:
             raise ValueError(f"the {name} network's layer {i} reads {layers[i].shape[1]} inputs, but layer "
                              f"{i - 1} writes {layers[i - 1].shape[0]}")
-    dense = tuple(Dense(np.asarray(layer.weight), np.asarray(layer.bias), i < len(layers) - 1)
-                  for i, layer in enumerate(layers))
-    return Network(name, dense, tuple(layers))
+    return Network(name, tuple(layers))
 
 
 # ------------------------------------------------------------------------------------------
@@ -226,12 +210,12 @@ def _literal(net: Network, s: Literal, syntax: Syntax, x: list[str]):
     if len(x) != net.inputs:
         raise ValueError(f"the {net.name} network reads {net.inputs} inputs, given {len(x)}")
     lines, cur = [], x
-    for i, layer in enumerate(net.dense):
+    for i, layer in enumerate(net.layers):
         out = []
-        for o in range(layer.outputs):
+        for o in range(layer.shape[0]):
             var = f"{s.stem}{i}_{o}"
             expr = affine(syntax, layer.weight[o], float(layer.bias[o]), cur)
-            lines.append(f"    float {var} = {f'{s.relu}({expr})' if layer.relu else expr};")
+            lines.append(f"    float {var} = {f'{s.relu}({expr})' if net.relu(i) else expr};")
             out.append(var)
         cur = out
     return lines, cur
@@ -239,10 +223,10 @@ def _literal(net: Network, s: Literal, syntax: Syntax, x: list[str]):
 
 def _stream32(net: Network, s: Stream32, x: str):
     lines, cur = [], x
-    for i, (layer, base) in enumerate(zip(net.dense, stream32(list(net.layers))[1])):
-        m, k = layer.outputs, layer.inputs
+    for i, (layer, base) in enumerate(zip(net.layers, stream32(list(net.layers))[1])):
+        m, k = layer.shape
         lines.append(f"    float h{i}[{m}]; nmDense32<{k}, {m}>({s.weights}, {base}, {cur}, h{i});")
-        if layer.relu:
+        if net.relu(i):
             lines.append(f"    nmRelu32<{m}>(h{i});")
         cur = f"h{i}"
     return lines, cur
@@ -250,11 +234,11 @@ def _stream32(net: Network, s: Stream32, x: str):
 
 def _stream16(net: Network, s: Stream16, syntax: Syntax, x: str):
     lines, cur = [], x
-    for i, (layer, base) in enumerate(zip(net.dense, stream16(list(net.layers))[1])):
-        m, k = layer.outputs, layer.inputs
+    for i, (layer, base) in enumerate(zip(net.layers, stream16(list(net.layers))[1])):
+        m, k = layer.shape
         m2 = (m + 1) // 2
         lines.append(f"    {syntax.half2} p{i}[{m2}]; nmDense16<{k}, {m2}>({s.weights}, {base}, {cur}, p{i});")
-        if layer.relu:
+        if net.relu(i):
             lines.append(f"    {syntax.half} h{i}[{2 * m2}]; nmReluUnpack16<{m2}, {2 * m2}>(p{i}, h{i});")
             cur = f"h{i}"
         else:
@@ -264,10 +248,10 @@ def _stream16(net: Network, s: Stream16, syntax: Syntax, x: str):
 
 def _coopvec(net: Network, s: CoopVecMatrices, syntax: Syntax, x: str):
     lines, cur = [], x
-    for i, (layer, e) in enumerate(zip(net.dense, s.entries)):
-        m, k = layer.outputs, layer.inputs
+    for i, (layer, e) in enumerate(zip(net.layers, s.entries)):
+        m, k = layer.shape
         call = f"nmCoopDense<{k}, {m}>({cur}, {s.buffer}, {s.base} + {e['matrix']}u, {s.base} + {e['bias']}u)"
-        if layer.relu:
+        if net.relu(i):
             call = f"nmCoopRelu<{m}>({call})"
         lines.append(f"    CoopVec<{syntax.half}, {m}> v{i} = {call};")
         cur = f"v{i}"
@@ -277,10 +261,10 @@ def _coopvec(net: Network, s: CoopVecMatrices, syntax: Syntax, x: str):
 
 def _coopmat(net: Network, s: CoopMatTiles):
     lines, p = [], s.prefix
-    for layer, e in zip(net.dense, s.entries):
+    for i, e in enumerate(s.entries):
         (m, _), (mp, kp) = e["shape"], e["padded"]
         lines.append(f"    {p}_cmLayer<{kp}, {mp}>(t, {s.buffer}, {s.base} + {e['matrix']}u);")
-        if layer.relu:
+        if net.relu(i):
             lines.append(f"    {p}_cmHidden<{mp}>(t, {s.buffer}, {s.base} + {e['bias']}u);")
         else:
             lines.append(f"    float y[{m}]; {p}_cmOutput<{m}>(t, {s.buffer}, {s.base} + {e['bias']}u, y);")

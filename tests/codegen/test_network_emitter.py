@@ -50,7 +50,7 @@ def test_describe_refuses_layers_that_do_not_chain():
     with pytest.raises(ValueError, match="layer 1 reads 8 inputs, but layer 0 writes 16"):
         describe("decoder", layers)
     net = describe("decoder", _layers([(16, 5), (16, 16), (3, 16)]))
-    assert (net.inputs, net.outputs) == (5, 3) and [d.relu for d in net.dense] == [True, True, False]
+    assert (net.inputs, net.outputs) == (5, 3) and [net.relu(i) for i in range(len(net.layers))] == [True, True, False]
 
 
 @pytest.mark.parametrize("syntax", [SLANG, HLSL, GLSL], ids=lambda s: s.name)
