@@ -51,11 +51,7 @@ def make_textures(folder: Path, res: int, seed: int = 3) -> dict:
     dents = sum(_smooth_noise(rng, res, c) / c for c in (12, 24))  # shallow hammer dents
     files = {"roughness": (roughness[..., None], "polished_roughness.png"),
              "normal": (_textured._normals_from_height(dents, res / 48.0), "polished_normal.png")}
-    out = {}
-    for key, (img, name) in files.items():
-        _textured._save(folder / name, img.astype(np.float32))
-        out[key] = name
-    return out
+    return _textured.save_textures(folder, files)
 
 
 def build(folder: Path, res: int = 256) -> Path:

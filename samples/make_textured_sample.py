@@ -59,6 +59,11 @@ def make_textures(folder: Path, res: int, seed: int = 0) -> dict:
         "metal_roughness": ((0.3 + 0.08 * streaks)[..., None], "metal_roughness.png"),
         "metal_normal": (_normals_from_height(streaks * 0.02, res / 16.0), "metal_normal.png"),
     }
+    return save_textures(folder, files)
+
+
+def save_textures(folder: Path, files: dict) -> dict:
+    """Write ``{key: (image [H, W, C] in [0, 1], file name)}`` into ``folder`` as 8-bit PNGs; {key: file name}."""
     out = {}
     for key, (img, name) in files.items():
         _save(folder / name, img.astype(np.float32))
