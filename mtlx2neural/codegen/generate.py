@@ -55,6 +55,7 @@ from mtlx2neural.codegen.weight_layout import (
     stream16,
     stream32,
 )
+from mtlx2neural.formats.latent_codec import binding_comment, codec_of
 
 
 def identifier(name: str) -> str:
@@ -258,6 +259,7 @@ def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bo
         "module": f"NeuralMaterial_{ident}", "material": str(name), "version": version, "prefix": ctx.p,
         "material_type": f"NeuralMaterial_{ident}", "source": source or _describe_source(model_or_export_dir),
         "channels": ctx.c, "frames": ctx.frames,
+        "latent_binding": binding_comment(codec_of(model_or_export_dir), ctx.c),
         "decoder_arch": "x".join(map(str, spec32.decoder_hidden)) or "linear",
         "sampler_arch": "x".join(map(str, spec32.sampler_hidden)) or "linear",
         "albedo_head": "yes" if spec32.albedo else "no", "has_albedo": "true" if spec32.albedo else "false",

@@ -51,6 +51,7 @@ import MaterialX.PyMaterialXGenGlsl as mx_glsl
 import MaterialX.PyMaterialXGenShader as mx_gen
 import MaterialX.PyMaterialXGenSlang as mx_slang
 import numpy as np
+import torch
 
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.codegen.generate import _describe_source, _version
@@ -63,6 +64,11 @@ from mtlx2neural.codegen.materialx_shader import (
 )
 from mtlx2neural.codegen.spec import as_spec
 from mtlx2neural.errors import InputError, Mtlx2NeuralError
+from mtlx2neural.formats.latent_codec import (
+    codec_of,
+    read_block_textures,
+    texture_count,
+)
 from mtlx2neural.graph.library import standard_library, with_libraries
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 
@@ -167,18 +173,40 @@ def write_latent_atlas(chain: list[np.ndarray], path: Path) -> Path:
     return path
 
 
+def _block_chains(paths, codec) -> list[list[np.ndarray]]:
+    """Block-compressed latent textures (DDS, three channels each) decoded and regrouped into the
+    node's RGBA groups: channels 4g .. 4g + 3 per chain ([H_j, W_j, 4] float16, finest first; a BC6H
+    texel is a half, so exactly; a BC1 texel after its scale and offset, rounded to half)."""
+    levels = read_block_textures(paths, codec)
+    c = codec.channels
+    chains = []
+    for g in range(math.ceil(c / 4)):
+        chain = []
+        for lv in levels:
+            part = lv[4 * g: 4 * g + 4]
+            part = torch.cat([part, part.new_zeros(4 - part.shape[0], *part.shape[1:])])
+            chain.append(part.permute(1, 2, 0).numpy().astype(np.float16))
+        chains.append(chain)
+    return chains
+
+
 def read_latent_files(paths, channels: int, resolution: tuple[int, int] | None = None,
-                      levels: int | None = None) -> tuple[LatentLayout, list[list[np.ndarray]]]:
+                      levels: int | None = None, codec=None) -> tuple[LatentLayout, list[list[np.ndarray]]]:
     """Read and check the latent textures ``paths`` (in channel order) for ``channels`` latent
-    channels; returns (their layout, each file's MIP chain as :func:`_latent_chain` reads it).
+    channels; returns (their layout, each RGBA group's MIP chain as :func:`_latent_chain` reads it).
     ``resolution`` (height, width of level 0) and ``levels``, when given, are what the networks were
-    trained with. Raises InputError naming the offending file."""
+    trained with; ``codec`` (:class:`~mtlx2neural.formats.latent_codec.LatentCodec`): the paths are its
+    DDS textures, decoded here. Raises InputError naming the offending file."""
     paths = [Path(p) for p in paths]
     groups = math.ceil(channels / 4)
-    if len(paths) != groups:
+    if codec is not None:
+        images = _block_chains(paths, codec)
+        paths = [paths[0]] * groups  # the chains are regrouped: name the first file in errors
+    elif len(paths) != groups:
         raise InputError(f"{channels} latent channels are stored in {groups} latent texture(s), got {len(paths)}: "
                          f"{', '.join(map(str, paths)) or 'none'}")
-    images = [_latent_chain(p) for p in paths]
+    else:
+        images = [_latent_chain(p) for p in paths]
     chains = [[tuple(level.shape[:2]) for level in chain] for chain in images]
     for p, chain in zip(paths, chains):
         if resolution is not None and chain[0] != tuple(resolution):
@@ -280,21 +308,24 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     folder = Path(folder)
     spec = as_spec(model_or_export)
     tiles = _udim_tiles(model_or_export)
+    codec = codec_of(model_or_export)  # block-compressed latents: DDS files, decoded into the atlases
     if latent_files is None:
         if isinstance(model_or_export, (str, Path)):
             base = Path(model_or_export)
             base = base if base.is_dir() else base.parent
         else:
             base = folder
-        latent_files = [base / f for f in latent_file_names(spec.latent_channels)]
+        names = (latent_file_names(spec.latent_channels) if codec is None
+                 else [f"latents_{k}.dds" for k in range(texture_count(spec.latent_channels))])
+        latent_files = [base / f for f in names]
     resolution, levels = _expected_latents(model_or_export)
     if tiles:  # every tile's files (the <UDIM> pattern, or the export's latents_<k>.<UDIM>.exr names)
         per_tile = [read_latent_files([_tile_file(f, t) for f in latent_files], spec.latent_channels, resolution,
-                                      levels) for t in tiles]
+                                      levels, codec) for t in tiles]
         layout = dataclasses.replace(per_tile[0][0], tiles=tuple(int(t) for t in tiles))
         chains = [[tile_chains[g] for _, tile_chains in per_tile] for g in range(layout.groups)]
     else:
-        layout, chains = read_latent_files(latent_files, spec.latent_channels, resolution, levels)
+        layout, chains = read_latent_files(latent_files, spec.latent_channels, resolution, levels, codec)
         chains = [[chain] for chain in chains]
     names = node_names(name)
     folder.mkdir(parents=True, exist_ok=True)

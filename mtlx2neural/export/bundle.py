@@ -79,7 +79,8 @@ def export_material(model, record: MaterialRecord, staged: Path, final: Path, pr
     spirv-opt per material on a small CPU), required then: a missing tool is an error. A failure
     raises naming the material."""
     name = record.material
-    textures, notes = write_latent_textures(list(model.latents.levels), staged, tiles=model.latents.tile_list)
+    textures, notes = write_latent_textures(list(model.latents.levels), staged, tiles=model.latents.tile_list,
+                                            codec=model.latents.codec)
     manifest, wnotes = write_weights(model, staged)
     write_material_shader(model, staged, name)  # NeuralMaterial_<name>.slang + runtime
     enotes = []

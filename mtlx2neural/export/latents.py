@@ -20,6 +20,12 @@ file per channel group *and tile*: ``latents_<k>.<UDIM number>.exr`` (``latents_
 patterns ``latents_<k>.<UDIM>.exr`` with the literal token, as ``UsdUVTexture`` expects; the
 tile list itself is in the weights manifest (``architecture.udim_tiles``) and the layer
 (``neural:udimTiles``).
+
+A block-compressed pyramid (``TrainConfig.latent_format`` ``bc6h`` or ``bc1``;
+:mod:`mtlx2neural.formats.latent_codec`) is written as DDS files instead, ``latents_<k>.dds``
+(``latents_<k>.<UDIM>.dds`` per tile), three channels each, the pyramid's levels as the MIP chain.
+DDS halves a level's size rounding down, so only a pyramid whose level sizes follow that rule (every
+power-of-two grid does) can be written (:func:`~mtlx2neural.formats.latent_codec.check_block_shapes`).
 """
 
 from __future__ import annotations
@@ -34,6 +40,13 @@ import torch
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.fp16 import to_fp16
+from mtlx2neural.formats.latent_codec import (
+    FORMATS,
+    LatentCodec,
+    read_block_textures,
+    texture_count,
+    write_block_textures,
+)
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 
 TILE = 64
@@ -43,10 +56,13 @@ COLORSPACE = "raw"
 UDIM_TOKEN = "<UDIM>"
 
 
-def texture_names(channels: int, stem: str = "latents", udim: bool = False) -> list[str]:
-    """File names of the ceil(channels / 4) latent textures, in channel order (``udim``: the
-    ``<stem>_<k>.<UDIM>.exr`` patterns of a UDIM material's per-tile files)."""
+def texture_names(channels: int, stem: str = "latents", udim: bool = False, latent_format: str = "exr") -> list[str]:
+    """File names of the latent textures, in channel order: ceil(channels / 4) EXRs, or ceil(channels / 3)
+    DDS files of a block format (``udim``: the ``<stem>_<k>.<UDIM>.<ext>`` patterns of a UDIM material's
+    per-tile files)."""
     tag = f".{UDIM_TOKEN}" if udim else ""
+    if FORMATS[latent_format] is not None:
+        return [f"{stem}_{k}{tag}.dds" for k in range(texture_count(channels))]
     return [f"{stem}_{k}{tag}.exr" for k in range(math.ceil(channels / 4))]
 
 
@@ -88,12 +104,15 @@ def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels:
 
 
 def write_latent_textures(levels: list[torch.Tensor], folder, stem: str = "latents",
-                          tiles=None) -> tuple[list[Path], list[str]]:
+                          tiles=None, codec: LatentCodec | None = None) -> tuple[list[Path], list[str]]:
     """Write the pyramid ``levels`` (finest first, each [C, H, W]) into ``folder``; with ``tiles``
     (UDIM numbers) the levels are [T, C, H, W] and each tile gets its own files (module docstring).
 
     Returns (the written paths in channel order, ``<UDIM>`` patterns for tiles; FP16 range-check notes).
+    ``codec``: write the block-compressed DDS files instead (:func:`write_block_textures`; no notes).
     """
+    if codec is not None:
+        return write_block_textures(levels, codec, folder, stem, tiles), []
     if tiles is not None:
         paths, notes = [], []
         for t, udim in enumerate(tiles):
@@ -128,9 +147,10 @@ def _write_group_files(folder, levels, stem: str, tag: str, wrap: str) -> tuple[
     return paths, notes
 
 
-def read_latent_textures(paths, channels: int, tiles=None) -> list[torch.Tensor]:
+def read_latent_textures(paths, channels: int, tiles=None, codec: LatentCodec | None = None) -> list[torch.Tensor]:
     """The latent pyramid from its textures (in channel order): one float32 [channels, H_j, W_j]
-    tensor per MIP level, finest first, holding exactly the stored half values. With ``tiles``
+    tensor per MIP level, finest first, holding exactly the stored half values (``codec``: the DDS
+    files' decoded values). With ``tiles``
     (UDIM numbers), ``paths`` are ``<UDIM>`` patterns and each level is [T, channels, H_j, W_j],
     tile by tile; a missing tile file is an :class:`InputError` naming it."""
     if tiles is not None:
@@ -141,10 +161,12 @@ def read_latent_textures(paths, channels: int, tiles=None) -> list[torch.Tensor]
                 if not f.is_file():
                     raise InputError(f"{f}: the latent texture of UDIM tile {udim} ({p}) does not exist; keep the "
                                      f"exported folder complete, or export the material again")
-            per_tile.append(read_latent_textures(files, channels))
+            per_tile.append(read_latent_textures(files, channels, codec=codec))
         if any([lv.shape for lv in t] != [lv.shape for lv in per_tile[0]] for t in per_tile):
             raise InputError(f"{paths[0]}: the UDIM tiles' latent textures differ in size; export the material again")
         return [torch.stack([t[j] for t in per_tile]) for j in range(len(per_tile[0]))]
+    if codec is not None:
+        return read_block_textures(paths, codec)
     chains = [read_mip_chain(p) for p in paths]
     if not chains or 4 * len(chains) < channels:
         raise InputError(f"{channels} latent channels need {math.ceil(channels / 4)} latent textures, "

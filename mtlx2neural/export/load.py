@@ -20,6 +20,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.export.latents import read_latent_textures
 from mtlx2neural.export.usd_writer import API, NEURAL, VARIANT_SET, register_schema
 from mtlx2neural.formats import FORMAT_VERSION
+from mtlx2neural.formats.latent_codec import codec_from_architecture
 from mtlx2neural.formats.weights import analytic_cosine_of, read_weights
 from mtlx2neural.model.checkpoint import model_arguments
 from mtlx2neural.model.neural_material import NeuralMaterial
@@ -155,7 +156,14 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
             raise InputError(f"{path}: {prim.GetPath()}.{name} = {usd_value} but {manifest_file} says "
                              f"{file_value}; the layer and its files are from different exports")
     tiles = arch.get("udim_tiles")  # a UDIM material: the tiles of its <UDIM> latent textures
-    levels = read_latent_textures(textures, channels, tiles)  # a missing tile's file: InputError naming it
+    try:
+        codec = codec_from_architecture(arch)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{manifest_file}: malformed latent format entries ({type(exc).__name__}: {exc}); "
+                         f"export the material again") from None
+    # A missing tile's file: InputError naming it. Block-compressed latents are decoded here, so the model
+    # holds (and reads as stored) exactly the values a GPU samples from them.
+    levels = read_latent_textures(textures, channels, tiles, codec=codec)
     for k, lv in enumerate(levels):
         state[f"latents.levels.{k}"] = lv
     if tiles:

@@ -29,6 +29,7 @@ from torch import nn
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.fp16 import to_fp16
+from mtlx2neural.formats.latent_codec import architecture_entries
 
 OUTPUT_OFFSET = 3.0
 """The decoder's output activation is exp(x - OUTPUT_OFFSET); the manifest records it for the shaders."""
@@ -103,6 +104,7 @@ def architecture(model) -> dict:
         "levels": int(lat.num_levels),
         # UDIM materials only: the trained tiles, in the order of the latents' leading axis
         **({"udim_tiles": lat.tile_list} if getattr(lat, "tile_list", None) else {}),
+        **architecture_entries(getattr(lat, "codec", None)),
     }
 
 

@@ -13,6 +13,7 @@ shapes where they are not in the config:
   pyramid reads as uniform (the encoder is not used once the latents are baked);
 - ``frames``: the decoder's frame layer rows / 6; ``decoder``: its hidden widths;
 - ``albedo_head``: whether ``decoder.albedo.*`` weights are present;
+- ``latent_format``: the block format of ``latents.codec.codec_format`` (``exr`` without one);
 - ``analytic_cosine``: the config's, and False for a config without the key (checkpoints
   made before the option, whose networks learned f * cos themselves).
 
@@ -29,6 +30,7 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.errors import InputError
+from mtlx2neural.formats.latent_codec import format_of_code
 from mtlx2neural.model.neural_material import NeuralMaterial
 
 
@@ -59,7 +61,8 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     args = {"resolution": (h, w), "in_dim": in_dim, "latent_dim": latent_dim, "frames": frames,
             "decoder": hidden, "albedo_head": any(k.startswith("decoder.albedo.") for k in state),
             "analytic_cosine": bool(config.get("analytic_cosine", False)),
-            "tiles": None if tiles is None else [int(t) for t in tiles]}
+            "tiles": None if tiles is None else [int(t) for t in tiles],
+            "latent_format": format_of_code(state.get("latents.codec.codec_format"))}
     # Forward compatibility: constructor options that only the config records (e.g. a decoder ablation).
     accepted = inspect.signature(NeuralMaterial).parameters
     args.update({k: v for k, v in config.items() if k in accepted and k not in args})

@@ -15,6 +15,12 @@ uv in ``[tu, tu+1) x [tv, tv+1)``. Inside a tile the latents are read at ``frac(
 a tile that is not in ``tiles`` raises ``ValueError`` naming the tile. Without ``tiles`` (every
 non-UDIM material) the levels stay ``[C, H, W]`` with periodic addressing, which is the
 one-tile case of the same lookup with wrap instead of clamp.
+
+A pyramid with a block format (``latent_format`` ``bc6h`` or ``bc1``;
+:mod:`mtlx2neural.formats.latent_codec`) reads every level through the format's emulation: the values
+a GPU returns for the compressed texture, differentiable so that training fine-tunes for them. The
+parameters stay the uncompressed latents the encoder starts from; the emulated levels are cached while
+no gradient is taken.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import math
 import torch
 from torch import nn
 
+from mtlx2neural.formats.latent_codec import LatentCodec
 from mtlx2neural.imaging.grid_lookup import bilinear_periodic
 from mtlx2neural.imaging.udim import check_tiles, udim_of_uv
 
@@ -57,11 +64,14 @@ def bilinear_clamp(grid: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
 class LatentPyramid(nn.Module):
     """``height`` x ``width`` latent codes of ``channels`` channels at level 0, halved to 1x1;
     ``tiles`` (UDIM numbers, sorted) makes it a UDIM pyramid of ``[T, C, H, W]`` levels (module
-    docstring); the tile list is also the persistent buffer ``tiles`` (in the state dict)."""
+    docstring); the tile list is also the persistent buffer ``tiles`` (in the state dict);
+    ``latent_format`` a block format the levels are read through (``exr``: none)."""
 
     def __init__(self, height: int = 1, width: int = 1, channels: int = 8, init_std: float = 0.0,
-                 tiles=None):
+                 tiles=None, latent_format: str = "exr"):
         super().__init__()
+        self.codec = LatentCodec(latent_format, channels) if latent_format != "exr" else None
+        self._emulated: dict[int, tuple[tuple, torch.Tensor]] = {}
         self.channels = channels
         lead = () if tiles is None else (len(tiles),)
         self.levels = nn.ParameterList(
@@ -81,6 +91,27 @@ class LatentPyramid(nn.Module):
     def resolution(self) -> tuple[int, int]:
         """(H, W) of level 0 (per tile for a UDIM pyramid)."""
         return tuple(int(s) for s in self.levels[0].shape[-2:])
+
+    @property
+    def latent_format(self) -> str:
+        """``exr`` (read as stored) or the block format the levels are read through."""
+        return "exr" if self.codec is None else self.codec.format.name
+
+    def level(self, k: int) -> torch.Tensor:
+        """Level ``k`` as the lookups read it: the parameter, or its block-compressed emulation
+        (cached by the parameter's version while no gradient is taken)."""
+        lv = self.levels[k]
+        if self.codec is None:
+            return lv
+        if torch.is_grad_enabled() and lv.requires_grad:
+            return self.codec.emulate(lv)
+        key = (lv._version, lv.data_ptr(), lv.device, lv.dtype, self.codec.codec_offset._version)
+        hit = self._emulated.get(k)
+        if hit is None or hit[0] != key:
+            with torch.no_grad():
+                hit = (key, self.codec.emulate(lv))
+            self._emulated[k] = hit
+        return hit[1]
 
     @property
     def num_levels(self) -> int:
@@ -118,11 +149,11 @@ class LatentPyramid(nn.Module):
         if self.tiles is not None:
             return self._fetch_tiled(uv, level)
         if self.num_levels == 1 and tuple(self.levels[0].shape[1:]) == (1, 1):
-            return self.levels[0].reshape(1, self.channels).expand(uv.shape[0], -1)
+            return self.level(0).reshape(1, self.channels).expand(uv.shape[0], -1)
         out = torch.zeros(uv.shape[0], self.channels, dtype=self.levels[0].dtype, device=uv.device)
         for k in torch.unique(level).tolist():
             idx = torch.nonzero(level == k)[:, 0]
-            out = out.index_put((idx,), bilinear_periodic(self.levels[int(k)], uv[idx]))
+            out = out.index_put((idx,), bilinear_periodic(self.level(int(k)), uv[idx]))
         return out
 
     def _fetch_tiled(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
@@ -133,7 +164,7 @@ class LatentPyramid(nn.Module):
         for kk in torch.unique(key).tolist():
             t, k = divmod(int(kk), self.num_levels)
             idx = torch.nonzero(key == kk)[:, 0]
-            out = out.index_put((idx,), bilinear_clamp(self.levels[k][t], local[idx]))
+            out = out.index_put((idx,), bilinear_clamp(self.level(k)[t], local[idx]))
         return out
 
     def forward(self, uv: torch.Tensor, lod: torch.Tensor, u: torch.Tensor) -> torch.Tensor:

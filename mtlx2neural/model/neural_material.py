@@ -46,12 +46,14 @@ class NeuralMaterial(nn.Module):
     ``decoder`` the MLP's hidden layers ("2x16", "2x32", "3x64"), ``albedo_head`` an extra albedo output
     for training, ``analytic_cosine`` whether the decoder multiplies by max(0, wo.z) itself, ``tiles`` the
     trained UDIM tiles of a UDIM material (one latent pyramid each, :mod:`mtlx2neural.model.latent`; a uv
-    outside them raises ``ValueError``), None otherwise."""
+    outside them raises ``ValueError``), None otherwise; ``latent_format`` the block format its latents
+    are read through (:mod:`mtlx2neural.formats.latent_codec`; ``exr``: as stored)."""
 
     def __init__(self, resolution: tuple[int, int], in_dim: int, latent_dim: int = 8, frames: int = 2,
-                 decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True, tiles=None):
+                 decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True, tiles=None,
+                 latent_format: str = "exr"):
         super().__init__()
-        self.latents = LatentPyramid(*resolution, channels=latent_dim, tiles=tiles)
+        self.latents = LatentPyramid(*resolution, channels=latent_dim, tiles=tiles, latent_format=latent_format)
         self.encoder = Encoder(in_dim, latent_dim)
         self.decoder = BrdfDecoder(latent_dim, frames, decoder, albedo_head, analytic_cosine)
         self.sampler = SamplerNet(latent_dim)

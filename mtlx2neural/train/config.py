@@ -30,6 +30,12 @@ class TrainConfig:
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
     """Latent channels."""
+    latent_format: str = field(default="exr", metadata={"choices": ("exr", "bc6h", "bc1")})
+    """How the latent textures ship (:mod:`mtlx2neural.formats.latent_codec`): exr (half-float OpenEXR,
+    16 bytes per texel for 8 channels), bc6h (signed BC6H DDS, 3 channels per texture, 3 bytes per texel)
+    or bc1 (BC1 DDS with a per-channel scale and offset, 1.5 bytes per texel). With bc6h or bc1 every
+    step after the bake trains through an exact emulation of the block decoder, so the network expects
+    what a GPU's texture unit returns."""
     analytic_cosine: bool = True
     """The decoder predicts f and multiplies by max(0, wo.z) itself (``model.decoder``); False: the
     network learns f * cos, as models made before this option did."""
@@ -189,9 +195,10 @@ def validate_config(cfg: TrainConfig, allow_untrained: bool = False) -> None:
         raise bad("max_resolution", "must be None (no cap) or at least 1 texel")
     if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int) or not 0 <= cfg.seed < 2 ** 63:
         raise bad("seed", "must be a whole number between 0 and 2^63 - 1")
-    losses = next(f.metadata["choices"] for f in dataclasses.fields(TrainConfig) if f.name == "brdf_loss")
-    if cfg.brdf_loss not in losses:
-        raise bad("brdf_loss", f"must be one of {', '.join(losses)}")
+    for name in ("brdf_loss", "latent_format"):
+        choices = next(f.metadata["choices"] for f in dataclasses.fields(TrainConfig) if f.name == name)
+        if getattr(cfg, name) not in choices:
+            raise bad(name, f"must be one of {', '.join(choices)}")
     try:
         hidden = parse_hidden(cfg.decoder)
     except (ValueError, TypeError, AttributeError):

@@ -32,6 +32,8 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.atomic import atomic_path
+from mtlx2neural.errors import InputError
+from mtlx2neural.formats.latent_codec import check_block_shapes
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.textures.parameter_stack import ParameterStack
@@ -88,7 +90,13 @@ class Trainer:
         torch.manual_seed(cfg.seed)  # the model's initial weights
         self.model = NeuralMaterial(self.latent_init.resolution, stack.levels[0].shape[0],
                                     cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head,
-                                    cfg.analytic_cosine, tiles=self.tiles).to(self.device)
+                                    cfg.analytic_cosine, tiles=self.tiles,
+                                    latent_format=cfg.latent_format).to(self.device)
+        if cfg.latent_format != "exr":  # DDS MIP chains halve rounding down: refuse other grids before training
+            try:
+                check_block_shapes([tuple(lv.shape[-2:]) for lv in self.model.latents.levels])
+            except ValueError as exc:
+                raise InputError(f"--latent-format {cfg.latent_format}: {exc}") from None
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
         self.step = 0
         self.baked = False
@@ -178,12 +186,18 @@ class Trainer:
         """No encoder phase (the ablation's "vanilla" model): latents start as small Gaussian
         noise (std 0.1, seeded with ``seed + 1``) and are optimised directly from the first step."""
         noise_latents(self.model, self.cfg.seed + 1)
+        if self.model.latents.codec is not None:
+            self.model.latents.codec.fit(list(self.model.latents.levels))
         self.baked = True
         freeze_encoder(self.model)
 
     def bake(self) -> None:
-        """Phase 2: run the encoder over every texel of every level into the latent pyramid."""
+        """Phase 2: run the encoder over every texel of every level into the latent pyramid (and, for a
+        block-compressed ``latent_format``, fit the codec's range to them: every later step reads the
+        latents through the block decoder's emulation)."""
         self._encode_latents()
+        if self.model.latents.codec is not None:
+            self.model.latents.codec.fit(list(self.model.latents.levels))
         self.baked = True
         # The encoder is no longer used: keep optimising latents, decoder and sampler.
         freeze_encoder(self.model)
