@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fidelity import CASES, train_and_model  # noqa: E402
 
+from mtlx2neural.export.latents import write_latent_textures  # noqa: E402
+from mtlx2neural.formats.latent_codec import latent_bytes_per_texel  # noqa: E402
 from mtlx2neural.render.renderer import compare  # noqa: E402
 from mtlx2neural.train.config import TrainConfig, preset  # noqa: E402
 from mtlx2neural.verify.energy import energy_check  # noqa: E402
@@ -58,6 +62,28 @@ def main() -> None:
     label = " ".join([args.loss, *args.set])
     levels = " ".join(f"{lv.ratio:.2f}" for lv in check.levels)
     print(f"| {args.case} | {label} | {args.seed} | {seconds:.0f} | {flip:.4f} | {check.min_ratio:.3f} | {levels} |")
+    lat = model.latents
+    print(f"latents: {lat.latent_format}, {latent_bytes_per_texel(lat.latent_format, lat.channels):g} GPU bytes per "
+          f"texel, files {file_bytes(lat)} bytes (half EXR, zip: {file_bytes(lat, exr=True)}), decoded latents' "
+          f"PSNR {latent_psnr(lat):.1f} dB")
+
+
+def file_bytes(latents, exr: bool = False) -> int:
+    """Bytes of the exported latent files (all levels): the model's format, or half-float EXR (zip)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        paths, _ = write_latent_textures(list(latents.levels), tmp, tiles=latents.tile_list,
+                                         codec=None if exr else latents.codec)
+        return sum(p.stat().st_size for p in Path(tmp).iterdir())
+
+
+def latent_psnr(latents) -> float:
+    """PSNR (dB) of the latents as read (block-decoded) against the trained parameters behind them, over every
+    level: 10 log10(peak^2 / MSE) with peak the largest |latent|; inf for uncompressed latents."""
+    with torch.no_grad():
+        err = sum(float(((latents.level(k) - lv) ** 2).sum()) for k, lv in enumerate(latents.levels))
+        n = sum(lv.numel() for lv in latents.levels)
+        peak = max(float(lv.abs().max()) for lv in latents.levels)
+    return float("inf") if err == 0 else 10 * math.log10(peak * peak / (err / n))
 
 
 if __name__ == "__main__":

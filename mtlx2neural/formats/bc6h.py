@@ -29,10 +29,22 @@ Decoding follows the D3D11 BC6H rules bit-exactly: sign-extend (SF16), add delta
 unquantize to 16 bits, interpolate ``(a*(64-w) + b*w + 32) >> 6``, finish_unquantize (scale the magnitude
 by 31/32 signed, 31/64 unsigned), reinterpret as a half. BC6H therefore interpolates the (sign-magnitude)
 half *bit patterns*, a roughly logarithmic domain, not the float values: a block spanning -1..1 gets a
-palette clustered near 0. The encoder fits in that integer domain: principal axis (min/max of the
-projections), indices by projection, a least-squares endpoint refit and re-index, for each mode; every
-candidate is scored by its exact decoded float squared error and the best kept per block; finally every
-texel's index is re-chosen by exhaustive search of the chosen block's 16 decoded colours.
+palette clustered near 0 (about +-1, +-0.28, +-0.06, +-0.015, ...).
+
+Encoder (torch, vectorised over blocks; :func:`emulate` runs the same code, so its forward pass is what
+:func:`encode` writes): the targets are the inputs' half bit patterns mapped back through
+finish_unquantize (the integer domain the decoder interpolates in). Start endpoints: the extremes of the
+targets' projections on their principal axis. Each candidate pair takes the most precise of ``modes``
+whose delta holds it, then every texel the index of the nearest of the 16 exactly decoded colours (float
+squared error; the first texel's index < 8 by swapping the endpoints). ``iterations`` times, the
+endpoints are refitted to those indices by least squares weighted by x^2 (a half's step is about
+proportional to its magnitude, so this weighs integer-domain error as float error) and re-indexed. Each
+block keeps its candidate of least exact error. Pass the same ``modes`` / ``iterations`` to
+:func:`encode` and :func:`emulate`.
+
+Quality (seeded unit-variance data, RMSE): a blurred (sigma 2) noise field 0.32 (26.6 dB over its range),
+white N(0, 1) 0.78 (20.8 dB); 3 independent channels on one line per block bound these near 0.24 and
+0.67, and zero-crossing blocks cost the rest (the same data + 8 as UF16: 0.25 and 0.68).
 """
 
 from __future__ import annotations
@@ -53,7 +65,7 @@ MODES = {11: (0b00011, 10, 10), 12: (0b00111, 11, 9), 13: (0b01011, 12, 8), 14: 
 _FIELD_TO_MODE = {f: m for m, (f, _, _) in MODES.items()}
 _TWO_REGION = {0b00010: 3, 0b00110: 4, 0b01010: 5, 0b01110: 6, 0b10010: 7, 0b10110: 8, 0b11010: 9, 0b11110: 10}
 _RESERVED = (0b10011, 0b10111, 0b11011, 0b11111)  # the spec decodes these to zeros
-ITERATIONS = 2
+ITERATIONS = 1
 """Default least-squares refit rounds of the encoder."""
 
 
@@ -93,13 +105,14 @@ def _unquantize(q: torch.Tensor, bits: torch.Tensor, signed: bool) -> torch.Tens
 def _palette(q0: torch.Tensor, q1: torch.Tensor, bits: torch.Tensor, signed: bool) -> torch.Tensor:
     """The 16 decoded colours ``[N, 16, 3]`` (float32) of blocks with endpoints ``q0, q1`` ``[N, 3]``
     (int32, after sign extension and delta transform) of ``bits`` ``[N]`` precision."""
-    u0 = _unquantize(q0, bits[:, None], signed)[:, None, :]
-    u1 = _unquantize(q1, bits[:, None], signed)[:, None, :]
-    w = torch.tensor(WEIGHTS, dtype=q0.dtype, device=q0.device)[None, :, None]
-    i = (u0 * (64 - w) + u1 * w + 32) >> 6  # arithmetic shift: floor
-    mag = (i.abs() * 31) >> 5 if signed else (i * 31) >> 6  # finish_unquantize
+    # float32 holds every intermediate integer exactly (|.| < 2^22), and the divisions are by 2^k
+    u0 = _unquantize(q0, bits[:, None], signed).float()[:, None, :]
+    u1 = _unquantize(q1, bits[:, None], signed).float()[:, None, :]
+    w = torch.tensor(WEIGHTS, dtype=torch.float32, device=q0.device)[None, :, None]
+    i = torch.floor(((u1 - u0) * w + (u0 * 64 + 32)) * (1 / 64))  # (a(64-w) + bw + 32) >> 6
+    mag = torch.floor(i.abs() * (31 / 32) if signed else i * (31 / 64))  # finish_unquantize
     v = mag.to(torch.int16).view(torch.float16).to(torch.float32)
-    return torch.where((i < 0) & (mag > 0), -v, v) if signed else v
+    return torch.where(i <= -2, -v, v) if signed else v  # |i| < 2 -> mag 0: +0, never -0
 
 
 def _pixels(pal: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
@@ -163,9 +176,11 @@ def _blocks(x: torch.Tensor) -> torch.Tensor:
     """``[3, H, W]`` -> ``[N, 16, 3]`` (edge-replicated to whole blocks; differentiable)."""
     _, h, w = x.shape
     hp, wp = -(-h // 4) * 4, -(-w // 4) * 4
-    rows = torch.arange(hp, device=x.device).clamp_max(h - 1)
-    cols = torch.arange(wp, device=x.device).clamp_max(w - 1)
-    x = x[:, rows][:, :, cols].reshape(3, hp // 4, 4, wp // 4, 4)
+    if hp != h:
+        x = x[:, torch.arange(hp, device=x.device).clamp_max(h - 1)]
+    if wp != w:
+        x = x[:, :, torch.arange(wp, device=x.device).clamp_max(w - 1)]
+    x = x.reshape(3, hp // 4, 4, wp // 4, 4)
     return x.permute(1, 3, 2, 4, 0).reshape(-1, 16, 3)
 
 
@@ -177,11 +192,15 @@ def _unblock(px: torch.Tensor, h: int, w: int) -> torch.Tensor:
 # ---------------------------------------------------------------------------------------------- encoder
 
 def _bits(a: torch.Tensor) -> torch.Tensor:
-    """``a >= 0`` -> its half bit pattern as a continuous, piecewise-linear function (exact on halves;
-    slope 1 / half ulp)."""
-    _, e = torch.frexp(a.detach())
-    normal = (e + 13).to(a.dtype) * 1024 + 2048 * a * torch.exp2(-e.to(a.dtype))
-    return torch.where(a >= 2.0 ** -14, normal, a * 2.0 ** 24)
+    """``0 <= a <= 65504`` (float32) -> its half bit pattern as a continuous, piecewise-linear function
+    (exact on halves; slope 1 / half ulp), read off a's float32 exponent and mantissa."""
+    ib = a.detach().view(torch.int32)
+    normal = a.detach() >= 2.0 ** -14
+    b = torch.where(normal, (ib - (112 << 23)).float() * 2.0 ** -13, a.detach() * 2.0 ** 24)
+    if not a.requires_grad:
+        return b
+    slope = torch.where(normal, ((254 << 23) - (ib & 0x7F800000)).view(torch.float32) * 1024, 2.0 ** 24)
+    return b + (a - a.detach()) * slope
 
 
 def _value(b: torch.Tensor) -> torch.Tensor:
@@ -212,10 +231,10 @@ def _quantize(e: torch.Tensor, bits: int, signed: bool) -> torch.Tensor:
     return torch.round(a).clamp(0, top).to(torch.int32)
 
 
-def _quantize_pair(e0, e1, mode: int, signed: bool):
-    """Endpoints -> ``mode``'s endpoints (int32) and whether they fit its delta without shrinking."""
+def _quantize_pair(e: torch.Tensor, mode: int, signed: bool):
+    """Endpoints ``[N, 2, 3]`` -> ``mode``'s endpoints (int32) and whether they fit its delta unshrunk."""
     _, wb, db = MODES[mode]
-    q0, q1 = _quantize(e0, wb, signed), _quantize(e1, wb, signed)
+    q0, q1 = _quantize(e, wb, signed).unbind(1)
     if mode == 11:
         return q0, q1, torch.ones_like(q0[:, 0], dtype=torch.bool)
     lo, hi = -(1 << (db - 1)), (1 << (db - 1)) - 1
@@ -230,10 +249,11 @@ def _choose(e0, e1, modes, signed: bool):
     """Per block, the most precise of ``modes`` whose delta holds the quantized endpoints (the least
     precise one, shrunk, where none does) -> (mode, q0, q1)."""
     modes = sorted(modes, key=lambda m: MODES[m][1])
-    q0, q1, _ = _quantize_pair(e0, e1, modes[0], signed)
+    e = torch.stack([e0, e1], 1)
+    q0, q1, _ = _quantize_pair(e, modes[0], signed)
     mode = torch.full_like(q0[:, 0], modes[0])
     for m in modes[1:]:
-        a0, a1, fits = _quantize_pair(e0, e1, m, signed)
+        a0, a1, fits = _quantize_pair(e, m, signed)
         mode = torch.where(fits, m, mode)
         q0, q1 = torch.where(fits[:, None], a0, q0), torch.where(fits[:, None], a1, q1)
     return mode, q0, q1
@@ -255,20 +275,14 @@ def _search(x, xt, mode, q0, q1, signed: bool):
     return torch.where(f, q1, q0), torch.where(f, q0, q1), torch.where(f, 15 - idx, idx), val.sum(1)
 
 
-def _lsq(t: torch.Tensor, alpha: torch.Tensor, weight: torch.Tensor | None = None):
-    """Least-squares endpoints ``[N, 3]`` of targets ``t`` ``[N, 16, 3]`` for interpolation fractions
-    ``alpha`` ``[N, 16]`` (differentiable in ``t``), optionally with per-texel-channel weights
-    ``[N, 16, 3]``; where the fractions do not determine both endpoints, the (weighted) mean twice."""
+def _lsq(t: torch.Tensor, alpha: torch.Tensor, weight: torch.Tensor):
+    """Weighted least-squares endpoints ``[N, 3]`` of targets ``t`` ``[N, 16, 3]`` for interpolation
+    fractions ``alpha`` ``[N, 16]`` and per-texel-channel weights ``[N, 16, 3]`` (differentiable in ``t``);
+    where the fractions do not determine both endpoints, the weighted mean twice."""
     beta = 1 - alpha
-    basis = torch.stack([beta, alpha], 1)  # [N, 2, 16]
-    if weight is None:
-        abc = torch.stack([beta * beta, alpha * beta, alpha * alpha], 1).sum(2, keepdim=True)  # [N, 3, 1]
-        r, tot, mean = basis @ t, 16.0, t.mean(1)
-    else:
-        abc = torch.stack([beta * beta, alpha * beta, alpha * alpha], 1) @ weight  # [N, 3, 3]
-        r, tot = basis @ (weight * t), weight.sum(1)
-        mean = r.sum(1) / tot
-    a, b, c = abc.unbind(1)
+    r = torch.stack([beta, alpha], 1) @ (weight * t)  # [N, 2, 3]
+    a, b, c = (torch.stack([beta * beta, alpha * beta, alpha * alpha], 1) @ weight).unbind(1)
+    mean = r.sum(1) / weight.sum(1)
     det = a * c - b * b
     ok = det > 1e-3 * (a + c) ** 2
     inv = 1 / torch.where(ok, det, torch.ones_like(det))
@@ -284,10 +298,7 @@ def _weight(x: torch.Tensor) -> torch.Tensor:
 
 def _fit(x: torch.Tensor, signed: bool, modes=tuple(MODES), iterations: int = ITERATIONS):
     """Choose each block's encoding: x ``[N, 16, 3]`` float32, clamped -> (mode [N], q0, q1 [N, 3], idx
-    [N, 16]), all int32. Start: the extremes of the projections on the principal axis (in the integer
-    domain); each iteration refits the endpoints to the current indices by least squares, unweighted and
-    weighted by x^2 (so, roughly, float error: a half's step is proportional to its magnitude); every
-    candidate gets its exact error, and each block keeps its best."""
+    [N, 16]), int32 (idx int64). See the module docstring."""
     t = _target(x, signed)
     mu = t.mean(1)
     c = t - mu[:, None]
@@ -314,7 +325,7 @@ def _fit(x: torch.Tensor, signed: bool, modes=tuple(MODES), iterations: int = IT
                 best = [torch.where(better.view(-1, *[1] * (b.dim() - 1)), a, b) for a, b in zip(cand, best)]
         if it < iterations:
             alpha = w[best[2]]
-            starts = [_lsq(t, alpha), _lsq(t, alpha, weight)]
+            starts = [_lsq(t, alpha, weight)]
     q0, q1, idx, _, mode = best
     return mode, q0, q1, idx
 
@@ -346,9 +357,9 @@ def _pack(mode: np.ndarray, q0: np.ndarray, q1: np.ndarray, idx: np.ndarray) -> 
 
 
 def encode(image: np.ndarray, signed: bool = True, *, modes=tuple(MODES), iterations: int = ITERATIONS) -> bytes:
-    """``[H, W, 3]`` float image -> BC6H blocks (SF16 if ``signed`` else UF16), ``ceil(W/4) * ceil(H/4) * 16``
-    bytes. ``modes``: which of 11-14 to try (each block keeps the best); ``iterations``: least-squares
-    refits per mode."""
+    """``[H, W, 3]`` float image (row 0 = top) -> BC6H blocks (SF16 if ``signed`` else UF16),
+    ``ceil(W/4) * ceil(H/4) * 16`` bytes. ``modes``: which of 11-14 the encoder may use (each candidate
+    takes the most precise that holds it); ``iterations``: weighted least-squares refit rounds."""
     image = np.asarray(image, np.float32)
     if image.ndim != 3 or image.shape[2] != CHANNELS or 0 in image.shape:
         raise ValueError(f"BC6H encodes [H, W, 3] images, got shape {image.shape}")
@@ -365,15 +376,17 @@ def emulate(x: torch.Tensor, signed: bool = True, *, modes=tuple(MODES), iterati
     chooses the blocks; ``x`` is first rounded to float32). Returned as ``x.dtype`` when that holds every
     half exactly (float16/32/64), else float32.
 
-    Gradient (straight-through): per 4x4 block, with the chosen indices (weights ``a_i = w_i / 64``) held
-    fixed, the output is ``y_i = V(L0 (1 - a_i) + L1 a_i)`` where ``L0, L1`` are the least-squares
-    endpoints of the targets ``T(x_j)`` of the block's 16 texels (edge-replicated ones included), ``T`` is
-    the continuous, piecewise-linear half-bit-pattern map ``sign(x) * bits(|x|) * 32/31`` (UF16:
-    ``bits(x) * 64/31``) and ``V`` its inverse. So ``dy_i/dx_j = V'(.) * P_ij * T'(x_j)``, ``P`` the
-    block's rank-2 least-squares hat matrix, ``V'`` the half ulp at the output and ``T'`` one over the
-    half ulp at the input: about ``P_ij`` when the output is near the input. The endpoint and index
-    rounding pass the gradient straight through; values beyond the half range (clamped) get 0; blocks
-    whose texels all share one index average over the block (``P = 1/16``).
+    Gradient (straight-through), per 4x4 block and channel, with the chosen indices (fractions
+    ``a_i = w_i / 64``) held fixed: ``y_i = V(L0 (1 - a_i) + L1 a_i)``, where ``L0, L1`` are the
+    least-squares endpoints of the targets ``T(x_j)`` of the block's 16 texels (edge-replicated ones
+    included) with the constant weights ``x_j^2`` (not differentiated), ``T`` is the continuous,
+    piecewise-linear half-bit-pattern map ``sign(x) * bits(|x|) * 32/31`` (UF16: ``bits(x) * 64/31``;
+    slope 1 / half ulp of x) and ``V`` its inverse (the decoder's finish_unquantize and half reading, slope
+    the half ulp of y). So ``dy_i/dx_j = V'(y_i) * P_ij * T'(x_j)``, ``P`` the weighted rank-2 hat matrix of
+    the block: about ``P_ij`` when the output is near the input, and bounded for texels near zero (their
+    weight cancels their large ``T'``). The endpoint quantization and the index choice pass the gradient
+    straight through; clamped values (beyond the half range, UF16 negatives) get 0; where all texels share
+    one index the block averages (``P_ij = x_j^2 / sum x^2``). Blocks do not mix.
     """
     out_dtype = x.dtype if x.dtype in (torch.float16, torch.float32, torch.float64) else torch.float32
     h, w = x.shape[1:]

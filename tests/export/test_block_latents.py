@@ -5,11 +5,15 @@ binding) reads them."""
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 from test_export import RED_MTLX, _export_red, directions, fake_summary
 
+import mtlx2neural as m2n
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.export import export_asset
 from mtlx2neural.formats.dds import read_dds
@@ -173,3 +177,29 @@ def test_export_of_a_bc_model_lists_dds_textures(tmp_path):
     assert m.architecture["latent_format"] == "bc6h" and m.architecture["latent_texture_channels"] == 3
     assert "latents_0.dds" in usda.read_text() or any("latents_0.dds" in p.read_text()
                                                       for p in tmp_path.rglob("*.usda"))
+
+
+@pytest.mark.slow
+def test_a_conversion_trains_through_the_codec_and_ships_dds(tmp_path):
+    """``convert_asset`` with ``latent_format=bc1`` on the bundled two-material sample: the trainer reads the
+    latents through the emulation after the bake (the checkpoint carries the codec), the layer names DDS
+    files, and load_neural reads back exactly the latents the trained model read."""
+    from test_export import SAMPLE
+
+    from mtlx2neural.model.checkpoint import load_checkpoint
+    from mtlx2neural.pipeline.convert import convert_asset
+    from mtlx2neural.pipeline.layout import material_folder
+    from mtlx2neural.pipeline.options import ConvertOptions
+    from mtlx2neural.train.config import preset
+
+    asset = tmp_path / SAMPLE.name
+    shutil.copyfile(SAMPLE, asset)
+    cfg = preset("fast", iterations=30, batch=256, latent_format="bc1", preview_iterations=0)
+    (summary, *_) = convert_asset(asset, ConvertOptions(train=cfg, progress=False, device="cpu", preset="fast"))
+    folder = Path(summary.usd).with_suffix("") / material_folder(summary.material)
+    trained = load_checkpoint(folder)
+    assert trained.latents.latent_format == "bc1"
+    assert sorted(p.name for p in (folder / "neural").glob("latents_*")) == [f"latents_{k}.dds" for k in range(3)]
+    loaded = m2n.load_neural(summary.usd, summary.material)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.latents.levels[0], trained.latents.level(0), rtol=0, atol=0)
