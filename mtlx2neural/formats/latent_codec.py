@@ -40,6 +40,10 @@ CHANNELS_PER_TEXTURE = 3
 AFFINE_MARGIN = 0.05
 """BC1 only: share of a channel's range added below and above it when the offsets and scales are fitted,
 so that latents may move a little during the fine-tune before they clamp."""
+AFFINE_MIN_RANGE = 0.25
+"""BC1 only: the narrowest range a channel's offset and scale cover (latent units; the latents' spread is
+about 1), so that a nearly constant channel (a uniform material's single texel) can still move in the
+fine-tune, in steps of 0.25 / 63 at most."""
 
 
 @dataclass(frozen=True)
@@ -122,16 +126,15 @@ class LatentCodec(torch.nn.Module):
 
     def fit(self, levels) -> None:
         """BC1: set each channel's offset and scale to its range over ``levels`` ([C, H, W] or UDIM
-        [T, C, H, W] each), widened by ``AFFINE_MARGIN`` each side; a constant channel gets scale 1.
-        BC6H: nothing to fit."""
+        [T, C, H, W] each), widened by ``AFFINE_MARGIN`` each side and to at least ``AFFINE_MIN_RANGE``
+        about its middle. BC6H: nothing to fit."""
         if not self.format.affine:
             return
         with torch.no_grad():
             flat = torch.cat([lv.detach().movedim(-3, 0).reshape(self.channels, -1) for lv in levels], 1)
             lo, hi = flat.min(1).values, flat.max(1).values
-            pad = (hi - lo) * AFFINE_MARGIN
-            scale = torch.where(hi - lo > 0, (hi - lo) + 2 * pad, torch.ones_like(lo))
-            self.codec_offset.copy_(lo - pad)
+            scale = ((hi - lo) * (1 + 2 * AFFINE_MARGIN)).clamp_min(AFFINE_MIN_RANGE)
+            self.codec_offset.copy_((lo + hi) / 2 - scale / 2)
             self.codec_scale.copy_(scale)
 
     def _groups(self, level: torch.Tensor) -> list[torch.Tensor]:

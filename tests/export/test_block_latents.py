@@ -203,3 +203,19 @@ def test_a_conversion_trains_through_the_codec_and_ships_dds(tmp_path):
     loaded = m2n.load_neural(summary.usd, summary.material)
     with torch.no_grad():
         torch.testing.assert_close(loaded.latents.levels[0], trained.latents.level(0), rtol=0, atol=0)
+
+
+def test_bc1_range_fit_covers_the_latents_with_room_to_move():
+    """BC1's per-channel offset and scale cover each channel's range over every level plus 5 % each side, and
+    at least 0.25 about the middle for a (nearly) constant channel, so the fine-tune can still move it."""
+    from mtlx2neural.formats.latent_codec import LatentCodec
+
+    codec = LatentCodec("bc1", 2)
+    levels = [torch.stack([torch.linspace(-1.0, 3.0, 16).view(4, 4), torch.full((4, 4), 0.7)]),
+              torch.tensor([[[-2.0]], [[0.7]]])]
+    codec.fit(levels)
+    torch.testing.assert_close(codec.codec_scale, torch.tensor([5.0 * 1.1, 0.25]))
+    torch.testing.assert_close(codec.codec_offset, torch.tensor([0.5 - 2.75, 0.7 - 0.125]))
+    t = codec.emulate(levels[0])  # every value inside the range: BC1 error only (6-bit endpoints, 4 levels)
+    assert float((t - levels[0]).abs().max()) < 5.5 / 3
+    torch.testing.assert_close(t[1], levels[0][1], atol=0.25 / 63, rtol=0)
