@@ -26,7 +26,7 @@ from mtlx2neural.errors import InputError
 
 RECORD_FILE = "summary.json"
 """File name of the record in a material's folder."""
-RECORD_VERSION = 2
+RECORD_VERSION = 3
 """Version of the record's layout; bumped whenever a field is added, removed or changes meaning."""
 
 
@@ -115,6 +115,10 @@ class MaterialRecord:
     """The energy check (:func:`mtlx2neural.verify.energy.energy_check`): ``min_ratio`` and ``by_level``,
     the neural model's directional albedo over the reference's per MIP level (1 keeps the energy),
     with the settings it was measured with; None when not measured (a UDIM material)."""
+    quality: dict | None = None
+    """The run's quality gate (:mod:`mtlx2neural.pipeline.quality`): ``flagged``, ``reasons`` (in words) and
+    ``policy`` (``ConvertOptions.flagged``: what the layer does with a flagged material); None before the
+    gate has run."""
     preview_flip: float | None = None
     """Mean HDR FLIP of the UsdPreviewSurface fallback over the analytic views; None without one."""
     preview: dict | None = None

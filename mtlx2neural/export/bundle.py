@@ -112,7 +112,8 @@ def export_material(model, record: MaterialRecord, staged: Path, final: Path, pr
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],
         manifest=final / "weights.json", architecture=manifest["architecture"],
         source_hash=record.source_hash, metrics=record.layer_metrics(preset), notes=notes + wnotes + enotes + pnotes,
-        mtlx_document=None if mtlx is None else final / MATERIALX_FOLDER / mtlx.name, preview=preview)
+        mtlx_document=None if mtlx is None else final / MATERIALX_FOLDER / mtlx.name, preview=preview,
+        quality=record.quality)
     listing = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
               "latent_textures": [p.name for p in m.latent_textures], "weights": m.weights.name,
               "manifest": m.manifest.name,

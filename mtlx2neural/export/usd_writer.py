@@ -144,6 +144,9 @@ class ExportedMaterial:
     """``{"textures": {UsdPreviewSurface input: Path}, "ior": float}``, the analytic baseline baked
     (:func:`mtlx2neural.baseline.analytic_model.write_preview_textures`): with it the ``neural``
     variant's universal ``outputs:surface`` is a UsdPreviewSurface of them."""
+    quality: dict | None = None
+    """The quality gate's verdict (``MaterialRecord.quality``): a flagged material under the ``original``
+    policy gets its ``original`` variant selected; ``neural:quality`` records it either way."""
 
 
 def relative_asset(path, anchor_dir) -> str:
@@ -206,6 +209,10 @@ def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
     _set(prim, "neural:metrics:preset", t.Token, str(x["preset"]))
     _set(prim, "neural:metrics:device", t.String, str(x["device"]))
     _set(prim, "neural:metrics:trainSeconds", t.Float, float(x["train_seconds"]))
+    if m.quality is not None:  # the quality gate (pipeline.quality): passed, or flagged with its reasons
+        _set(prim, "neural:quality", t.Token, "flagged" if m.quality["flagged"] else "passed")
+        if m.quality["flagged"]:
+            _set(prim, "neural:qualityReasons", t.StringArray, Vt.StringArray(list(m.quality["reasons"])))
 
 
 def _neural_shader(stage, material, m: ExportedMaterial, rel) -> None:
@@ -387,6 +394,8 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
                 author_switch(stage, material, take_variant_connections(stage, material, list(switched)))
         if switched:  # outside the variants: stronger than the sublayered input's opinion
             connect_material_to_switch(material, list(switched))
+        if m.quality and m.quality["flagged"] and m.quality["policy"] == "original":
+            vset.SetVariantSelection(ORIGINAL)  # a flagged model is not the default render (pipeline.quality)
     del stage  # a live stage would recompose (and warn) when the sublayer path becomes relative
     if kept:
         _copy_kept(keep.layer, layer, kept)

@@ -100,6 +100,7 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     latent_resolution,
     plan_materials,
 )
+from mtlx2neural.pipeline.quality import judge, verdict
 from mtlx2neural.pipeline.source_hash import cached_record, input_hash
 from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
@@ -359,6 +360,7 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
                                                   options.allow_missing_textures, options.force, workers,
                                                   options.max_error, options_record(options),
                                                   application_of(options))
+            trained = _quality_gate(summaries, trained, options.flagged)
             if summaries.failed and (options.strict or not trained):  # all or nothing: no layer
                 error = (_training_failed(scene.asset, summaries.failed) if options.strict
                          else _nothing_convertible(scene.asset, failures + summaries.failed))
@@ -377,6 +379,31 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
     summaries.failed = [f.record() for f in failures]
     summaries.folder, summaries.layer = layout.folder, Path(layer)
     return summaries
+
+
+def _quality_gate(summaries, trained: list[tuple], policy: str) -> list[tuple]:
+    """Judge every trained material (:mod:`.quality`), record the verdict in its record (and its
+    ``summary.json``), warn about each flagged one, and apply ``policy``: ``skip`` moves it to
+    ``summaries.failed``. Returns the materials to export; ``summaries`` is updated in place."""
+    flagged = judge(summaries)
+    effect = {"original": "the layer selects its original variant (--flagged neural keeps the neural one)",
+              "neural": "the layer selects its neural variant anyway (--flagged neural)",
+              "skip": "not exported (--flagged skip)"}[policy]
+    kept, records = [], []
+    for model, record, folder, fresh in trained:
+        reasons = flagged.get(record.material, [])
+        record = dataclasses.replace(record, quality=verdict(reasons, policy))
+        if reasons:
+            record = record.with_warning(f"quality gate: {'; '.join(reasons)}: {effect}")
+        write_record(fresh or folder, record)
+        if reasons and policy == "skip":
+            summaries.failed.append(MaterialFailure(record.material, None,
+                                                    f"flagged by the quality gate: {'; '.join(reasons)}"))
+            continue
+        kept.append((model, record, folder, fresh))
+        records.append(record)
+    summaries[:] = records
+    return kept
 
 
 def _export(summaries, trained, scene, material, cfg, flat, source, layout, label, keep, failures, options):

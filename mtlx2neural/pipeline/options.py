@@ -75,6 +75,12 @@ class ConvertOptions:
     """All or nothing: a material that cannot be converted (unsupported node, bad value, missing
     texture) stops the run with exit 2 and nothing written, instead of being skipped (exit 3) while the
     others convert; a texture file found only by ignoring case is an error instead of a warning."""
+    flagged: str = field(default="original", metadata={"choices": ("original", "neural", "skip")})
+    """What the layer does with a material the quality gate flags (``pipeline.quality``: trained dark or
+    black, far too bright, or an HDR FLIP over 0.3 or over 3x the run's median): original (export it,
+    but select its original variant, so the default render is the original material), neural (export
+    it and select it anyway) or skip (leave it out, exit 3 with the others converted). Each flagged
+    material is named with its reasons either way."""
     engine_shaders: bool = False
     """Also ship what an engine without Slang includes: the HLSL of the material's functions and the
     optimised, validated SPIR-V of the G-buffer example per path (``codegen.engine``). Needs slangc
