@@ -18,9 +18,10 @@ Formats (``FORMATS``):
 
 :meth:`LatentCodec.emulate` is what a GPU's texture unit returns for a texel of the compressed level
 (the codec modules' decode of their own encode, exactly), differentiable so that training through it
-fine-tunes the latents and the decoder for the compressed values. The trainer turns it on at the bake
-(``TrainConfig.latent_format``); from then on the model only ever sees decoded latents, and the
-exported files decode to exactly the values it was trained and evaluated on.
+fine-tunes the latents and the decoder for the compressed values. The trainer turns it on for the run's
+last ``TrainConfig.block_fraction`` of the steps (``TrainConfig.latent_format``); from then on the model
+only ever sees decoded latents, and the exported files decode to exactly the values it was trained on
+last and is evaluated on.
 """
 
 from __future__ import annotations

@@ -71,6 +71,7 @@ class LatentPyramid(nn.Module):
                  tiles=None, latent_format: str = "exr"):
         super().__init__()
         self.codec = LatentCodec(latent_format, channels) if latent_format != "exr" else None
+        self.codec_active = True  # False: read the parameters as they are (the trainer's steps before the codec's)
         self._emulated: dict[int, tuple[tuple, torch.Tensor]] = {}
         self.channels = channels
         lead = () if tiles is None else (len(tiles),)
@@ -101,7 +102,7 @@ class LatentPyramid(nn.Module):
         """Level ``k`` as the lookups read it: the parameter, or its block-compressed emulation
         (cached by the parameter's version while no gradient is taken)."""
         lv = self.levels[k]
-        if self.codec is None:
+        if self.codec is None or not self.codec_active:
             return lv
         if torch.is_grad_enabled() and lv.requires_grad:
             return self.codec.emulate(lv)

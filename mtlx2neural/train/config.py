@@ -34,8 +34,12 @@ class TrainConfig:
     """How the latent textures ship (:mod:`mtlx2neural.formats.latent_codec`): exr (half-float OpenEXR,
     16 bytes per texel for 8 channels), bc6h (signed BC6H DDS, 3 channels per texture, 3 bytes per texel)
     or bc1 (BC1 DDS with a per-channel scale and offset, 1.5 bytes per texel). With bc6h or bc1 every
-    step after the bake trains through an exact emulation of the block decoder, so the network expects
-    what a GPU's texture unit returns."""
+    step of the run's last ``block_fraction`` trains through an exact emulation of the block decoder, so
+    the network expects what a GPU's texture unit returns."""
+    block_fraction: float = 0.2
+    """Share of the steps, at the end of the run and after the encoder phase, that read the latents through
+    the block decoder's emulation (bc6h, bc1; each such step costs 2-4x an uncompressed one on a 256² grid,
+    BENCHMARKS.md, "Latent formats"). 0 compresses the trained latents once, at the end."""
     analytic_cosine: bool = True
     """The decoder predicts f and multiplies by max(0, wo.z) itself (``model.decoder``); False: the
     network learns f * cos, as models made before this option did."""
@@ -148,7 +152,7 @@ def preset(name: str, **overrides) -> TrainConfig:
 _COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples": 1, "checkpoint_every": 1,
            "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0, "target_reuse": 1}
 """Integer settings and their smallest valid value."""
-_SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction")
+_SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction", "block_fraction")
 """Settings that are a share of something, in [0, 1]."""
 _FLAGS = {"batch": "--batch", "frames": "--frames", "iterations": "--iterations", "decoder": "--decoder",
           "max_resolution": "--max-texels", "seed": "--seed", "preview_iterations": "--preview-iterations"}

@@ -186,18 +186,14 @@ class Trainer:
         """No encoder phase (the ablation's "vanilla" model): latents start as small Gaussian
         noise (std 0.1, seeded with ``seed + 1``) and are optimised directly from the first step."""
         noise_latents(self.model, self.cfg.seed + 1)
-        if self.model.latents.codec is not None:
-            self.model.latents.codec.fit(list(self.model.latents.levels))
         self.baked = True
         freeze_encoder(self.model)
 
     def bake(self) -> None:
         """Phase 2: run the encoder over every texel of every level into the latent pyramid (and, for a
-        block-compressed ``latent_format``, fit the codec's range to them: every later step reads the
-        latents through the block decoder's emulation)."""
+        block-compressed ``latent_format``, the last ``block_fraction`` of the steps read them through
+        the block decoder's emulation: :meth:`_block_phase`)."""
         self._encode_latents()
-        if self.model.latents.codec is not None:
-            self.model.latents.codec.fit(list(self.model.latents.levels))
         self.baked = True
         # The encoder is no longer used: keep optimising latents, decoder and sampler.
         freeze_encoder(self.model)
@@ -233,7 +229,25 @@ class Trainer:
             target = self._targets(wi, wo, uv, level)
         return uv, level, wi, wo, target
 
+    @property
+    def block_start(self) -> int:
+        """The first step that reads the latents through the block decoder's emulation: the last
+        ``block_fraction`` of the run, never before the bake."""
+        cfg = self.cfg
+        return max(int(cfg.iterations * cfg.encoder_fraction), cfg.iterations - round(cfg.block_fraction * cfg.iterations))
+
+    def _block_phase(self) -> None:
+        """Read the latents uncompressed before :attr:`block_start`, through the codec from then on; at that
+        step (once per run, resumed or not: its fit is in the state dict) fit the codec's range to them."""
+        lat = self.model.latents
+        if lat.codec is None:
+            return
+        if self.step == self.block_start:
+            lat.codec.fit(list(lat.levels))
+        lat.codec_active = self.step >= self.block_start
+
     def train_step(self) -> dict:
+        self._block_phase()
         cfg, g, dev = self.cfg, self.gen, self.device
         uv, level, wi, wo, target = self.replay.batch(self.draw_rows)
         b = wi.shape[0]
@@ -298,6 +312,10 @@ class Trainer:
                     self.save()
             if not self.baked:
                 self.bake()
+            if self.model.latents.codec is not None:  # what ships: the latents through the codec
+                if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)
+                    self.model.latents.codec.fit(list(self.model.latents.levels))
+                self.model.latents.codec_active = True
         except KeyboardInterrupt:
             self.save()
             bar.close()

@@ -182,7 +182,7 @@ def test_export_of_a_bc_model_lists_dds_textures(tmp_path):
 @pytest.mark.slow
 def test_a_conversion_trains_through_the_codec_and_ships_dds(tmp_path):
     """``convert_asset`` with ``latent_format=bc1`` on the bundled two-material sample: the trainer reads the
-    latents through the emulation after the bake (the checkpoint carries the codec), the layer names DDS
+    latents through the emulation in the run's last steps (the checkpoint carries the codec), the layer names DDS
     files, and load_neural reads back exactly the latents the trained model read."""
     from test_export import SAMPLE
 
@@ -199,6 +199,8 @@ def test_a_conversion_trains_through_the_codec_and_ships_dds(tmp_path):
     folder = Path(summary.usd).with_suffix("") / material_folder(summary.material)
     trained = load_checkpoint(folder)
     assert trained.latents.latent_format == "bc1"
+    # the codec's range was fitted when its steps began (24 of 30: block_fraction 0.2), and saved with the model
+    assert float(trained.latents.codec.codec_scale.max()) != 1.0
     assert sorted(p.name for p in (folder / "neural").glob("latents_*")) == [f"latents_{k}.dds" for k in range(3)]
     loaded = m2n.load_neural(summary.usd, summary.material)
     with torch.no_grad():
