@@ -134,7 +134,8 @@ def test_convert_an_in_memory_stage(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path / "cwd")
     before = _files(tmp_path)
 
-    result = m2n.convert(stage, ConvertOptions(out=str(tmp_path / "out"), train=TINY, device="cpu",
+    # flagged="neural": a tiny training fails the quality gate; the test reads the neural variant it authors
+    result = m2n.convert(stage, ConvertOptions(out=str(tmp_path / "out"), train=TINY, device="cpu", flagged="neural",
                                                progress=False, workers=1))
 
     out, layer_path, snapshot = tmp_path / "out", tmp_path / "out.usda", tmp_path / "out" / SNAPSHOT_NAME

@@ -44,6 +44,8 @@ EXPECTED_ATTRS = {
     "neural:metrics:preset": ("token", None),
     "neural:metrics:device": ("string", None),
     "neural:metrics:trainSeconds": ("float", None),
+    "neural:quality": ("token", None),
+    "neural:qualityReasons": ("string[]", None),
 }
 
 
