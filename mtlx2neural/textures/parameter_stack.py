@@ -108,6 +108,11 @@ class ParameterStack:
         lv = self.levels[level]
         return self._decode(lv.reshape(lv.shape[0], -1).T)
 
+    def decode(self, flat: torch.Tensor) -> dict:
+        """Raw channels [N, C] (``sample_raw``'s) decoded as parameters: ``{name: [N, width]}``, each LEAN
+        lobe's moments as its ``normal``, ``tangent`` and ``roughness`` (GGX alpha_x, alpha_y)."""
+        return self._decode(flat)
+
     def _decode(self, flat: torch.Tensor) -> dict:
         flat = flat.float()
         out = {}

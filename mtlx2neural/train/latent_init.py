@@ -32,10 +32,12 @@ def is_textured(stack) -> bool:
     return stack.levels[0].shape[0] > 0
 
 
-def encode_level(encoder, level: torch.Tensor) -> torch.Tensor:
-    """The encoder's codes [D, H, W] of one stack level [C, H, W], ``ENCODE_CHUNK`` texels per call."""
+def encode_level(encoder, level: torch.Tensor, features=None) -> torch.Tensor:
+    """The encoder's codes [D, H, W] of one stack level [C, H, W], ``ENCODE_CHUNK`` texels per call;
+    ``features`` (:class:`~mtlx2neural.train.encoder_input.EncoderInput`) maps the raw channels to its input."""
     raw = level.float().reshape(level.shape[0], -1).T
-    codes = torch.cat([encoder(raw[s:s + ENCODE_CHUNK]) for s in range(0, raw.shape[0], ENCODE_CHUNK)])
+    feed = features if features is not None else (lambda x: x)
+    codes = torch.cat([encoder(feed(raw[s:s + ENCODE_CHUNK])) for s in range(0, raw.shape[0], ENCODE_CHUNK)])
     return codes.T.reshape(-1, *level.shape[1:])
 
 
@@ -47,7 +49,7 @@ class UniformLatents:
     def __init__(self, stack):
         self.stack = stack
 
-    def encode(self, model) -> None:
+    def encode(self, model, features=None) -> None:
         """The encoder's code for no channels, into every level (and tile) of ``model.latents``."""
         with torch.no_grad():
             for lv in model.latents.levels:
@@ -61,22 +63,22 @@ class TexturedLatents:
         self.stack = stack
         self.resolution = stack.resolution
 
-    def encode(self, model) -> None:
+    def encode(self, model, features=None) -> None:
         """The encoder over every texel of every stack level, into the matching level of ``model.latents``."""
         with torch.no_grad():
             for k, lv in enumerate(model.latents.levels):
-                lv.copy_(encode_level(model.encoder, self.stack.levels[k]))
+                lv.copy_(encode_level(model.encoder, self.stack.levels[k], features))
 
 
 class UdimLatents(TexturedLatents):
     """A UDIM material's latents: the tiles' shared grid, each tile encoded from its own stack."""
 
-    def encode(self, model) -> None:
+    def encode(self, model, features=None) -> None:
         """The encoder over every texel of every level of each tile's stack, into that tile's latents."""
         with torch.no_grad():
             for k, lv in enumerate(model.latents.levels):
                 for t, tile_stack in enumerate(self.stack.stacks):  # one [C, H, W] stack level per tile
-                    lv[t].copy_(encode_level(model.encoder, tile_stack.levels[k]))
+                    lv[t].copy_(encode_level(model.encoder, tile_stack.levels[k], features))
 
 
 def latent_init_for(stack):

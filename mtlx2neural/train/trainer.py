@@ -39,6 +39,7 @@ from mtlx2neural.progress import progress_bar
 from mtlx2neural.textures.parameter_stack import ParameterStack
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
+from mtlx2neural.train.encoder_input import EncoderInput
 from mtlx2neural.train.latent_init import (
     freeze_encoder,
     is_textured,
@@ -88,7 +89,8 @@ class Trainer:
         self.tiles = list(stack.tiles) if is_udim_stack(stack) else None
         self.latent_init = latent_init_for(stack)  # the latents' grid and bake for this kind of material
         torch.manual_seed(cfg.seed)  # the model's initial weights
-        self.model = NeuralMaterial(self.latent_init.resolution, stack.levels[0].shape[0],
+        self.encoder_input = EncoderInput(stack, cfg.encoder_input)  # what the encoder reads of a texel
+        self.model = NeuralMaterial(self.latent_init.resolution, self.encoder_input.dim,
                                     cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head,
                                     cfg.analytic_cosine, tiles=self.tiles,
                                     latent_format=cfg.latent_format).to(self.device)
@@ -180,7 +182,7 @@ class Trainer:
     def _latent(self, uv, level):
         if self.baked:
             return self.model.latents.fetch(uv, level)
-        return self.model.encoder(self.stack.sample_raw(uv, level))
+        return self.model.encoder(self.encoder_input(self.stack.sample_raw(uv, level)))
 
     def _direct_latents(self) -> None:
         """No encoder phase (the ablation's "vanilla" model): latents start as small Gaussian
@@ -201,7 +203,7 @@ class Trainer:
     def _encode_latents(self) -> None:
         """The encoder over every texel of every level, into the latent pyramid (no flag changes: before
         the bake, the latents are not trained on, so a probe may fill them early)."""
-        self.latent_init.encode(self.model)
+        self.latent_init.encode(self.model, self.encoder_input)
 
     def draw_rows(self, batch: int) -> tuple[torch.Tensor, ...]:
         """Fresh training rows for a BRDF batch of ``batch``: ``(uv, level, wi, wo, target)`` with
