@@ -33,8 +33,9 @@ class TrainConfig:
     encoder_input: str = field(default="raw", metadata={"choices": ("raw", "normalized")})
     """What the encoder reads of a texel (:mod:`mtlx2neural.train.encoder_input`): raw (the parameter stack's
     channels as they are) or normalized (each channel standardised over the finest level, plus log(alpha) of
-    each LEAN lobe's roughness: `fast` HDR FLIP 0.066 against 0.083 on the GlazedCeramic, 0.440 against 0.531
-    on the near mirror, equal on the BrushedMetal; seed 0 only)."""
+    each LEAN lobe's roughness; `fast`, seeds 0 / 1: HDR FLIP 0.075 / 0.072 against 0.083 / 0.079 on the
+    GlazedCeramic, 0.163 / 0.170 against 0.174 / 0.184 on the BrushedMetal, 0.393 against 0.531 on the near
+    mirror, seed 0; a uniform material has no channels, so both read nothing)."""
     latent_format: str = field(default="exr", metadata={"choices": ("exr", "bc6h", "bc1")})
     """How the latent textures ship (:mod:`mtlx2neural.formats.latent_codec`): exr (half-float OpenEXR,
     16 bytes per texel for 8 channels), bc6h (signed BC6H DDS, 3 channels per texture, 3 bytes per texel)

@@ -12,9 +12,10 @@ energy-and-loss-2026-12-04.md).
 - ``raw`` (the default): the channels as they are.
 - ``normalized``: every channel standardised by its mean and standard deviation over the stack's finest
   level (the deviation at least 1e-8), followed by log(alpha) of each LEAN lobe's decoded roughness (two
-  values per lobe, alpha at least ``ALPHA_FLOOR``). Measured (`fast`,
-  seed 0): GlazedCeramic HDR FLIP 0.066 against 0.083, the near mirror 0.440 against 0.531, BrushedMetal
-  0.173 against 0.174 (its energy 0.81-0.87 against 0.85-0.92).
+  values per lobe, alpha at least ``ALPHA_FLOOR``). Measured (`fast`, seeds 0 / 1,
+  ``benchmarks/bench_energy.py --set encoder_input=normalized``): HDR FLIP GlazedCeramic 0.075 / 0.072 against
+  0.083 / 0.079, BrushedMetal 0.163 / 0.170 against 0.174 / 0.184 (energy unchanged), the near mirror 0.393
+  against 0.531 (seed 0; its coarse levels then keep 78-82 % of the energy).
 
 The statistics are recomputed from the stack, so a resumed run reads the same features. A uniform
 material has no channels: both modes give the encoder nothing to read.
