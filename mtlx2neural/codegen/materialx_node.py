@@ -65,9 +65,9 @@ from mtlx2neural.codegen.materialx_shader import (
 from mtlx2neural.codegen.spec import as_spec
 from mtlx2neural.errors import InputError, Mtlx2NeuralError
 from mtlx2neural.formats.latent_codec import (
+    block_texture_names,
     codec_of,
     read_block_textures,
-    texture_count,
 )
 from mtlx2neural.graph.library import standard_library, with_libraries
 from mtlx2neural.imaging.mip_chain import read_mip_chain
@@ -316,7 +316,7 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
         else:
             base = folder
         names = (latent_file_names(spec.latent_channels) if codec is None
-                 else [f"latents_{k}.dds" for k in range(texture_count(spec.latent_channels))])
+                 else block_texture_names(spec.latent_channels))
         latent_files = [base / f for f in names]
     resolution, levels = _expected_latents(model_or_export)
     if tiles:  # every tile's files (the <UDIM> pattern, or the export's latents_<k>.<UDIM>.exr names)

@@ -43,8 +43,8 @@ from mtlx2neural.formats.fp16 import to_fp16
 from mtlx2neural.formats.latent_codec import (
     FORMATS,
     LatentCodec,
+    block_texture_names,
     read_block_textures,
-    texture_count,
     write_block_textures,
 )
 from mtlx2neural.imaging.mip_chain import read_mip_chain
@@ -60,9 +60,9 @@ def texture_names(channels: int, stem: str = "latents", udim: bool = False, late
     """File names of the latent textures, in channel order: ceil(channels / 4) EXRs, or ceil(channels / 3)
     DDS files of a block format (``udim``: the ``<stem>_<k>.<UDIM>.<ext>`` patterns of a UDIM material's
     per-tile files)."""
-    tag = f".{UDIM_TOKEN}" if udim else ""
     if FORMATS[latent_format] is not None:
-        return [f"{stem}_{k}{tag}.dds" for k in range(texture_count(channels))]
+        return block_texture_names(channels, stem, udim)
+    tag = f".{UDIM_TOKEN}" if udim else ""
     return [f"{stem}_{k}{tag}.exr" for k in range(math.ceil(channels / 4))]
 
 

@@ -26,6 +26,7 @@ last and is evaluated on.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -94,6 +95,13 @@ def format_of_code(code) -> str:
 def texture_count(channels: int) -> int:
     """How many three-channel textures ``channels`` latent channels need."""
     return math.ceil(channels / CHANNELS_PER_TEXTURE)
+
+
+def block_texture_names(channels: int, stem: str = "latents", udim: bool = False) -> list[str]:
+    """The DDS file names of ``channels`` block-compressed latent channels, in channel order:
+    ``<stem>_<k>.dds`` (``udim``: the ``<stem>_<k>.<UDIM>.dds`` patterns of a UDIM material's tiles)."""
+    tag = ".<UDIM>" if udim else ""
+    return [f"{stem}_{k}{tag}.dds" for k in range(texture_count(channels))]
 
 
 def latent_bytes_per_texel(name: str, channels: int) -> float:
@@ -227,8 +235,7 @@ def write_block_textures(levels: list[torch.Tensor], codec: LatentCodec, folder,
     folder.mkdir(parents=True, exist_ok=True)
     channels = int(levels[0].shape[-3])
     check_block_shapes([tuple(lv.shape[-2:]) for lv in levels])
-    tag = ".<UDIM>" if tiles is not None else ""
-    names = [f"{stem}_{k}{tag}.dds" for k in range(texture_count(channels))]
+    names = block_texture_names(channels, stem, udim=tiles is not None)
     for t, udim in enumerate(tiles if tiles is not None else [None]):
         per_level = [codec.encode(lv[t] if udim is not None else lv) for lv in levels]
         h, w = (int(s) for s in levels[0].shape[-2:])
@@ -265,8 +272,6 @@ def codec_of(model_or_export) -> LatentCodec | None:
     if isinstance(model_or_export, (str, Path)):
         p = Path(model_or_export)
         try:
-            import json
-
             arch = json.loads((p / "weights.json" if p.is_dir() else p).read_text())["architecture"]
             return codec_from_architecture(arch)
         except (OSError, ValueError, KeyError, TypeError):

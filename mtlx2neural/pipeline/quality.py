@@ -79,6 +79,4 @@ def judge(records) -> dict[str, list[str]]:
 
 def verdict(reasons: list[str], policy: str) -> dict:
     """The record's ``quality`` entry: ``flagged``, ``reasons`` and what the layer does (``policy``)."""
-    if not reasons:
-        return {"flagged": False, "reasons": [], "policy": policy}
-    return {"flagged": True, "reasons": list(reasons), "policy": policy}
+    return {"flagged": bool(reasons), "reasons": list(reasons), "policy": policy}
