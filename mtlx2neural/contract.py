@@ -271,3 +271,28 @@ def estimate_albedo(material: Material, wi: torch.Tensor, at=None, samples: int 
     with torch.no_grad():
         _, weight, _ = material.sample(wi.repeat_interleave(samples, 0), u, point)
     return weight.view(n, samples, 3).mean(1)
+
+
+# ----------------------------------------------------------------------------- beside the BRDF: emission, opacity
+
+
+def emission_of(material, at) -> torch.Tensor | None:
+    """Emitted radiance ``[N, 3]`` (linear RGB in the working space, the same in every direction, so no
+    cosine) of ``material`` at ``at``, or None when it emits nothing. A material that can emit offers
+    ``emission(at)``, which returns None when it does not; the :class:`Material` protocol does not require it.
+    MaterialX's hardware shading adds it to the reflected light, and the sum is weighted by the opacity."""
+    fn = getattr(material, "emission", None)
+    return None if fn is None else fn(at)
+
+
+def coverage_of(material, at) -> torch.Tensor | None:
+    """Coverage ``[N]`` in [0, 1] of ``material`` at ``at`` (the share of the surface that is there; the
+    rest shows what lies behind), or None when it is opaque. A material with an opacity offers
+    ``opacity(at)``: None when opaque, else the value a consumer uses directly. A cut-out's opacity map is
+    alpha-tested: the material's ``alpha_cutoff`` (when set) turns it into 0 or 1 here."""
+    fn = getattr(material, "opacity", None)
+    alpha = None if fn is None else fn(at)
+    if alpha is None:
+        return None
+    cutoff = getattr(material, "alpha_cutoff", None)
+    return (alpha >= cutoff).to(alpha.dtype) if cutoff is not None else alpha.clamp(0.0, 1.0)

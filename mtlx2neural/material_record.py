@@ -26,7 +26,7 @@ from mtlx2neural.errors import InputError
 
 RECORD_FILE = "summary.json"
 """File name of the record in a material's folder."""
-RECORD_VERSION = 3
+RECORD_VERSION = 4
 """Version of the record's layout; bumped whenever a field is added, removed or changes meaning."""
 
 
@@ -119,6 +119,10 @@ class MaterialRecord:
     """The run's quality gate (:mod:`mtlx2neural.pipeline.quality`): ``flagged``, ``reasons`` (in words) and
     ``policy`` (``ConvertOptions.flagged``: what the layer does with a flagged material); None before the
     gate has run."""
+    surface: dict | None = None
+    """Emission and opacity beside the BRDF (:meth:`mtlx2neural.textures.surface_maps.SurfaceMaps.describe`:
+    ``emission`` none/constant/texture, ``alpha_mode`` opaque/mask/blend, ``coverage``) and the
+    direction-dependent EDFs ``refused``; None before it was recorded."""
     preview_flip: float | None = None
     """Mean HDR FLIP of the UsdPreviewSurface fallback over the analytic views; None without one."""
     preview: dict | None = None

@@ -65,6 +65,7 @@ from mtlx2neural.contract import (
 )
 from mtlx2neural.model.latent import LatentPyramid
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
+from mtlx2neural.textures.surface_maps import SurfacesBeside
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
@@ -112,7 +113,7 @@ def brdf(p: dict, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     return torch.where(ok & torch.isfinite(out), out, torch.zeros_like(out))
 
 
-class AnalyticMaterial(nn.Module):
+class AnalyticMaterial(SurfacesBeside, nn.Module):
     """Lambert + GGX with 8 channels per texel in a MIP pyramid; a :class:`~mtlx2neural.contract.Material`
     (eval / sample / pdf / albedo / describe) with the contract's input rules: directions in the local
     frame (z the geometric normal, x the tangent; ``wi`` to the viewer, ``wo`` to the light, both away
@@ -126,6 +127,7 @@ class AnalyticMaterial(nn.Module):
     def __init__(self, resolution: tuple[int, int] = (1, 1), tiles=None):
         super().__init__()
         self.maps = LatentPyramid(*resolution, channels=len(CHANNELS), tiles=tiles)
+        self.surface = None  # emission and opacity beside the maps (SurfacesBeside)
 
     @property
     def resolution(self) -> tuple[int, int]:

@@ -24,6 +24,8 @@ default; the layer sits beside it, so by default next to the input)::
                                        (a folder of its own: the node's .slang would overwrite the module's)
             preview/                   the analytic baseline baked for the UsdPreviewSurface fallback:
               diffuseColor.exr, roughness.exr, metallic.exr, normal.exr   (half, linear)
+            emission.exr, opacity.exr  emitted radiance and opacity with their own MIP chains, and
+            surface.json               their manifest (mtlx2neural.export.surface_files; only what the material has)
             export.json                source hash, metrics and FP16 notes of this export
 
 Every file is first written into a staging folder beside the layer and moved into
@@ -48,6 +50,7 @@ from mtlx2neural.codegen.engine import EngineFilesError, write_engine_files
 from mtlx2neural.codegen.materialx_node import write_materialx_node
 from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
+from mtlx2neural.export.surface_files import write_surface_files
 from mtlx2neural.export.usd_writer import (
     ExportedMaterial,
     KeptMaterials,
@@ -56,6 +59,7 @@ from mtlx2neural.export.usd_writer import (
 from mtlx2neural.formats.weights import write_weights
 from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.staging import Staging
+from mtlx2neural.textures.surface_maps import SURFACE_FILE, load_surface_maps
 
 EXPORT_FOLDER = "neural"
 PREVIEW_FOLDER = "preview"
@@ -69,7 +73,8 @@ def layer_path(out) -> Path:
 
 
 def export_material(model, record: MaterialRecord, staged: Path, final: Path, preset: str,
-                    baseline: Path | None = None, engine_shaders: bool = False) -> ExportedMaterial:
+                    baseline: Path | None = None, engine_shaders: bool = False,
+                    surface: Path | None = None) -> ExportedMaterial:
     """Write ``model``'s latents, weights, shaders and MaterialX node into ``staged``; paths in the
     result point at ``final``. ``baseline``: the fitted analytic baseline
     (:func:`~mtlx2neural.baseline.analytic_model.save_analytic`), baked into ``preview/`` for the
@@ -77,8 +82,12 @@ def export_material(model, record: MaterialRecord, staged: Path, final: Path, pr
     ``preview_iterations = 0``) there is none, and a note says so. ``engine_shaders``: also write the
     HLSL and the G-buffer SPIR-V (:func:`~mtlx2neural.codegen.engine.write_engine_files`; minutes of
     spirv-opt per material on a small CPU), required then: a missing tool is an error. A failure
-    raises naming the material."""
+    raises naming the material. ``surface``: the material's saved emission and opacity maps
+    (:data:`~mtlx2neural.textures.surface_maps.SURFACE_FILE`; default: ``model.surface``), written first
+    (:mod:`.surface_files`), so the shader generators find ``surface.json``."""
     name = record.material
+    maps = load_surface_maps(surface) if surface is not None else getattr(model, "surface", None)
+    surface_manifest, snotes = write_surface_files(maps, staged)
     textures, notes = write_latent_textures(list(model.latents.levels), staged, tiles=model.latents.tile_list,
                                             codec=model.latents.codec)
     manifest, wnotes = write_weights(model, staged)
@@ -111,12 +120,13 @@ def export_material(model, record: MaterialRecord, staged: Path, final: Path, pr
         name=name, material=record.mtlx_material, folder=final,
         latent_textures=[final / p.name for p in textures], weights=final / manifest["file"],
         manifest=final / "weights.json", architecture=manifest["architecture"],
-        source_hash=record.source_hash, metrics=record.layer_metrics(preset), notes=notes + wnotes + enotes + pnotes,
+        source_hash=record.source_hash, metrics=record.layer_metrics(preset),
+        notes=notes + snotes + wnotes + enotes + pnotes, surface=surface_manifest,
         mtlx_document=None if mtlx is None else final / MATERIALX_FOLDER / mtlx.name, preview=preview,
         quality=record.quality)
     listing = {"material": m.name, "source_hash": m.source_hash, "metrics": m.metrics, "notes": m.notes,
               "latent_textures": [p.name for p in m.latent_textures], "weights": m.weights.name,
-              "manifest": m.manifest.name,
+              "manifest": m.manifest.name, "surface": surface_manifest,
               "mtlx_document": None if mtlx is None else f"{MATERIALX_FOLDER}/{mtlx.name}",
               "preview": None if preview is None else {
                   "textures": {k: f"{PREVIEW_FOLDER}/{p.name}" for k, p in preview["textures"].items()},
@@ -148,14 +158,14 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
             folder = Path(folder).resolve()
             final = folder / EXPORT_FOLDER
             if fresh is None:
-                staged, baseline = st.stage(final), folder / BASELINE_FILE
+                staged, baseline, surface = st.stage(final), folder / BASELINE_FILE, folder / SURFACE_FILE
             else:  # the material folder whole: this run's training files, then its export
                 whole = st.stage(folder)
                 _link_files(Path(fresh), whole)
-                staged, baseline = whole / EXPORT_FOLDER, whole / BASELINE_FILE
+                staged, baseline, surface = whole / EXPORT_FOLDER, whole / BASELINE_FILE, whole / SURFACE_FILE
                 staged.mkdir(exist_ok=True)
             exported.append(export_material(model, record, staged, final, preset, baseline=baseline,
-                                            engine_shaders=engine_shaders))
+                                            engine_shaders=engine_shaders, surface=surface))
         write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version,
                            skipped=skipped)
     return usda, exported

@@ -71,22 +71,24 @@ def tile_file(pattern, udim: int) -> Path:
     return Path(str(pattern).replace(UDIM_TOKEN, str(int(udim))))
 
 
-def _spec(width: int, height: int, group: int, channels: int, wrap: str = "periodic"):
-
-    s = oiio.ImageSpec(width, height, 4, "half")
+def _spec(width: int, height: int, nchannels: int, wrap: str, colorspace: str, attrs: dict):
+    s = oiio.ImageSpec(width, height, nchannels, "half")
     s.tile_width = s.tile_height = TILE
     s.attribute("textureformat", "Plain Texture")  # OpenImageIO writes MIP levels only for textures
     s.attribute("openexr:roundingmode", 1)  # ROUND_UP: level j is ceil(size / 2^j)
     s.attribute("compression", "zip")
     s.attribute("wrapmodes", f"{wrap},{wrap}")
-    s.attribute("oiio:ColorSpace", COLORSPACE)
-    s.attribute("mtlx2neural:latentChannels", f"{4 * group}-{4 * group + 3} of {channels}")
+    s.attribute("oiio:ColorSpace", colorspace)
+    for key, value in attrs.items():
+        s.attribute(key, value)
     return s
 
 
-def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels: int,
-                     wrap: str = "periodic") -> None:
-    """Write ``images`` ([H_j, W_j, 4] float16, finest first) as the MIP levels of one EXR at ``path``."""
+def write_mip_chain(path: Path, images: list[np.ndarray], wrap: str = "periodic", colorspace: str = COLORSPACE,
+                    attrs: dict | None = None) -> None:
+    """Write ``images`` ([H_j, W_j, C] float16, finest first, each level ceil(H_0 / 2^j)) as the MIP levels
+    of one tiled half-float EXR at ``path`` (atomically), with ``wrap`` modes, ``colorspace`` and extra
+    header ``attrs``."""
 
     out = oiio.ImageOutput.create(str(path))
     if out is None:
@@ -94,7 +96,8 @@ def _write_mip_chain(path: Path, images: list[np.ndarray], group: int, channels:
     with atomic_path(path) as tmp:
         for j, img in enumerate(images):
             mode = "AppendMIPLevel" if j else "Create"
-            if not out.open(str(tmp), _spec(img.shape[1], img.shape[0], group, channels, wrap), mode):
+            spec = _spec(img.shape[1], img.shape[0], img.shape[2], wrap, colorspace, attrs or {})
+            if not out.open(str(tmp), spec, mode):
                 raise OSError(f"{path}: cannot open MIP level {j} for writing ({out.geterror()})")
             if not out.write_image(np.ascontiguousarray(img)):
                 raise OSError(f"{path}: cannot write MIP level {j} ({out.geterror()})")
@@ -142,7 +145,8 @@ def _write_group_files(folder, levels, stem: str, tag: str, wrap: str) -> tuple[
                                                      f"(channels {4 * k}-{4 * k + c - 1})")
             notes += n
             images.append(half)
-        _write_mip_chain(folder / name, images, k, channels, wrap)
+        write_mip_chain(folder / name, images, wrap,
+                        attrs={"mtlx2neural:latentChannels": f"{4 * k}-{4 * k + 3} of {channels}"})
         paths.append(folder / name)
     return paths, notes
 

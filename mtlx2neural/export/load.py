@@ -18,6 +18,7 @@ import torch
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.export.latents import read_latent_textures
+from mtlx2neural.export.surface_files import read_surface_files
 from mtlx2neural.export.usd_writer import API, NEURAL, VARIANT_SET, register_schema
 from mtlx2neural.formats import FORMAT_VERSION
 from mtlx2neural.formats.latent_codec import codec_from_architecture
@@ -183,6 +184,7 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
     if missing or unexpected:
         raise InputError(f"{path}: {prim.GetPath()}: tensors missing {missing} or unexpected {unexpected} "
                          f"in {manifest_file}")
+    model.surface = read_surface_files(manifest_file.parent)  # emission and opacity beside the latents, if any
     model.usd_info = {"layer": str(path), "material": str(prim.GetPath()),
                       "source_hash": prim.GetAttribute("neural:sourceHash").Get(),
                       "latent_textures": [str(t) for t in textures], "weights": str(weights_file),

@@ -147,6 +147,9 @@ class ExportedMaterial:
     quality: dict | None = None
     """The quality gate's verdict (``MaterialRecord.quality``): a flagged material under the ``original``
     policy gets its ``original`` variant selected; ``neural:quality`` records it either way."""
+    surface: dict | None = None
+    """The emission and opacity maps' manifest (:func:`mtlx2neural.export.surface_files.write_surface_files`,
+    file names relative to ``folder``), or None when the material emits nothing and is opaque."""
 
 
 def relative_asset(path, anchor_dir) -> str:

@@ -162,20 +162,10 @@ class _Builder:
             return Zero(1.0)
         n = self.g[inp.node]
         if n.category == "surface":
-            edf = n.inputs.get("edf")
-            if isinstance(edf, Ref) and self._emits(edf):
-                self.prog.notes.append(f"emission ({self.g[edf.node].path}) is not a reflectance: dropped")
-            bsdf = self.bsdf(n.inputs["bsdf"], need_tp=False)
-            op = n.inputs.get("opacity")
-            c = None if op is None else self.const(op)
-            if op is not None and (c is None or bool((c < 1).any())):
-                # MaterialX's hardware shading scales the reflected colour by opacity (coverage).
-                self.prog.notes.append(f"opacity of '{n.path}' scales the reflectance (coverage), as in "
-                                       f"MaterialX's hardware shading; transmission through the cutout is not modelled")
-                return Multiply(bsdf, op, f"{n.path}.opacity") if not isinstance(bsdf, Zero) else bsdf
-            return bsdf
+            # Emission and opacity are kept beside the BSDF (graph.surface_terms), never folded into it.
+            return self.bsdf(n.inputs["bsdf"], need_tp=False)
         if n.category == "surface_unlit":
-            self.prog.notes.append(f"'{n.path}' is an unlit surface: emission only, no reflectance")
+            self.prog.notes.append(f"'{n.path}' is an unlit surface: no reflectance (its emission is kept)")
             return Zero(1.0)
         if n.category == "mix":
             return self._mix(n, self.surface(n.inputs["fg"]), self.surface(n.inputs["bg"]), n.inputs["mix"])
@@ -190,22 +180,6 @@ class _Builder:
         """Record every lobe of a subtree that a combinator removes."""
         for leaf in plan_leaves(subtree):
             self.prog.pruned.append({"closure": leaf.category, "node": leaf.path, "reason": reason})
-
-    def _emits(self, ref: Ref) -> bool:
-        """Whether an EDF subtree can emit anything (an EDF whose colour is not folded to 0)."""
-        stack, seen = [ref.node], set()
-        while stack:
-            i = stack.pop()
-            if i in seen:
-                continue
-            seen.add(i)
-            node = self.g[i]
-            if node.category in EDFS and "color" in node.inputs:
-                c = self.const(node.inputs["color"])
-                if c is None or bool((c != 0).any()):
-                    return True
-            stack += [v.node for v in node.inputs.values() if isinstance(v, Ref) and self.g[v.node].type == "EDF"]
-        return False
 
     def _mix(self, n, fg, bg, amount):
         c = self.const(amount)

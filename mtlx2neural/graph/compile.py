@@ -23,6 +23,7 @@ from mtlx2neural.graph.spatial import (
     texture,
     texture_colorspaces,
 )
+from mtlx2neural.graph.surface_terms import SurfaceTerms, surface_terms
 from mtlx2neural.graph.validate import check_image_modes
 from mtlx2neural.imaging.resolve import resolve_case
 
@@ -45,7 +46,16 @@ class CompiledMaterial:
     """The instant ``time`` and ``frame`` nodes folded to (:class:`~mtlx2neural.graph.ops.Application`)."""
     reads_application: list[str] = field(default_factory=list)
     """The application nodes the graph reads (``time``, ``frame``): then baked at ``application``."""
+    surface: SurfaceTerms = field(default_factory=SurfaceTerms)
+    """Emission and opacity beside the BSDF (:mod:`mtlx2neural.graph.surface_terms`)."""
+    surface_nodes: list[int] = field(default_factory=list)
+    """Spatial nodes the emission and opacity read (not the BSDF's), in topological order."""
     _parameters: list | None = field(default=None, repr=False)
+
+    @property
+    def all_spatial_nodes(self) -> list[int]:
+        """Spatial nodes of the BSDF, emission and opacity together (topological order): every texture read."""
+        return sorted(set(self.spatial_nodes) | set(self.surface_nodes))
 
     def parameters(self) -> list[tuple[str, Input, str]]:
         """Every run-time parameter of the BSDF program: (name, IR input, MaterialX type).
@@ -75,6 +85,7 @@ class CompiledMaterial:
         for leaf in self.program.leaves():
             needed += list(self.graph[leaf.node].inputs.values())
         self.spatial_nodes = self.evaluator.spatial_closure(needed)
+        self.surface_nodes = self.evaluator.spatial_closure(self.surface.inputs())
 
     def varying_parameters(self) -> list[tuple[str, Input, str]]:
         """The parameters that depend on the spatial sub-graph (texture coordinates, images...)."""
@@ -85,7 +96,7 @@ class CompiledMaterial:
         reads with their source (``geometry_inputs``: node, kind, space or primvar, source) (JSON-friendly)."""
         g = self.graph
         textures, spatial_inputs, notes = [], [], []
-        for i in self.spatial_nodes:
+        for i in self.all_spatial_nodes:
             n = g[i]
             if n.category == "image":
                 f = n.inputs.get("file")
@@ -111,13 +122,28 @@ class CompiledMaterial:
             "source": self.source,
             "lobes_kept": list(self.program.kept),
             "lobes_pruned": list(self.program.pruned),
-            "approximations": list(self.program.notes) + notes,
+            "approximations": (list(self.program.notes) + notes + list(self.surface.refused)
+                               + list(self.surface.approximated)),
+            "surface": self.describe_surface(),
             "spatial_inputs": spatial_inputs,
             "textures": textures,
             "varying_parameters": varying,
             "geometry_inputs": geometry_inputs,
             "ir_nodes": len(g.nodes),
         }
+
+
+    def describe_surface(self) -> dict:
+        """``{"emission": "none" | "constant" | "textured", "opacity": ..., "refused": [...]}``: what the
+        material emits and covers besides its BSDF, and the direction-dependent EDFs left out."""
+        ev, terms = self.evaluator, self.surface
+
+        def kind(ts):
+            if not ts:
+                return "none"
+            return "constant" if all(ev.is_constant(i) for t in ts for i in [t.value] + [f.value for f in t.factors]) \
+                else "textured"
+        return {"emission": kind(terms.emission), "opacity": kind(terms.opacity), "refused": list(terms.refused)}
 
 
 FILE_READERS = ("image", "hextiledimage", "hextilednormalmap")
@@ -150,10 +176,12 @@ def compile_material(document: mx.Document, material: str | None = None, device=
     for leaf in program.leaves():
         needed += list(graph[leaf.node].inputs.values())
     spatial_nodes = ev.spatial_closure(needed)
-    check_image_modes(source, graph, spatial_nodes)  # before any texture is read
+    surface = surface_terms(ev, root)
+    surface_nodes = ev.spatial_closure(surface.inputs())
+    check_image_modes(source, graph, sorted(set(spatial_nodes) | set(surface_nodes)))  # before any texture is read
     name = material or next(n.getName() for n in document.getMaterialNodes())
     case_fixes = []
-    for i in spatial_nodes:
+    for i in sorted(set(spatial_nodes) | set(surface_nodes)):
         n = graph[i]
         f = n.inputs.get("file")
         if n.category in FILE_READERS and isinstance(f, Const) and f.value:
@@ -174,7 +202,8 @@ def compile_material(document: mx.Document, material: str | None = None, device=
     if reads:
         program.notes.append(application_note(name, reads, application))
     return CompiledMaterial(name, source, graph, ev, program, spatial_nodes, case_fixes=case_fixes,
-                            application=application, reads_application=reads)
+                            application=application, reads_application=reads, surface=surface,
+                            surface_nodes=surface_nodes)
 
 
 def application_note(material: str, reads: list[str], application: Application) -> str:

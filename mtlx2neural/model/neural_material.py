@@ -37,9 +37,10 @@ from mtlx2neural.model import proxy
 from mtlx2neural.model.decoder import BrdfDecoder
 from mtlx2neural.model.latent import LatentPyramid
 from mtlx2neural.model.networks import Encoder, SamplerNet
+from mtlx2neural.textures.surface_maps import SurfacesBeside
 
 
-class NeuralMaterial(nn.Module):
+class NeuralMaterial(SurfacesBeside, nn.Module):
     """The neural appearance model; a :class:`~mtlx2neural.contract.Material` (eval / sample / pdf /
     albedo / describe). ``resolution`` (h, w) of the finest latent level, ``in_dim`` parameter channels
     the encoder reads in training, ``latent_dim`` channels per texel, ``frames`` learned shading frames,
@@ -57,6 +58,7 @@ class NeuralMaterial(nn.Module):
         self.encoder = Encoder(in_dim, latent_dim)
         self.decoder = BrdfDecoder(latent_dim, frames, decoder, albedo_head, analytic_cosine)
         self.sampler = SamplerNet(latent_dim)
+        self.surface = None  # emission and opacity beside the latents (SurfacesBeside)
 
     @property
     def dtype(self) -> torch.dtype:

@@ -46,6 +46,7 @@ __all__ = [
     "OracleUnsupported",
     "generate_oracle_source",
     "mtlx_slang_eval",
+    "mtlx_slang_unlit",
     "oracle_available",
 ]
 
@@ -208,6 +209,21 @@ def mtlx_slang_eval(document, material: str, wi, wo, *, cache_dir=None) -> np.nd
     source (cached by its hash); later calls only dispatch.  `cache_dir`, if given, receives the
     patched Slang source and slangpy's shader cache.
     """
+    raw = _dispatch(document, material, wi, wo, cache_dir)
+    return (raw[:, :3] - raw[:, 3:]) / _LIGHT_SCALE
+
+
+def mtlx_slang_unlit(document, material: str, wi, *, cache_dir=None) -> np.ndarray:
+    """The light-independent colour [N,3] float64 of ``material`` seen from ``wi`` (numpy [N,3], local
+    frame) by MaterialX's generated Slang with the light off: its emission times its opacity (the environment
+    and refraction terms are zero in the oracle's kernel), at texcoord (0.5, 0.5)."""
+    wi = _as_dirs(wi, "wi")
+    return _dispatch(document, material, wi, wi, cache_dir)[:, 3:]
+
+
+def _dispatch(document, material: str, wi, wo, cache_dir=None) -> np.ndarray:
+    """[N, 6] float64: MaterialX's generated colour of ``material`` seen from ``wi`` with the light from ``wo``
+    at intensity ``_LIGHT_SCALE`` (columns 0-2) and off (columns 3-5); arguments as :func:`mtlx_slang_eval`."""
     wi = _as_dirs(wi, "wi")
     wo = _as_dirs(wo, "wo")
     if wi.shape != wo.shape:
@@ -218,7 +234,7 @@ def mtlx_slang_eval(document, material: str, wi, wo, *, cache_dir=None) -> np.nd
     k = _compile(_oracle_source(document, material), cache_dir)
     n = wi.shape[0]
     if n == 0:
-        return np.zeros((0, 3), dtype=np.float64)
+        return np.zeros((0, 6), dtype=np.float64)
 
     # Local: slangpy is optional (the shader harness); callers check oracle_available() first.
     import slangpy as spy
@@ -245,4 +261,4 @@ def mtlx_slang_eval(document, material: str, wi, wo, *, cache_dir=None) -> np.nd
             },
         )
         raw = b_out.to_numpy().view(np.float32)[: 6 * n].reshape(n, 6).astype(np.float64)
-    return (raw[:, :3] - raw[:, 3:]) / _LIGHT_SCALE
+    return raw

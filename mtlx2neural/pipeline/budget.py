@@ -19,6 +19,7 @@ from mtlx2neural.graph.ops import Application
 from mtlx2neural.material_record import RECORD_FILE, MaterialRecord, write_record
 from mtlx2neural.pipeline.material_training import add_preview, train_material
 from mtlx2neural.pipeline.plan import DECODERS
+from mtlx2neural.textures.surface_maps import SURFACE_FILE
 from mtlx2neural.train.config import TrainConfig
 
 
@@ -63,6 +64,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     also a warning in ``warnings`` and ``notes``.
     """
     (folder / RECORD_FILE).unlink(missing_ok=True)
+    (folder / SURFACE_FILE).unlink(missing_ok=True)  # the chosen run's maps (if any) move up below
     runs: dict[str, MaterialRecord] = {}
 
     def attempt(decoder: str) -> float:

@@ -75,6 +75,22 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
     return report
 
 
+_SURFACE_KIND = {"constant": "kept (a constant)", "textured": "kept (a map beside the latents)"}
+
+
+def _surface_lines(surface: dict | None, pruned: list[dict]) -> list[str]:
+    """The channels kept beside the BRDF: emission and opacity (kept, not approximated), and that
+    transmission through glass is not modelled when a transmission lobe was pruned."""
+    if not surface:
+        return []
+    lines = ["  beside the BRDF:",
+             f"    emission   {_SURFACE_KIND.get(surface['emission'], 'none')}",
+             f"    opacity    {_SURFACE_KIND.get(surface['opacity'], 'none (opaque)')}"]
+    if any("transmission" in p["reason"] for p in pruned):
+        lines.append("    transmission (refraction through glass) is not modelled: out of scope")
+    return lines
+
+
 def format_report(report: dict) -> str:
     """Human-readable text for :func:`inspect_asset`'s result."""
     lines = [f"asset: {report['asset']}"]
@@ -87,6 +103,7 @@ def format_report(report: dict) -> str:
         if m["lobes_pruned"]:
             lines.append("  lobes pruned:")
             lines += [f"    {k['closure']:<26} {k['node']}\n      why: {k['reason']}" for k in m["lobes_pruned"]]
+        lines += _surface_lines(m.get("surface"), m["lobes_pruned"])
         if m["approximations"]:
             lines.append("  approximations:")
             lines += [f"    - {a}" for a in m["approximations"]]

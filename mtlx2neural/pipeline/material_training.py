@@ -33,23 +33,32 @@ from pathlib import Path
 
 import torch
 
+from mtlx2neural.atomic import atomic_path
 from mtlx2neural.baseline.analytic_model import (
     BASELINE_FILE,
     fit_analytic,
     save_analytic,
 )
+from mtlx2neural.errors import InputError
 from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.material_record import RECORD_FILE, MaterialRecord, write_record
 from mtlx2neural.pipeline.devices import device_name
 from mtlx2neural.pipeline.in_scene_measure import measure_in_scene
-from mtlx2neural.pipeline.plan import latent_resolution
+from mtlx2neural.pipeline.plan import latent_resolution, scaled_grid
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.render.flip_probe import FlipProbe
 from mtlx2neural.render.renderer import compare_many, save_png
 from mtlx2neural.render.udim_view import compare_tiles
 from mtlx2neural.textures.footprint import footprint_targets
+from mtlx2neural.textures.parameter_stack import texture_resolution
+from mtlx2neural.textures.surface_maps import (
+    SURFACE_FILE,
+    SurfaceMaps,
+    build_surface_maps,
+    load_surface_maps,
+)
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
@@ -58,15 +67,20 @@ from mtlx2neural.train.udim import build_training_stack, draw_uv, is_udim_stack
 from mtlx2neural.verify.energy import energy_check
 
 
-def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345) -> float:
+def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345, surface: SurfaceMaps | None = None) -> float:
     """Log-L1 between the neural model at level 0 and the reference averaged over a level-0
     texel's footprint (the training target, up to 64 points), uv uniform (over the trained tiles of
-    a UDIM ``stack``: a uniform tile, then a uniform point in it, as the training draws them),
-    half/difference directions, on draws the training never saw."""
+    a UDIM ``stack``: a uniform tile, then a uniform point in it, as the training draws them; where a
+    cut-out's ``surface`` has surface), half/difference directions, on draws the training never saw."""
 
     g = torch.Generator().manual_seed(seed)
     wi, wo = half_difference_pairs(n, g)
     uv = draw_uv(n, stack.tiles if is_udim_stack(stack) else None, g)
+    if surface is not None and surface.coverage_levels and surface.coverage < 1 and not is_udim_stack(stack):
+        keep = surface.texel_covered(uv)
+        if bool(keep.any()):
+            wi, wo, uv = wi[keep], wo[keep], uv[keep]
+            n = uv.shape[0]
     level = torch.zeros(n, dtype=torch.long)
     with torch.no_grad():
         target = footprint_targets(ref, stack, wi, wo, uv, level, 64, g) if stack.channels else ref.eval(wi, wo)
@@ -108,7 +122,8 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
                                               resolution=resolution or latent_resolution(compiled, cfg))
     tiles = list(stack.tiles) if is_udim_stack(stack) else None
-    trainer = Trainer(ref, stack, cfg, folder, device=device)
+    surface = surface_maps(compiled, stack, cfg, src.name, folder)
+    trainer = Trainer(ref, stack, cfg, folder, device=device, surface=surface)
     if resume:
         trainer.resume()
     if progress:
@@ -119,10 +134,12 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     # FLIP against training time for the report (not for a UDIM stack: its views are per tile).
     probe = FlipProbe(ref, tuple(stack.resolution)) if not tiles else None
     model = trainer.run(progress=progress, listener=listener, probe=probe)
+    model.surface = surface
     train_seconds = time.time() - t0
     models = {"neural": model}
     if preview:  # a UDIM stack gives the baseline one map per tile too
         analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
+        analytic.surface = surface
         models["analytic"] = analytic
     if tiles:  # the sphere's uv shifted into each trained tile: the views once per tile
         renders = compare_tiles(ref, models, tuple(stack.resolution), tiles)
@@ -143,10 +160,11 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         varying_channels=int(stack.levels[0].shape[0]), decoder=cfg.decoder, config=dataclasses.asdict(cfg),
         steps=trainer.step, seconds=round(time.time() - t0, 1), train_seconds=round(train_seconds, 2),
         final_loss_brdf=trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
-        held_out_log_l1=held_out_error(ref, model, stack), device=device, device_name=device_name(device),
+        held_out_log_l1=held_out_error(ref, model, stack, surface=surface), device=device, device_name=device_name(device),
         threads=torch.get_num_threads(), worker=f"{platform.node()}:{os.getpid()}",
         flip_per_view=[round(e["flip"], 4) for e in errors],
         flip_mean=round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
+        surface={**surface.describe(), "refused": list(compiled.surface.refused)},
         relmse_mean=round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
         **in_scene,
         notes=list(extra.pop("notes", [])) + list(stack.notes) + list(stack_notes)
@@ -162,12 +180,36 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         record.application = {"frame": app.frame, "fps": app.fps, "time": app.time,
                                "nodes": list(compiled.reads_application)}
     record = dataclasses.replace(record, **extra)
-    record = with_energy(record, ref, model, stack, device)
+    record = with_energy(record, ref, model, stack, device, surface)
     flip_notes = sorted({f"view {e['view']}: {e['flip_note']}" for e in errors if e.get("flip_note")})
     if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
         record.warnings = [*record.warnings, *(f"HDR FLIP: {n}" for n in flip_notes)]
     write_record(folder, record)
     return model, record
+
+
+def surface_maps(compiled, stack, cfg: TrainConfig, name: str, folder: Path) -> SurfaceMaps:
+    """Build the emission and opacity maps on the latent grid (:mod:`mtlx2neural.textures.surface_maps`)
+    and save them as ``folder/surface_maps.pt`` (removed when there are none). A uniform BRDF with a
+    textured emission or opacity gets maps on its textures' grid (capped by ``cfg.max_resolution``); a UDIM
+    material with one is refused (``InputError``): its maps would need one pyramid per tile."""
+    path = folder / SURFACE_FILE
+    path.unlink(missing_ok=True)
+    kinds = compiled.describe_surface()
+    textured = "textured" in (kinds["emission"], kinds["opacity"])
+    if textured and is_udim_stack(stack):
+        raise InputError(f"{name}: a UDIM material whose emission or opacity reads a texture is not supported "
+                         f"(its maps would need one pyramid per tile); bake them into one texture set")
+    resolution, ratio = tuple(stack.resolution), stack.texel_ratio
+    if textured and resolution == (1, 1):
+        h, w, _ = texture_resolution(compiled)
+        side = min(max(h, w), cfg.max_resolution or max(h, w))
+        resolution, ratio = scaled_grid(h, w, side), (1.0, 1.0)
+    maps = build_surface_maps(compiled, resolution, ratio) if not is_udim_stack(stack) else SurfaceMaps()
+    if not maps.empty:
+        with atomic_path(path) as tmp:
+            torch.save(maps.state(), tmp)
+    return maps
 
 
 ENERGY_WARNING = 0.9
@@ -178,16 +220,20 @@ ENERGY_WARNING_BRIGHT = 1.2
 brighter (the near-mirror sample's 1.08-1.35; the reference against itself stays within 1.00-1.03)."""
 
 
-def with_energy(record: MaterialRecord, ref, model, stack, device) -> MaterialRecord:
+def with_energy(record: MaterialRecord, ref, model, stack, device, surface: SurfaceMaps | None = None
+                ) -> MaterialRecord:
     """``record`` with the energy check (:mod:`mtlx2neural.verify.energy`, 64 texels x 4 views per level,
     a few seconds) and a warning when a level keeps less than :data:`ENERGY_WARNING` of the energy or
     more than :data:`ENERGY_WARNING_BRIGHT`.
+    A cut-out (``surface`` with coverage below 1) is checked where it has surface, as it trains.
     A UDIM material is not checked (its levels are per tile): a note says so."""
     if is_udim_stack(stack):
         return dataclasses.replace(record, notes=[*record.notes, "energy check: not measured for a UDIM material"])
     native = stack.channels and stack.texel_ratio == (1.0, 1.0)
     check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels), device=device,
-                         params_at=(lambda pts: stack.sample(pts, 0)) if native else None)
+                         params_at=(lambda pts: stack.sample(pts, 0)) if native else None,
+                         coverage=surface.coverage_at if surface is not None and surface.coverage < 1
+                         and surface.coverage_levels else None)
     record = dataclasses.replace(record, energy=check.to_json())
     if check.min_ratio < ENERGY_WARNING:
         record = record.with_warning(
@@ -244,6 +290,7 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
     stack, _ = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
                                     resolution=tuple(resolution))
     analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
+    analytic.surface = load_surface_maps(folder / SURFACE_FILE)  # the emission and opacity it is shown with
     if is_udim_stack(stack):
         errors = compare_tiles(ref, {"analytic": analytic}, tuple(stack.resolution), list(stack.tiles))["analytic"]
     else:

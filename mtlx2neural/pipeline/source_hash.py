@@ -49,10 +49,11 @@ from mtlx2neural.imaging.udim import discover_tiles, is_tiled_path
 from mtlx2neural.material_record import MaterialRecord, read_record_or_none
 
 IGNORED_SETTINGS = ("checkpoint_every", "compile", "probe_every")  # the same model either way
-TRAINING_VERSION = 2
+TRAINING_VERSION = 3
 """Version of the training targets (module docstring). History: 1, before versions were hashed; 2, the
 LEAN tangent (:mod:`mtlx2neural.textures.parameter_stack` passes each anisotropic lobe's tangent to the
-moments, so a material with a non-default tangent, e.g. a ``specular_rotation``, trains to other targets)."""
+moments, so a material with a non-default tangent, e.g. a ``specular_rotation``, trains to other targets);
+3, opacity kept beside the BRDF instead of scaling it, and emission kept (:mod:`mtlx2neural.graph.surface_terms`)."""
 _file_digests: dict[tuple[str, int, int], str] = {}
 
 

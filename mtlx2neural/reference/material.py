@@ -46,6 +46,7 @@ from mtlx2neural.contract import (
 )
 from mtlx2neural.graph.bsdf_program import Add, Layer, Leaf, Mix, Multiply, Zero
 from mtlx2neural.graph.compile import CompiledMaterial
+from mtlx2neural.graph.surface_terms import evaluate
 from mtlx2neural.reference.closures import LOBE_CLASSES
 from mtlx2neural.reference.tree import (
     AddNode,
@@ -239,6 +240,27 @@ class ReferenceMaterial:
         points; 0 when wi is at or below the horizon. ``wi`` and ``at`` as for :meth:`eval`."""
         wi = prepare_direction("wi", wi, self.dtype, self.device)
         return estimate_albedo(self, wi, at, samples, seed)
+
+    def _surface(self, terms, at, width: int) -> torch.Tensor:
+        """Sum of surface ``terms`` [N, width] at ``at``'s uv (default (0.5, 0.5), one row)."""
+        p = self._point(at)
+        uv = p.uv if p.uv is not None else torch.tensor([DEFAULT_UV], dtype=self.dtype, device=self.device)
+        ev = self.compiled.evaluator
+        env = ev.run(self.compiled.surface_nodes, uv) if self.compiled.surface_nodes else {}
+        return _finite(evaluate(ev, terms, env, uv.shape[0], width))
+
+    def emission(self, at=None) -> torch.Tensor | None:
+        """Emitted radiance [N,3] (linear working-space RGB, no cosine: the same in every direction) at
+        ``at``'s uv, the material graph's EDF evaluated there (:mod:`mtlx2neural.graph.surface_terms`);
+        None when the material emits nothing. Added to the reflected light by the renderers."""
+        terms = self.compiled.surface.emission
+        return self._surface(terms, at, 3) if terms else None
+
+    def opacity(self, at=None) -> torch.Tensor | None:
+        """Opacity [N] in [0, 1] at ``at``'s uv (the surface node's ``opacity``, a cut-out's already 0 or 1
+        from its shading model's threshold); None when the material is opaque everywhere."""
+        terms = self.compiled.surface.opacity
+        return self._surface(terms, at, 1)[:, 0].clamp(0.0, 1.0) if terms else None
 
     def describe(self) -> dict:
         """Lobes kept and pruned (with reasons), approximations, spatial inputs, textures."""

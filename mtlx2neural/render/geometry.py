@@ -234,6 +234,14 @@ class Rays:
     spread: float
     width: float = 0.0
     project: Callable | None = None
+    tmin: torch.Tensor | None = None
+    """[P] the nearest distance a hit may have (None: 0): a ray continued beyond a cut-out's hit."""
+
+    def nearest(self, index: torch.Tensor | None = None) -> torch.Tensor | float:
+        """The smallest hit distance of the rays ``index`` (all rays when None): ``tmin``, or 0."""
+        if self.tmin is None:
+            return 0.0
+        return self.tmin if index is None else self.tmin[index]
 
     def origins(self, index: torch.Tensor) -> torch.Tensor:
         """The origins of the rays ``index`` ([3] when they share one, else [len(index), 3])."""
@@ -254,11 +262,14 @@ class Hits:
     dpdu: torch.Tensor
     dpdv: torch.Tensor
     cos: torch.Tensor
+    material: torch.Tensor | None = None
+    """[P] int64: the hit triangle's material index (:attr:`Mesh.material_index`); None: material 0."""
 
     @staticmethod
     def empty(n: int) -> Hits:
         z = torch.zeros
-        return Hits(z(n, dtype=torch.bool), z(n), z(n, 3), z(n, 3), z(n, 3), z(n, 3), z(n, 2), z(n), z(n), z(n))
+        return Hits(z(n, dtype=torch.bool), z(n), z(n, 3), z(n, 3), z(n, 3), z(n, 3), z(n, 2), z(n), z(n), z(n),
+                    z(n, dtype=torch.long))
 
     def to_local(self, w: torch.Tensor) -> torch.Tensor:
         """World directions [P,3] -> shading-frame coordinates (t, b, n)."""
@@ -306,8 +317,10 @@ class Sphere:
         o, d = rays.origin, rays.dirs
         b = (d * o).sum(-1)
         disc = b * b - ((o * o).sum(-1) - 1.0)
+        near = rays.nearest()
         t = -b - disc.clamp_min(0).sqrt()
-        mask = (disc > 0) & (t > 0)
+        t = torch.where(t > near, t, -b + disc.clamp_min(0).sqrt())  # beyond tmin: the far side
+        mask = (disc > 0) & (t > near)
         p = o + t[:, None] * d
         n = F.normalize(p, dim=-1)
         u = 0.5 + torch.atan2(n[:, 0], n[:, 2]) / (2 * math.pi)
@@ -333,7 +346,7 @@ class Plane:
         dy = torch.where(d[:, 1].abs() < 1e-9, torch.full_like(d[:, 1], 1e-9), d[:, 1])
         t = -o[..., 1] / dy
         p = o + t[:, None] * d
-        mask = (t > 0) & (p[:, 0].abs() <= 1) & (p[:, 2].abs() <= 1)
+        mask = (t > rays.nearest()) & (p[:, 0].abs() <= 1) & (p[:, 2].abs() <= 1)
         side = torch.where(d[:, 1] < 0, 1.0, -1.0)[:, None]  # +1 seen from above
         n = torch.tensor([[0.0, 1.0, 0.0]]) * side
         tan = torch.tensor([[1.0, 0.0, 0.0]]).expand_as(p)
@@ -364,6 +377,8 @@ class Mesh:
     normals: torch.Tensor
     uvs: torch.Tensor
     triangles: torch.Tensor
+    material_index: torch.Tensor | None = None
+    """[T] int64 per triangle: which of a scene's materials it is drawn with (None: all material 0)."""
     tangents: torch.Tensor = field(init=False)
 
     def __post_init__(self):
@@ -430,7 +445,7 @@ class Mesh:
             off = torch.arange(int(cnt.sum())) - torch.repeat_interleave(torch.cumsum(cnt, 0) - cnt, cnt)
             pix = (i0[k] + off // w[k]) * res + j0[k] + off % w[k]
             t, _, _ = self._ray_triangle(rays.origins(pix), rays.dirs[pix], k)
-            t = torch.where(t > 0, t, math.inf)
+            t = torch.where(t > rays.nearest(pix), t, math.inf)
             ct = torch.full((npix,), math.inf).scatter_reduce(0, pix, t, "amin")
             win = torch.isfinite(t) & (t == ct[pix])
             ck = torch.full((npix,), torch.iinfo(torch.long).max).scatter_reduce(0, pix[win], k[win], "amin")
@@ -477,6 +492,8 @@ class Mesh:
         for name, val in (("t", t), ("position", origin + t[:, None] * dirs), ("tangent", tan),
                           ("bitangent", bit), ("normal", n), ("uv", interp(self.uvs)),
                           ("dpdu", self.dpdu_len[k]), ("dpdv", self.dpdv_len[k]),
+                          ("material", self.material_index[k] if self.material_index is not None
+                           else torch.zeros_like(k)),
                           ("cos", (dirs * gn).sum(-1).abs())):
             getattr(hits, name)[idx] = val
         return hits

@@ -38,7 +38,7 @@ import numpy as np
 import OpenImageIO as oiio
 import torch
 
-from mtlx2neural.contract import Material, ShadingPoint
+from mtlx2neural.contract import Material, ShadingPoint, coverage_of, emission_of
 from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.geometry import (
     Camera,
@@ -117,8 +117,20 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
     sampling alone finds only by chance (a clear coat reflecting the sky) then
     converges. The sampler's directions do not depend on ``material`` either, so
     common random numbers hold with it too.
+    A material that emits (:func:`~mtlx2neural.contract.emission_of`) adds its emitted radiance where
+    the surface faces the camera. A material with an opacity (:func:`~mtlx2neural.contract.coverage_of`:
+    a cut-out alpha-tested, a blend as a fraction) covers that share of the pixel, and the ray continues
+    beyond the hit for the rest (at most :data:`MAX_LAYERS` surfaces), so the background or the geometry
+    behind shows through; the same holds for every material, so the reference and a model cover the
+    same pixels where their opacities agree.
+    A whole scene: ``material`` a list, indexed by the mesh's per-triangle
+    :attr:`.geometry.Mesh.material_index` (``sampler`` and ``texels`` then lists of the same length, or one
+    for all).
     No shadows; the background (misses) is black. ``wi`` points to the camera.
     """
+    materials = list(material) if isinstance(material, (list, tuple)) else [material]
+    samplers = list(sampler) if isinstance(sampler, (list, tuple)) else [sampler] * len(materials)
+    grids = list(texels) if texels and isinstance(texels[0], (list, tuple)) else [texels] * len(materials)
     g = torch.Generator().manual_seed(seed)
     scale = sample_footprint_scale(spp) if footprint is None else footprint
     centre, radius = geometry.bounds()
@@ -126,40 +138,80 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
     img = torch.zeros(npix, 3)
     for _ in range(spp):
         rays = camera.rays(res, centre, radius, g)
-        hits = geometry.intersect(rays)
-        lod = ray_cone_lod(hits, rays.spread * scale, texels, rays.width * scale)
         u_level = torch.rand(npix, generator=g)
         light_u = [torch.rand(npix, 3, generator=g) if isinstance(li, EnvironmentMap) else None for li in lights]
         bsdf_u = [torch.rand(npix, 2, generator=g) if isinstance(li, EnvironmentMap) and sampler is not None
                   else None for li in lights]
-        idx = hits.mask.nonzero()[:, 0]
-        if len(idx) == 0:
-            continue
-        frame = Hits(*(getattr(hits, f.name)[idx] for f in dataclasses.fields(Hits)))
-        wi = frame.to_local(-rays.dirs[idx])
-        at = ShadingPoint(uv=frame.uv, lod=lod[idx], u_level=u_level[idx])
-        acc = torch.zeros(len(idx), 3)
-        for li, u, ub in zip(lights, light_u, bsdf_u):
-            if isinstance(li, DirectionalLight):
-                wo = frame.to_local(li.vector().expand(len(idx), 3))
-                weight = li.rgb().expand(len(idx), 3)
-            elif isinstance(li, EnvironmentMap):
-                d, weight, pdf_light = li.sample(u[idx])
-                wo = frame.to_local(d)
-                if sampler is not None:
-                    # light sample's MIS weight; then the sampler's own direction
-                    with torch.no_grad():
-                        pdf_bsdf = sampler.pdf(wi, wo, at)
-                    weight = weight * _balance(pdf_light, pdf_bsdf)[:, None]
-                    acc += _bsdf_sample(material, sampler, li, frame, wi, ub[idx], at)
-            else:
-                raise TypeError(f"unsupported light {type(li).__name__}")
-            with torch.no_grad():
-                f = material.eval(wi, wo, at)
-            ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0)
-            acc += torch.where(ok, f * weight, torch.zeros_like(f))
-        img[idx] += acc
+        throughput = torch.ones(npix)  # what the surfaces in front left of each pixel (cut-outs, blending)
+        for _layer in range(MAX_LAYERS):
+            hits = geometry.intersect(rays)
+            idx = (hits.mask & (throughput > MIN_THROUGHPUT)).nonzero()[:, 0]
+            if len(idx) == 0:
+                break
+            alpha_all = torch.ones(len(idx))
+            which = hits.material[idx] if hits.material is not None else torch.zeros(len(idx), dtype=torch.long)
+            for m in torch.unique(which).tolist():  # one group of hits per material of the scene
+                sub = idx[which == m]
+                frame = Hits(*(getattr(hits, f.name)[sub] if getattr(hits, f.name) is not None else None
+                               for f in dataclasses.fields(Hits)))
+                lod = ray_cone_lod(frame, rays.spread * scale, grids[m], rays.width * scale)
+                at = ShadingPoint(uv=frame.uv, lod=lod, u_level=u_level[sub])
+                mat, smp = materials[m], samplers[m]
+                acc = _shade(mat, smp, lights, frame, sub, -rays.dirs[sub], at,
+                             [u if u is None else u[sub] for u in light_u], [u if u is None else u[sub] for u in bsdf_u])
+                with torch.no_grad():
+                    alpha = coverage_of(mat, at)
+                alpha = torch.ones(len(sub)) if alpha is None else alpha.to(acc.dtype).cpu()
+                img[sub] += acc * (alpha * throughput[sub])[:, None]
+                alpha_all[which == m] = alpha
+            throughput[idx] = throughput[idx] * (1.0 - alpha_all)
+            if not bool((throughput[idx] > MIN_THROUGHPUT).any()):
+                break
+            # Continue every ray just beyond its hit: the next layer shows what the cut-out lets through.
+            tmin = torch.full((npix,), math.inf)
+            tmin[idx] = hits.t[idx] * (1.0 + 1e-5) + 1e-5
+            rays = dataclasses.replace(rays, tmin=tmin)
     return (img / spp).view(res, res, 3).numpy().astype(np.float32)
+
+
+MAX_LAYERS = 8
+"""Surfaces a ray passes through at most (each a cut-out's or a blended surface's hit)."""
+MIN_THROUGHPUT = 1e-3
+"""A ray stops once the surfaces in front leave less than this of its pixel."""
+
+
+def _shade(material: Material, sampler, lights, frame: Hits, idx, to_camera, at: ShadingPoint,
+           light_u, bsdf_u) -> torch.Tensor:
+    """[len(idx), 3] radiance towards the camera from the hits ``frame``: the emission (no cosine) plus,
+    per light, ``f*cos * intensity`` (directional) or one light sample MIS-weighted against ``sampler``
+    and one ``sampler`` direction (environment)."""
+    wi = frame.to_local(to_camera)
+    n = len(idx)
+    acc = torch.zeros(n, 3)
+    with torch.no_grad():
+        emitted = emission_of(material, at)
+    if emitted is not None:
+        acc += torch.where(wi[:, 2:3] > 0, emitted.to(acc.dtype), torch.zeros_like(acc))
+    for li, u, ub in zip(lights, light_u, bsdf_u):
+        if isinstance(li, DirectionalLight):
+            wo = frame.to_local(li.vector().expand(n, 3))
+            weight = li.rgb().expand(n, 3)
+        elif isinstance(li, EnvironmentMap):
+            d, weight, pdf_light = li.sample(u)
+            wo = frame.to_local(d)
+            if sampler is not None:
+                # light sample's MIS weight; then the sampler's own direction
+                with torch.no_grad():
+                    pdf_bsdf = sampler.pdf(wi, wo, at)
+                weight = weight * _balance(pdf_light, pdf_bsdf)[:, None]
+                acc += _bsdf_sample(material, sampler, li, frame, wi, ub, at)
+        else:
+            raise TypeError(f"unsupported light {type(li).__name__}")
+        with torch.no_grad():
+            f = material.eval(wi, wo, at)
+        ok = (wo[:, 2:3] > 0) & (wi[:, 2:3] > 0)
+        acc += torch.where(ok, f * weight, torch.zeros_like(f))
+    return acc
 
 
 def _balance(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:

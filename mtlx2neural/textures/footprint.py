@@ -56,7 +56,7 @@ def footprint_sigma(level: int, resolution: tuple[int, int], dtype=torch.float32
 def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
                       level: torch.Tensor, max_samples: int = 64,
                       generator: torch.Generator | None = None, point_eval=None,
-                      one_call: bool = False) -> torch.Tensor:
+                      one_call: bool = False, weight=None) -> torch.Tensor:
     """Footprint-averaged reference values [N,3] (f * cos, linear RGB) for each query.
 
     ``reference`` is a :class:`~mtlx2neural.reference.ReferenceMaterial` of the same
@@ -71,6 +71,10 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
     another order). The reference costs a few thousand tensor operations per call whatever its batch,
     so one call instead of one per level (9 on a 256² grid) takes about half the time (BENCHMARKS.md,
     "Time to quality").
+
+    ``weight(points [M, 2]) -> [M]`` (with ``one_call``): the points' mean is weighted by it, e.g. a
+    cut-out's coverage, so a footprint averages the surface that is there; a row whose weights sum to 0
+    keeps the plain mean.
     """
     point_eval = reference.eval if point_eval is None else point_eval
     n = wi.shape[0]
@@ -97,11 +101,16 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         rows = torch.cat([idx.repeat_interleave(s) for idx, s, _ in groups])
         pts = torch.cat([p for _, _, p in groups])
         at = ShadingPoint(params=stack.sample(pts, 0)) if native else ShadingPoint(uv=pts)
-        vals = point_eval(wi[rows], wo[rows], at)
+        vals = point_eval(wi[rows], wo[rows], at).to(out.dtype)
         counts = torch.zeros(n, dtype=wi.dtype, device=wi.device)
         counts.index_add_(0, rows, torch.ones_like(rows, dtype=wi.dtype))
-        out.index_add_(0, rows, vals.to(out.dtype))
+        out.index_add_(0, rows, vals)
         out = out / counts.clamp_min(1.0)[:, None]
+        if weight is not None:
+            w = weight(pts).to(out.dtype)
+            wsum = torch.zeros(n, dtype=out.dtype, device=out.device).index_add_(0, rows, w)
+            wmean = torch.zeros_like(out).index_add_(0, rows, vals * w[:, None]) / wsum.clamp_min(1e-12)[:, None]
+            out = torch.where((wsum > 1e-6)[:, None], wmean, out)
     return out
 
 

@@ -153,7 +153,7 @@ def texture_resolution(compiled: CompiledMaterial) -> tuple[int, int, list[str]]
     g, ev, notes = compiled.graph, compiled.evaluator, []
     best = (0, 0)
     probe = torch.tensor([[0.25, 0.25], [0.75, 0.25], [0.25, 0.75]])
-    for i in compiled.spatial_nodes:
+    for i in compiled.all_spatial_nodes:  # emission and opacity textures count too
         n = g[i]
         f = n.inputs.get("file")
         if n.category != "image" or not isinstance(f, Const) or not f.value:

@@ -76,8 +76,9 @@ class TexturedTargets:
     """Targets of a textured (or UDIM) material: MIP levels drawn with ``cfg.level_rate``, the reference
     read at each row's uv, targets filtered over the row's footprint (``cfg.footprint_samples`` points)."""
 
-    def __init__(self, reference, stack, cfg: TrainConfig, generator: torch.Generator):
+    def __init__(self, reference, stack, cfg: TrainConfig, generator: torch.Generator, coverage=None):
         self.ref, self.stack, self.cfg, self.gen = reference, stack, cfg, generator
+        self.coverage = coverage
 
     def levels(self, n: int, device) -> torch.Tensor:
         """[n] MIP levels in [0, levels) with P(k) ~ exp(-level_rate k)."""
@@ -99,10 +100,10 @@ class TexturedTargets:
                 return cone_mean(self.ref, wi_p, wo_p, angle, 1, self.gen, at)
 
             return footprint_targets(self.ref, self.stack, wi, wo, uv, level, cfg.footprint_samples, self.gen,
-                                     point_eval, one_call=True)
+                                     point_eval, one_call=True, weight=self.coverage)
         wo_m = cone_jitter(wo, angle, 1, self.gen) if angle > 0 else wo
         return footprint_targets(self.ref, self.stack, wi, wo_m, uv, level, cfg.footprint_samples, self.gen,
-                                 one_call=True)
+                                 one_call=True, weight=self.coverage)
 
     def albedo(self, wi: torch.Tensor, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """[N, 3] one-sample estimates of the directional albedo at ``wi``, each at a point of the row's
@@ -117,7 +118,9 @@ class TexturedTargets:
         return self.ref.sample(wi, u, ShadingPoint(uv=pts))[1]
 
 
-def targets_for(reference, stack, cfg: TrainConfig, generator: torch.Generator):
-    """The targets of ``stack``'s kind of material (module docstring), drawing from ``generator``."""
-    kind = TexturedTargets if is_textured(stack) else UniformTargets
-    return kind(reference, stack, cfg, generator)
+def targets_for(reference, stack, cfg: TrainConfig, generator: torch.Generator, coverage=None):
+    """The targets of ``stack``'s kind of material (module docstring), drawing from ``generator``;
+    ``coverage(uv) -> [N]`` (a cut-out's, textured materials only) weights the footprint's points."""
+    if is_textured(stack):
+        return TexturedTargets(reference, stack, cfg, generator, coverage)
+    return UniformTargets(reference, stack, cfg, generator)

@@ -37,6 +37,7 @@ from mtlx2neural.formats.latent_codec import check_block_shapes
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.textures.parameter_stack import ParameterStack
+from mtlx2neural.textures.surface_maps import SurfaceMaps, dilate
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
 from mtlx2neural.train.encoder_input import EncoderInput
@@ -58,6 +59,7 @@ from mtlx2neural.train.udim import draw_uv, is_udim_stack
 
 GRAD_CLIP = 10.0  # global gradient-norm cap
 GRAZING_MAX_COS = 0.25  # cfg.grazing_fraction's viewers: within ~14 degrees of the horizon
+SURFACE_REDRAWS = 8  # rounds of redrawing uv that fell where a cut-out has no surface
 GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
 
 
@@ -80,8 +82,13 @@ class Trainer:
     (module docstring). ``stack`` is the material's parameter stack (a UDIM ``TiledStack`` for a UDIM
     material); ``device`` where the model and batches live (random numbers are drawn on the CPU)."""
 
-    def __init__(self, reference, stack: ParameterStack, cfg: TrainConfig, out_dir: Path, device="cpu"):
+    def __init__(self, reference, stack: ParameterStack, cfg: TrainConfig, out_dir: Path, device="cpu",
+                 surface: SurfaceMaps | None = None):
         self.ref, self.stack, self.cfg = reference, stack, cfg
+        # A cut-out's coverage (textures.surface_maps): rows are drawn where there is surface, footprints
+        # weighted by it, and empty texels' latents dilated from their neighbours after training.
+        self.surface = (surface if surface is not None and surface.coverage_levels and surface.coverage < 1
+                        and not is_udim_stack(stack) else None)
         self.out_dir = Path(out_dir)
         self.device = torch.device(device)
         self.textured = is_textured(stack)
@@ -105,7 +112,8 @@ class Trainer:
         self.history: list[dict] = []
         self.clipped_steps = 0
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
-        self.targets = targets_for(reference, stack, cfg, self.gen)  # the rows' levels and targets for this kind
+        self.targets = targets_for(reference, stack, cfg, self.gen,  # the rows' levels and targets for this kind
+                                   self.surface.coverage_at if self.surface is not None else None)
         self.replay = RowReplay(cfg.batch, cfg.target_reuse)
         # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md, "Training throughput"); it costs
         # tens of seconds of compilation, so only the long presets turn it on.
@@ -213,7 +221,14 @@ class Trainer:
         cfg, g, dev = self.cfg, self.gen, self.device
         n_graze = round(cfg.grazing_fraction * batch)
         b = batch + n_graze
-        uv = draw_uv(b, self.tiles, g).to(dev)
+        uv = draw_uv(b, self.tiles, g)
+        if self.surface is not None:  # redraw the rows that landed where a cut-out has no surface
+            for _ in range(SURFACE_REDRAWS):
+                empty = torch.nonzero(~self.surface.texel_covered(uv))[:, 0]
+                if len(empty) == 0:
+                    break
+                uv[empty] = draw_uv(len(empty), self.tiles, g)
+        uv = uv.to(dev)
         level = self.targets.levels(b, dev)
         wi, wo = half_difference_pairs(b, g, dev)
         if n_graze > 0:  # extra rows whose viewer is near the horizon (their wo stays as drawn, above it)
@@ -247,6 +262,17 @@ class Trainer:
         if self.step == self.block_start:
             lat.codec.fit(list(lat.levels))
         lat.codec_active = self.step >= self.block_start
+
+    def dilate_empty_texels(self) -> None:
+        """Fill the latents of every texel without surface (a cut-out's empty part, level by level) from
+        their covered neighbours (:func:`~mtlx2neural.textures.surface_maps.dilate`), so a bilinear or
+        coarser lookup at an edge mixes in codes like the surface's own."""
+        if self.surface is None:
+            return
+        with torch.no_grad():
+            for lv, cov in zip(self.model.latents.levels, self.surface.coverage_levels):
+                if tuple(lv.shape[-2:]) == tuple(cov.shape):
+                    lv.copy_(dilate(lv.detach(), cov.to(lv.device) > 0))
 
     def train_step(self) -> dict:
         self._block_phase()
@@ -314,6 +340,7 @@ class Trainer:
                     self.save()
             if not self.baked:
                 self.bake()
+            self.dilate_empty_texels()
             if self.model.latents.codec is not None:  # what ships: the latents through the codec
                 if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)
                     self.model.latents.codec.fit(list(self.model.latents.levels))

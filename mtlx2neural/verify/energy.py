@@ -138,7 +138,7 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
 
 def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, texels: int = 64,
                  samples: int = 64, footprint_points: int = 8, view_degrees=VIEW_DEGREES, seed: int = 0,
-                 params_at=None, device="cpu") -> EnergyCheck:
+                 params_at=None, device="cpu", coverage=None) -> EnergyCheck:
     """The energy ratio per MIP level of ``model`` against ``reference`` (module docstring).
 
     ``resolution``: the finest latent grid (H, W) in texels, which sets the footprints' size;
@@ -146,11 +146,19 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
     {name: [M, width]}`` giving the reference's parameters at points (the parameter stack's level 0
     when it holds the textures at their own resolution, as the training does); None evaluates the
     reference's graph at the points. ``device``: where the materials live (the draws are made on the
-    CPU, so the figures do not depend on it). Runs without gradients; seeded by ``seed``."""
+    CPU, so the figures do not depend on it). Runs without gradients; seeded by ``seed``.
+    ``coverage(uv [M, 2]) -> [M]`` (a cut-out's, in [0, 1]): texels are drawn where it is positive and the
+    reference's footprint points are weighted by it, as training weights them, so the empty part of a
+    cut-out (whose look no consumer shows) does not count."""
     g = torch.Generator().manual_seed(seed)
     out = []
     for k in range(levels):
         uv = torch.rand(texels, 2, generator=g)
+        for _ in range(8 if coverage is not None else 0):  # redraw texels where there is no surface
+            empty = torch.nonzero(coverage(uv) <= 0)[:, 0]
+            if len(empty) == 0:
+                break
+            uv[empty] = torch.rand(len(empty), 2, generator=g)
         wi, angle = _view_directions(texels, view_degrees, g)
         uv_rows = uv.repeat_interleave(len(view_degrees), 0)
         n = wi.shape[0]
@@ -162,7 +170,11 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
         at = ShadingPoint(params=params_at(pts)) if params_at is not None else ShadingPoint(uv=pts)
         with torch.no_grad():
             ref = reference.albedo(wi.repeat_interleave(footprint_points, 0), at, samples=samples, seed=seed)
-            ref = ref.view(n, footprint_points, 3).mean(1)
+            if coverage is not None:  # the mean over the surface that is there
+                w = coverage(pts.cpu()).to(ref.dtype).to(ref.device).view(n, footprint_points, 1)
+                ref = (ref.view(n, footprint_points, 3) * w).sum(1) / w.sum(1).clamp_min(1e-12)
+            else:
+                ref = ref.view(n, footprint_points, 3).mean(1)
             centre = ShadingPoint(params=params_at(uv_rows)) if params_at is not None else ShadingPoint(uv=uv_rows)
             mod = mixture_albedo(model, reference, wi, ShadingPoint(uv=uv_rows, lod=torch.full((n,), float(k),
                                                                                                device=device)),
