@@ -122,3 +122,34 @@ def test_mirror_sample_is_the_generators_near_mirror_textured_metal(tmp_path):
     # 8-bit texture: the range's ends within one code value
     assert abs(float(rough.min()) - 0.02) < 1 / 255 and abs(float(rough.max()) - 0.3) < 1 / 255
     assert float(np.median(rough)) <= 0.1
+
+
+def test_scene_sample_has_an_emitter_a_cut_out_and_a_near_mirror(tmp_path):
+    """samples/make_scene_sample.py: the bundled files are what it writes (byte for byte), and its three
+    UsdPreviewSurface materials are what the scene issue needs: Lava emits from a texture, Leaf is a
+    cut-out (opacity from the texture's alpha with a threshold) about a third covered, Gold is one
+    conductor lobe."""
+    import torch
+
+    from mtlx2neural.textures.surface_maps import build_surface_maps
+
+    spec = importlib.util.spec_from_file_location("make_scene_sample", SAMPLES / "make_scene_sample.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    stage = mod.build(tmp_path / "scene")
+    for name in ("glow_and_leaves.usda", "lava_rock.png", "leaf_rgba.png", "gold_roughness.png"):
+        assert (stage.parent / name).read_bytes() == (SAMPLES / "scene" / name).read_bytes(), name
+    import OpenImageIO as oiio  # the EXR's header carries a write time: compare its pixels
+
+    def pixels(path):
+        return oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)
+
+    assert (pixels(stage.parent / "lava_glow.exr") == pixels(SAMPLES / "scene" / "lava_glow.exr")).all()
+    lava = m2n.load_reference(SAMPLES / "scene" / "glow_and_leaves.usda", "/World/Looks/Lava")
+    assert lava.describe()["surface"]["emission"] == "textured"
+    assert float(lava.emission(torch.rand(256, 2, generator=torch.Generator().manual_seed(0))).max()) > 1.0
+    leaf = m2n.load_reference(SAMPLES / "scene" / "glow_and_leaves.usda", "/World/Looks/Leaf")
+    maps = build_surface_maps(leaf.compiled, (32, 32))
+    assert maps.alpha_mode == "mask" and 0.2 < maps.coverage < 0.45
+    gold = m2n.load_reference(SAMPLES / "scene" / "glow_and_leaves.usda", "/World/Looks/Gold")
+    assert [k["closure"] for k in gold.describe()["lobes_kept"]] == ["conductor_bsdf"]
