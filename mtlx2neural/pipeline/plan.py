@@ -298,6 +298,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
                             max_texels=cfg.max_resolution, texel_density=texel_density, surface=surface,
                             density_texels=implied, notes=notes)
         plan.warnings += list(compiled.case_fixes)
+        plan.warnings += [f"{src.name}: {r}" for r in compiled.surface.refused]  # emission left out, said aloud
         _explain(plan, cfg)
         first.setdefault(content, src.name)
         plans.append(plan)

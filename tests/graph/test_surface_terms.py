@@ -129,3 +129,18 @@ def test_opacity_is_not_folded_into_the_brdf(tmp_path):
     wo = torch.tensor([[-0.2, 0.4, 0.8]])
     torch.testing.assert_close(ref.eval(wi, wo), opaque.eval(wi, wo), rtol=1e-6, atol=1e-7)
     assert opaque.opacity(torch.tensor([[0.5, 0.5]])) is None and opaque.emission(torch.tensor([[0.5, 0.5]])) is None
+
+
+def test_inspect_warns_about_refused_emission(tmp_path):
+    """What a user sees: `inspect` (and so the conversion's plan) warns, naming the conical EDF."""
+    from mtlx2neural.pipeline.inspection import inspect_asset
+
+    body = ('  <conical_edf name="cone" type="EDF">\n' + _inp("color", "color3", "3, 3, 3")
+            + '  </conical_edf>\n  <oren_nayar_diffuse_bsdf name="d" type="BSDF"/>\n')
+    xml = (HEAD + body + '  <surface name="sh" type="surfaceshader">\n'
+           '    <input name="bsdf" type="BSDF" nodename="d"/>\n    <input name="edf" type="EDF" nodename="cone"/>\n'
+           '  </surface>\n  <surfacematerial name="M" type="material">\n'
+           '    <input name="surfaceshader" type="surfaceshader" nodename="sh"/>\n  </surfacematerial>\n</materialx>\n')
+    (tmp_path / "cone.mtlx").write_text(xml)
+    report = inspect_asset(tmp_path / "cone.mtlx")
+    assert any("conical_edf 'cone'" in w and "left out" in w for w in report["materials"][0]["warnings"])
