@@ -5,7 +5,8 @@
 ``eval`` / ``evalPdf`` / ``sample`` / ``albedo`` for batches of (latent, wi, wo, u) given as
 float32 NumPy arrays, plus the latent fetch (and, for a UDIM material's module, the tile lookup,
 per-tile fetch and eval of ``codegen/templates/cpu_harness_udim.slang.in``:
-:meth:`CpuMaterial.udim_fetch_eval`). Buffers are passed through ``dispatch(vars=...)``
+:meth:`CpuMaterial.udim_fetch_eval`; the module's emission and opacity,
+``codegen/templates/cpu_harness_surface.slang.in``: :meth:`CpuMaterial.surface`). Buffers are passed through ``dispatch(vars=...)``
 (docs/ARCHITECTURE.md, "Verification"). The CPU back end compiles the C++ on first dispatch.
 
 Variants: ``"FP32"``, ``"FP16"``, ``"FP16Buffer"``, ``"CoopVec"``, ``"Auto"`` (the per-warp
@@ -137,6 +138,7 @@ class CpuMaterial:
         mod = self.dev.load_module_from_source(f"m2n_harness_{variant}_{digest}", harness)
         self._module, self._fetch_eval_kernel = mod, None
         self._udim = None  # the UDIM harness (udim_fetch_eval), compiled on first use
+        self._surface = None  # the emission / opacity harness (surface), compiled on first use
         self._harness_args = {"module": self.module, "net_type": net, "net_init": init, "channels": self.channels,
                               "prefix": f"NM_{self.ident}", "tag": f"{variant}_{digest}"}
         self.kernel = self.dev.create_compute_kernel(self.dev.link_program([mod], [mod.entry_point("nmHarness")]))
@@ -245,6 +247,30 @@ class CpuMaterial:
                 "gOut": out, "gCount": n, "gWeights": self.weights})
             r = out.to_numpy().view(np.float32)[: 4 * n].reshape(n, 4).copy()
         return r[:, :3], r[:, 3].astype(np.int64)
+
+    def surface(self, emission_levels, opacity_levels, uv, lod) -> tuple[np.ndarray, np.ndarray]:
+        """(emission [N, 3], opacity [N]) of the module's ``<prefix>_Surface`` over ``NMBufferSurfaceMap``s
+        holding ``emission_levels`` (each [3, H, W]) and ``opacity_levels`` (each [1, H, W]), finest first
+        (None: no map, for a material whose emission or opacity is constant), at uv [N, 2] and lod [N]."""
+        if self._surface is None:
+            a = dict(self._harness_args)
+            text = Template(template("cpu_harness_surface.slang.in")).substitute(a)
+            mod = self.dev.load_module_from_source(f"m2n_harness_surface_{a['tag']}", text)
+            self._surface = self.dev.create_compute_kernel(
+                self.dev.link_program([mod], [mod.entry_point("nmHarnessSurface")]))
+        n = int(np.asarray(uv).shape[0])
+        maps = {}
+        for tag, levels, c in (("Emission", emission_levels, 3), ("Opacity", opacity_levels, 1)):
+            levels = [np.zeros((c, 1, 1), np.float32)] if levels is None else [np.asarray(lv, np.float32) for lv in levels]
+            texels, table = pyramid_buffers(self.dev, levels)
+            maps.update({f"g{tag}Texels": texels, f"g{tag}Levels": table, f"g{tag}NumLevels": len(levels)})
+        query = np.concatenate([np.asarray(uv, np.float32), np.asarray(lod, np.float32)[:, None]], 1)
+        out = self._out(4 * n)
+        with _lock:
+            self._surface.dispatch(thread_count=[max(n, 1), 1, 1], vars={
+                **maps, "gQuery": self._buf(query), "gOut": out, "gCount": n})
+            r = out.to_numpy().view(np.float32)[: 4 * n].reshape(n, 4).copy()
+        return r[:, :3], r[:, 3]
 
     def pyramid(self, levels: list[np.ndarray]) -> tuple:
         """Upload latent ``levels`` (each [C, H, W], finest first) for :meth:`fetch_eval`."""

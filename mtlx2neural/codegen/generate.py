@@ -22,6 +22,10 @@ Weight storage choices (documented in the module header too):
 - **FP32 variant**: the float32 weights as trained (from an export folder: its FP16 values),
   for exact checks against the torch model.
 
+Emission and opacity: every module ends with ``<prefix>_Surface<M : INMSurfaceMap>`` whose
+``emission(uv, lod)`` and ``opacity(uv, lod)`` bake in the material's constants or read its
+``emission.exr`` / ``opacity.exr`` trilinearly (templates/surface.slang.in, :func:`_surface_section`).
+
 Network inputs follow the torch model (:mod:`mtlx2neural.model.decoder`): decoder ``[wi in
 each frame (t, b, n), wo likewise, latent]`` (raw ``wi, wo`` without frames), albedo head
 ``[wi in each frame, latent]``, sampler ``[wi, latent]``.
@@ -46,7 +50,7 @@ from mtlx2neural.codegen.network_emitter import (
     emit_mlp,
 )
 from mtlx2neural.codegen.paths import template
-from mtlx2neural.codegen.spec import NetworkSpec, as_spec
+from mtlx2neural.codegen.spec import NetworkSpec, SurfaceSpec, as_spec, surface_spec
 from mtlx2neural.codegen.weight_layout import (
     COOPMAT_TILE,
     coopmat_blob,
@@ -229,13 +233,16 @@ def _weights(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec) -> tuple[str, 
 
 
 def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bool = True,
-                   source: str | None = None) -> str:
+                   source: str | None = None, surface=None) -> str:
     """The Slang module ``NeuralMaterial_<name>`` for a NeuralMaterial, an export folder (its
     ``weights.json``/``weights.bin``) or a :class:`NetworkSpec`.
 
     ``coherent=False`` leaves out the cooperative-vector path (plain FP16 fallback for
     profiles without cooperative vectors). ``name`` defaults to the export folder's material
-    folder name; ``source`` is recorded in the header."""
+    folder name; ``source`` is recorded in the header. ``surface``: the emission and opacity
+    (anything :func:`.spec.surface_spec` takes: a SurfaceSpec, SurfaceMaps, an export folder with its
+    ``surface.json``); by default the export folder's or the model's ``surface``. Every module has
+    ``<prefix>_Surface<M>`` with ``emission(uv, lod)`` and ``opacity(uv, lod)`` (:func:`_surface_section`)."""
     version = _version()
 
     spec32 = as_spec(model_or_export_dir)
@@ -277,7 +284,49 @@ def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bo
     subs["coherent_structs"] = (Template(template("coherent.slang.in" if coherent else "fallback.slang.in")).substitute(subs)
                                 + Template(template("coopmat.slang.in")).substitute(subs))
     text = Template(template("material.slang.in")).substitute(subs)
+    text += _surface_section(subs, surface_spec(model_or_export_dir if surface is None else surface))
     return text + _udim_table(ctx, spec32.udim_tiles) if spec32.udim_tiles else text
+
+
+def _surface_section(subs: dict, surface: SurfaceSpec | None) -> str:
+    """``<prefix>_Surface<M : INMSurfaceMap>`` (templates/surface.slang.in): ``emission(uv, lod)`` and
+    ``opacity(uv, lod)`` of ``surface`` (None: emits nothing, opaque); constants are baked in, textured
+    maps read from the struct's ``emissionMap`` / ``opacityMap`` (bound to ``emission.exr`` /
+    ``opacity.exr``), trilinearly; a cut-out's opacity alpha-tested at 0.5."""
+    s = surface or SurfaceSpec()
+    p, cutoff = subs["prefix"], s.alpha_cutoff
+    if s.emission_file is not None:
+        emission_doc = f"textured: {s.emission_file} (RGB, {s.levels} MIP levels, linear working-space RGB)."
+        emission_body = "return emissionMap.sampleLod(uv, lod).xyz;"
+    elif s.emission_constant is not None:
+        rgb = ", ".join(_f32(v) for v in s.emission_constant)
+        emission_doc, emission_body = f"constant ({rgb}).", f"return float3({rgb});"
+    else:
+        emission_doc, emission_body = "none (0).", "return float3(0.0);"
+    if s.opacity_file is not None:
+        read = "opacityMap.sampleLod(uv, lod).x"
+        opacity_doc = (f"textured: {s.opacity_file} (one channel, {s.levels} MIP levels), "
+                       + ("a cut-out: alpha-tested at 0.5 (coverage-preserving levels)." if cutoff is not None
+                          else "blended: the value, clamped to [0, 1]."))
+        opacity_body = (f"return ({read} >= {p}_ALPHA_CUTOFF) ? 1.0 : 0.0;" if cutoff is not None
+                        else f"return clamp({read}, 0.0, 1.0);")
+    elif s.opacity_constant is not None:
+        value = _f32(s.coverage_constant)
+        opacity_doc = (f"constant {_f32(s.opacity_constant)} ({s.alpha_mode}" +
+                       (f": alpha-tested to {value})." if cutoff is not None else ")."))
+        opacity_body = f"return {value};"
+    else:
+        opacity_doc, opacity_body = "opaque (1).", "return 1.0;"
+    width, height = s.size or (0, 0)
+    return Template(template("surface.slang.in")).substitute(
+        subs, emission_doc=emission_doc, opacity_doc=opacity_doc, emission_body=emission_body,
+        opacity_body=opacity_body, emits="true" if s.emits else "false",
+        emission_textured="true" if s.emission_file else "false",
+        opacity_textured="true" if s.opacity_file else "false",
+        alpha_mode={"opaque": 0, "mask": 1, "blend": 2}[s.alpha_mode], levels=s.levels if s.textured else 0,
+        width=_f32(width), height=_f32(height),
+        emission_binding=f"bind {s.emission_file} (RGB)" if s.emission_file else "not read (constant or none)",
+        opacity_binding=f"bind {s.opacity_file} (one channel)" if s.opacity_file else "not read (constant or opaque)")
 
 
 def _udim_table(ctx: _Ctx, tiles: list[int]) -> str:

@@ -21,6 +21,16 @@ A plan (JSON) holds::
 
 Every render writes a float RGBA OpenEXR (row 0 at the top, linear HDR: no display transform);
 background pixels (the renderer's clear colour) get RGB 0 and alpha 0, covered pixels alpha 1.
+Transparency as in MaterialX's viewers: a material that ``MaterialX.isTransparentSurface`` calls
+transparent (a surface whose ``opacity`` is set or connected, transmission) is generated with the
+``hwTransparency`` option, so its shader writes alpha = 1 - mean(transparency) and discards fragments
+with alpha below 0.001, and GlslRenderer blends the rest (source alpha, one minus source alpha) over its
+clear colour (MaterialX's default screen colour, sRGB (0.3, 0.3, 0.32) in linear Rec. 709, about (0.073,
+0.073, 0.084); reported per render as ``background``), back faces included (no culling). A cut-out's empty
+part (opacity 0) thus shows the background, or the inside of the geometry behind it, exactly; a blended
+surface's pixels mix in the clear colour and the faces behind, and weight its own colour by the opacity
+twice (the surface node has already multiplied it; measured: a white emitter at opacity 0.5 on the sphere
+reads 0.393, two layers over the background).
 The results (JSON on stdout) give per render the median seconds per frame (a draw plus the
 read-back, after one warm-up draw that includes llvmpipe's shader compilation; None without timed
 frames) and the first frame's.
@@ -172,9 +182,9 @@ def read_exr(path) -> np.ndarray:
 
 def render_plan(plan: dict, workdir=None, timeout: float = TIMEOUT) -> dict:
     """Run ``plan`` (module docstring) in a child process under ``xvfb-run -a`` (or on the current
-    DISPLAY without it); returns its results ``{"renders": [{"out", "seconds_per_frame",
-    "first_frame", ...}], "renderer": GL_RENDERER}``. Raises Mtlx2NeuralError with the child's
-    output when it fails."""
+    DISPLAY without it); returns its results ``{"renders": [{"out", "seconds_per_frame", "first_frame",
+    "background", "covered", "transparent"}], "renderer": GL_RENDERER}``. Raises Mtlx2NeuralError with
+    the child's output when it fails."""
     reason = gl_unavailable()
     if reason:
         raise Mtlx2NeuralError(f"MaterialX's GLSL renderer cannot run: {reason}")
@@ -338,6 +348,10 @@ def _run(plan: dict) -> dict:
         if rig is not None:
             lights.registerLights(rig, nodes, ctx)  # before generate: binds the light functions
         material = doc.getNode(job["material"]) if job.get("material") else doc.getMaterialNodes()[0]
+        # As MaterialX's viewers: a surface with an opacity (or transmission) is generated transparent, so
+        # the shader writes alpha and discards what is fully transparent, and the renderer blends the rest.
+        transparent = bool(mx_gen.isTransparentSurface(material, generator.getTarget()))
+        ctx.getOptions().hwTransparency = transparent
         shader = generator.generate(material.getName(), material, ctx)
         size = int(job["size"])
         renderer.setSize(size, size)
@@ -362,7 +376,8 @@ def _run(plan: dict) -> dict:
         write_exr(job["out"], out)
         results.append({"out": job["out"], "material": material.getName(), "size": size,
                         "seconds_per_frame": float(np.median(times)) if times else None, "first_frame": first,
-                        "background": background.tolist(), "covered": int(covered.sum())})
+                        "background": background.tolist(), "covered": int(covered.sum()),
+                        "transparent": transparent})
     return {"renders": results, "images_loaded": sorted(set(loader.loaded)), "renderer": gl_name}
 
 

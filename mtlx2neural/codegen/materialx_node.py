@@ -18,7 +18,22 @@ each atomically (a temporary sibling renamed into place). The document holds
 - the implementations ``IM_neural_<ident>_bsdf_genglsl`` / ``_genslang`` (``file`` relative to
   the document, function ``mx_neural_<ident>_bsdf``);
 - ``N_neural_<ident>`` (the node, its latent inputs set to the texture files, relative to the
-  document), ``SR_neural_<ident>`` (a ``surface``) and ``M_neural_<ident>`` (a ``surfacematerial``).
+  document), ``SR_neural_<ident>`` (a ``surface``) and ``M_neural_<ident>`` (a ``surfacematerial``);
+- for a material that emits or is not opaque (the export's ``surface.json``), standard nodes feeding the
+  surface's ``edf`` and ``opacity`` (:func:`add_surface_nodes`): ``N_neural_<ident>_edf`` (a
+  ``uniform_edf`` whose colour is the constant emission or ``N_neural_<ident>_emission``, an ``image``
+  node reading ``emission.exr``), and the opacity as a constant or ``N_neural_<ident>_opacity`` (an
+  ``image`` reading ``opacity.exr``), for a cut-out through ``N_neural_<ident>_cutout`` (an
+  ``ifgreatereq`` at 0.5, as UsdPreviewSurface's graph tests ``opacityThreshold``).
+
+The emission and opacity maps are the export's files, copied whole (MIP chain included) beside the
+document. MaterialX's viewers read level 0 and build their own MIP maps (GLTextureHandler does), as they
+would from a level-0 file; a host whose texture system reads a file's own MIP levels (OpenImageIO's
+TextureSystem does) gets the exported ones (coverage-weighted emission, coverage-preserving cut-outs). An atlas read by a custom node, as for the
+latents, would keep the levels everywhere but work only in the genglsl / genslang implementations; these
+are stdlib and pbrlib nodes, which every MaterialX back end and hdMtlx understands. The cost: in a viewer
+that builds its own MIP maps, a cut-out's thin parts thin out with distance and its emission mixes in the
+empty texels' values at its edges.
 
 The latent textures are the export's OpenEXR MIP chains (``latents_<k>.exr``, RGBA, level 0 the
 finest, row 0 the top). They are checked when the node is written: a missing, unreadable or
@@ -43,6 +58,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,7 +78,13 @@ from mtlx2neural.codegen.materialx_shader import (
     node_source,
     prefix,
 )
-from mtlx2neural.codegen.spec import as_spec
+from mtlx2neural.codegen.spec import (
+    SURFACE_MANIFEST,
+    SurfaceSpec,
+    as_spec,
+    read_surface_spec,
+    surface_spec,
+)
 from mtlx2neural.errors import InputError, Mtlx2NeuralError
 from mtlx2neural.formats.latent_codec import (
     block_texture_names,
@@ -90,15 +112,20 @@ class NodeNames:
     mtlx: str
     glsl: str
     slang: str
+    edf: str = ""
+    emission: str = ""
+    opacity: str = ""
+    cutout: str = ""
 
 
 def node_names(name: str) -> NodeNames:
     """The element and file names of material ``name`` (any string; '/World/Looks/Car Paint' -> Car_Paint)."""
     ident = prefix(name)
     stem = f"NeuralMaterial_{ident}"
-    return NodeNames(ident, f"ND_neural_{ident}_bsdf", f"neural_{ident}_bsdf", f"N_neural_{ident}",
+    node = f"N_neural_{ident}"
+    return NodeNames(ident, f"ND_neural_{ident}_bsdf", f"neural_{ident}_bsdf", node,
                      f"SR_neural_{ident}", f"M_neural_{ident}", function_name(name), f"{stem}.mtlx", f"{stem}.glsl",
-                     f"{stem}.slang")
+                     f"{stem}.slang", f"{node}_edf", f"{node}_emission", f"{node}_opacity", f"{node}_cutout")
 
 
 def latent_file_names(channels: int) -> list[str]:
@@ -252,9 +279,10 @@ def _udim_tiles(model_or_export) -> list[int] | None:
 
 
 def build_document(name: str, layout: LatentLayout, latent_values: list[str],
-                   env_samples: int = DEFAULT_ENV_SAMPLES, doc_string: str = ""):
+                   env_samples: int = DEFAULT_ENV_SAMPLES, doc_string: str = "", surface: SurfaceSpec | None = None):
     """The MaterialX document of material ``name`` (module docstring); ``latent_values`` are the
-    latent inputs' file names as the document will state them."""
+    latent inputs' file names as the document will state them; ``surface``: the emission and opacity
+    (its files named as the document states them), None: none and opaque."""
     n = node_names(name)
     doc = mx.createDocument()
     nd = doc.addNodeDef(n.nodedef, "BSDF", n.category)
@@ -279,10 +307,77 @@ def build_document(name: str, layout: LatentLayout, latent_values: list[str],
     node = doc.addNode(n.category, n.node, "BSDF")
     for g, value in enumerate(latent_values):
         node.setInputValue(f"latent{g}", value, "filename")
-    surface = doc.addNode("surface", n.surface, "surfaceshader")
-    surface.setConnectedNode("bsdf", node)
-    doc.addMaterialNode(n.material, surface)
+    shader = doc.addNode("surface", n.surface, "surfaceshader")
+    shader.setConnectedNode("bsdf", node)
+    add_surface_nodes(doc, shader, n, surface)
+    doc.addMaterialNode(n.material, shader)
     return doc
+
+
+def add_surface_nodes(doc, shader, names: NodeNames, surface: SurfaceSpec | None) -> None:
+    """Connect ``surface``'s emission and opacity to the ``surface`` node ``shader`` of ``doc``
+    (module docstring): a ``uniform_edf`` on ``edf`` (its colour a constant or an ``image`` of the
+    emission file, linear Rec. 709, periodic), and on ``opacity`` a constant (a cut-out's alpha-tested) or
+    an ``image`` of the opacity file, through an ``ifgreatereq`` at 0.5 for a cut-out."""
+    if surface is None:
+        return
+
+    def image(node_name: str, file: str, kind: str):
+        img = doc.addNode("image", node_name, kind)
+        f = img.addInput("file", "filename")
+        f.setValueString(file)
+        if kind == "color3":
+            f.setColorSpace("lin_rec709")
+        for axis in ("uaddressmode", "vaddressmode"):
+            img.setInputValue(axis, "periodic", "string")
+        return img
+
+    if surface.emits:
+        edf = doc.addNode("uniform_edf", names.edf, "EDF")
+        if surface.emission_file is not None:
+            edf.setConnectedNode("color", image(names.emission, surface.emission_file, "color3"))
+        else:
+            edf.setInputValue("color", mx.Color3(*surface.emission_constant), "color3")
+        shader.setConnectedNode("edf", edf)
+    if surface.opacity_file is not None:
+        alpha = image(names.opacity, surface.opacity_file, "float")
+        if surface.alpha_cutoff is not None:
+            test = doc.addNode("ifgreatereq", names.cutout, "float")
+            test.setConnectedNode("value1", alpha)
+            test.setInputValue("value2", float(surface.alpha_cutoff), "float")
+            test.setInputValue("in1", 1.0, "float")
+            test.setInputValue("in2", 0.0, "float")
+            alpha = test
+        shader.setConnectedNode("opacity", alpha)
+    elif surface.opacity_constant is not None:
+        shader.setInputValue("opacity", float(surface.coverage_constant), "float")
+
+
+def surface_files(model_or_export, base: Path, folder: Path) -> tuple[SurfaceSpec | None, list[tuple[Path, Path]]]:
+    """The emission and opacity of the material whose export folder (or, for a model, the folder its
+    latents are read from) is ``base``: its ``surface.json`` (:func:`.spec.read_surface_spec`; None when
+    the material emits nothing and is opaque), each map checked (InputError naming it), and the copies
+    to make: (file in ``base``, the same name in ``folder``), none for a file already there. Without a
+    ``surface.json`` a model's own ``surface`` is used when it is constant; one with textured maps raises
+    InputError (the files are needed)."""
+    surface = read_surface_spec(base)
+    if surface is None:
+        own = surface_spec(model_or_export) if not isinstance(model_or_export, (str, Path)) else None
+        if own is not None and own.textured:
+            raise InputError(f"the model's emission or opacity is textured, but {base} holds no {SURFACE_MANIFEST}: "
+                             f"write its maps there first (mtlx2neural.export.surface_files.write_surface_files)")
+        return own, []
+    copies = []
+    for file, channels in ((surface.emission_file, 3), (surface.opacity_file, 1)):
+        if file is None:
+            continue
+        src = base / file
+        chain = read_mip_chain(src, channels, what="emission map" if channels == 3 else "opacity map")
+        if surface.levels and len(chain) != surface.levels:
+            raise InputError(f"{src} has {len(chain)} MIP level(s); {base / SURFACE_MANIFEST} says {surface.levels}")
+        if (folder / file).resolve() != src.resolve():
+            copies.append((src, folder / file))
+    return surface, copies
 
 
 def validate_document(doc, where: str = "the neural material document") -> None:
@@ -304,17 +399,17 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     copied, level by level, into the atlases ``latent_atlas_<k>.exr`` in ``folder``, which the
     document names (module docstring). ``env_samples``: learned-sampler directions per pixel
     under environment light. Directions and units as :mod:`.materialx_shader`: local frame z =
-    normal, x = tangent; the BSDF's response to a light is f * cos(wo) (cosine included)."""
+    normal, x = tangent; the BSDF's response to a light is f * cos(wo) (cosine included). The emission
+    and opacity come from ``surface.json`` in the export folder (for a model: in ``folder``), their maps
+    copied into ``folder`` (:func:`surface_files`), and feed the surface node (:func:`add_surface_nodes`)."""
     folder = Path(folder)
     spec = as_spec(model_or_export)
+    base_folder = folder if not isinstance(model_or_export, (str, Path)) else \
+        (Path(model_or_export) if Path(model_or_export).is_dir() else Path(model_or_export).parent)
     tiles = _udim_tiles(model_or_export)
     codec = codec_of(model_or_export)  # block-compressed latents: DDS files, decoded into the atlases
     if latent_files is None:
-        if isinstance(model_or_export, (str, Path)):
-            base = Path(model_or_export)
-            base = base if base.is_dir() else base.parent
-        else:
-            base = folder
+        base = base_folder
         names = (latent_file_names(spec.latent_channels) if codec is None
                  else block_texture_names(spec.latent_channels))
         latent_files = [base / f for f in names]
@@ -329,8 +424,9 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
         chains = [[chain] for chain in chains]
     names = node_names(name)
     folder.mkdir(parents=True, exist_ok=True)
+    surface, copies = surface_files(model_or_export, base_folder, folder)
     atlases = atlas_file_names(layout.groups)
-    doc = build_document(name, layout, atlases, env_samples)
+    doc = build_document(name, layout, atlases, env_samples, surface=surface)
     validate_document(doc, f"the MaterialX document of material {name}")
     version, source = _version(), _describe_source(model_or_export)
     texts = {names.glsl: node_source(spec, name, layout, "genglsl", file=names.glsl, nodedef=names.nodedef,
@@ -340,6 +436,9 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
              names.mtlx: mx.writeToXmlString(doc)}
     for tile_chains, atlas in zip(chains, atlases):
         write_latent_atlas(tile_chains, folder / atlas)
+    for src, dest in copies:  # the emission and opacity maps, whole (module docstring)
+        with atomic_path(dest) as tmp:
+            shutil.copyfile(src, tmp)
     for file, text in texts.items():  # the document last: it names the other files
         with atomic_path(folder / file) as tmp:
             tmp.write_text(text)

@@ -13,6 +13,7 @@ so a spec built from a model and one read back from its export hold the same FP1
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -137,3 +138,128 @@ def as_spec(model_or_export) -> NetworkSpec:
     if hasattr(model_or_export, "state_dict"):
         return spec_from_model(model_or_export)
     raise TypeError(f"expected a NeuralMaterial, an export folder or a NetworkSpec, got {type(model_or_export)!r}")
+
+
+# ------------------------------------------------------------------------------ emission and opacity
+
+SURFACE_MANIFEST = "surface.json"
+"""An export folder's manifest of its emission and opacity maps (written by
+:func:`mtlx2neural.export.surface_files.write_surface_files`, whose ``MANIFEST_FILE`` it is: the export
+layer sits above codegen, so the name is repeated here)."""
+
+
+@dataclass(frozen=True)
+class SurfaceSpec:
+    """A material's emission and opacity as the shader generators need them: each a constant, a
+    texture (its file name in ``folder``, with ``levels`` MIP levels and a ``size`` (width, height) level
+    0) or absent, and the alpha mode (``opaque``, ``mask``: alpha-tested at ``alpha_cutoff``, or
+    ``blend``). Built by :func:`surface_spec` from an export's ``surface.json`` or from a model's
+    :class:`~mtlx2neural.textures.surface_maps.SurfaceMaps` (``folder`` None: maps in memory)."""
+
+    emission_constant: tuple[float, float, float] | None = None
+    emission_file: str | None = None
+    opacity_constant: float | None = None
+    opacity_file: str | None = None
+    alpha_mode: str = "opaque"
+    levels: int = 0
+    size: tuple[int, int] | None = None
+    folder: Path | None = None
+
+    @property
+    def alpha_cutoff(self) -> float | None:
+        return 0.5 if self.alpha_mode == "mask" else None
+
+    @property
+    def emits(self) -> bool:
+        return self.emission_constant is not None or self.emission_file is not None
+
+    @property
+    def textured(self) -> bool:
+        return self.emission_file is not None or self.opacity_file is not None
+
+    @property
+    def coverage_constant(self) -> float | None:
+        """The constant coverage a consumer uses (a mask's constant alpha-tested), None unless constant."""
+        a = self.opacity_constant
+        if a is None:
+            return None
+        return float(a >= self.alpha_cutoff) if self.alpha_cutoff is not None else min(max(float(a), 0.0), 1.0)
+
+
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) of level 0 of the image at ``path``, None when it cannot be opened (the
+    generators that read the file report that)."""
+    # Local: OpenImageIO only where a map's size is needed (imaging.image_io loads it on demand).
+    from mtlx2neural.imaging.image_io import openimageio
+
+    oiio = openimageio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        return None
+    try:
+        return int(inp.spec().width), int(inp.spec().height)
+    finally:
+        inp.close()
+
+
+def _from_manifest(manifest: dict, folder: Path) -> SurfaceSpec:
+    e, o = manifest.get("emission") or {}, manifest.get("opacity") or {}
+    files = [x["file"] for x in (e, o) if "file" in x]
+    levels = max([int(x.get("levels", 0)) for x in (e, o) if "file" in x], default=0)
+    return SurfaceSpec(
+        emission_constant=tuple(float(v) for v in e["constant"]) if "constant" in e else None,
+        emission_file=e.get("file"), opacity_constant=float(o["constant"]) if "constant" in o else None,
+        opacity_file=o.get("file"), alpha_mode=str(manifest.get("alpha_mode", "opaque")), levels=levels,
+        size=_image_size(folder / files[0]) if files else None, folder=folder)
+
+
+def _from_maps(maps) -> SurfaceSpec:
+    """From a :class:`~mtlx2neural.textures.surface_maps.SurfaceMaps` (read by its fields: the textures
+    layer's class is not imported for this)."""
+    em, op = maps.emission_levels, maps.opacity_levels
+    levels = em if em is not None else op
+    return SurfaceSpec(
+        emission_constant=None if maps.emission_constant is None else tuple(float(v) for v in maps.emission_constant),
+        emission_file="emission.exr" if em is not None else None,
+        opacity_constant=None if maps.opacity_constant is None else float(maps.opacity_constant),
+        opacity_file="opacity.exr" if op is not None else None, alpha_mode=maps.alpha_mode,
+        levels=len(levels) if levels is not None else 0,
+        size=(int(levels[0].shape[-1]), int(levels[0].shape[-2])) if levels is not None else None)
+
+
+def read_surface_spec(folder) -> SurfaceSpec | None:
+    """The :class:`SurfaceSpec` of the export ``folder`` (or of the folder of a ``weights.json``) from its
+    ``surface.json``; None when there is none (the material emits nothing and is opaque)."""
+    folder = Path(folder)
+    folder = folder.parent if folder.is_file() else folder
+    path = folder / SURFACE_MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot be read as the surface maps' manifest ({exc}); export the material "
+                         f"again") from exc
+    spec = _from_manifest(manifest or {}, folder)
+    return spec if spec.emits or spec.alpha_mode != "opaque" else None
+
+
+def surface_spec(source) -> SurfaceSpec | None:
+    """The emission and opacity of ``source``: a :class:`SurfaceSpec` (as it is), an export folder or
+    ``weights.json`` (:func:`read_surface_spec`), a ``surface.json`` manifest (dict, files in the current
+    folder), a SurfaceMaps, or a model with a ``surface`` attribute; None when it emits nothing and is
+    opaque, or holds no such information (a NetworkSpec)."""
+    if source is None or isinstance(source, SurfaceSpec):
+        return source
+    if isinstance(source, (str, Path)):
+        return read_surface_spec(source)
+    if isinstance(source, dict):
+        spec = _from_manifest(source, Path("."))
+    elif hasattr(source, "emission_levels") and hasattr(source, "alpha_mode"):
+        spec = _from_maps(source)
+    elif hasattr(source, "surface") and not isinstance(source, NetworkSpec):
+        return surface_spec(source.surface)
+    else:
+        return None
+    return spec if spec.emits or spec.alpha_mode != "opaque" else None

@@ -13,6 +13,9 @@ Files written into ``folder`` (the export's ``<material>/neural/``)::
 each written atomically, so that the folder compiles on its own (``slangc -I <folder>`` or
 Slang's default search of the importing file's folder). :func:`~.engine.write_engine_files` adds the HLSL and
 SPIR-V that engines without Slang include.
+
+The module's ``<prefix>_Surface`` (emission and opacity) binds ``emission.exr`` / ``opacity.exr`` of the
+folder when the material has them (its ``surface.json``, which the export writes first).
 """
 
 from __future__ import annotations
@@ -23,15 +26,20 @@ from pathlib import Path
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.codegen.generate import generate_slang, identifier
 from mtlx2neural.codegen.paths import RUNTIME_FILES, runtime_path
-from mtlx2neural.codegen.spec import as_spec
+from mtlx2neural.codegen.spec import as_spec, read_surface_spec, surface_spec
 from mtlx2neural.codegen.weight_layout import coopmat_blob, coopvec_blob, fp16_blob
 
 
 def write_material_shader(model_or_export, folder, name: str, *, coherent: bool = True) -> list[Path]:
-    """Generate and write the shader files of one material into ``folder``; returns their paths."""
+    """Generate and write the shader files of one material into ``folder``; returns their paths.
+
+    The module's emission and opacity (``<prefix>_Surface``) follow ``folder``'s ``surface.json``
+    (the export writes the maps first), else those of ``model_or_export`` (an export folder's
+    ``surface.json`` or a model's ``surface``)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     spec = as_spec(model_or_export)
+    surface = read_surface_spec(folder) or surface_spec(model_or_export)
     stem = f"NeuralMaterial_{identifier(name)}"
     written = []
 
@@ -41,7 +49,7 @@ def write_material_shader(model_or_export, folder, name: str, *, coherent: bool 
             tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
         written.append(path)
 
-    put(f"{stem}.slang", generate_slang(spec, name, coherent=coherent, source=f"material {name}"))
+    put(f"{stem}.slang", generate_slang(spec, name, coherent=coherent, source=f"material {name}", surface=surface))
     put(f"{stem}.fp16.bin", fp16_blob(spec)[0])
     put(f"{stem}.coopvec.bin", coopvec_blob(spec)[0])
     put(f"{stem}.coopmat.bin", coopmat_blob(spec)[0])

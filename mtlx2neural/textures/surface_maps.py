@@ -76,7 +76,9 @@ def coverage_preserving(level0: torch.Tensor, count: int, cutoff: float = ALPHA_
         values, counts = torch.unique(flat[flat > 0], return_counts=True)
         at_or_above = counts.flip(0).cumsum(0).flip(0).float() / flat.numel()
         tau = float(values[torch.argmin((at_or_above - target).abs())])
-        levels.append((rank * (cutoff / max(tau, 1e-6))).clamp(0.0, 1.0))
+        # Just above the cutoff (1 + 2^-10 survives FP16), so a bilinear read between two passing texels
+        # cannot round below it.
+        levels.append((rank * (cutoff * (1.0 + 2.0 ** -10) / max(tau, 1e-6))).clamp(0.0, 1.0))
     return levels
 
 
