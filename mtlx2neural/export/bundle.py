@@ -20,7 +20,8 @@ default; the layer sits beside it, so by default next to the input)::
                                        spirv-opt takes minutes per material on a small CPU)
             materialx/                 the material as a MaterialX BSDF node (mtlx2neural.codegen.materialx_node),
               NeuralMaterial_<ident>.mtlx, .glsl, .slang    validated when written; its genglsl / genslang
-                                       implementations beside it, the latents above read as ../latents_<k>.exr
+                                       implementations beside it, the latents copied into single-level atlases
+                                       latent_atlas_<k>.exr and emission.exr/opacity.exr copied whole
                                        (a folder of its own: the node's .slang would overwrite the module's)
             preview/                   the analytic baseline baked for the UsdPreviewSurface fallback:
               diffuseColor.exr, roughness.exr, metallic.exr, normal.exr   (half, linear)
