@@ -46,6 +46,12 @@ EXPECTED_ATTRS = {
     "neural:metrics:trainSeconds": ("float", None),
     "neural:quality": ("token", None),
     "neural:qualityReasons": ("string[]", None),
+    "neural:emissionTexture": ("asset", None),
+    "neural:emissionColor": ("color3f", None),
+    "neural:opacityTexture": ("asset", None),
+    "neural:opacity": ("float", 1.0),
+    "neural:alphaMode": ("token", "opaque"),
+    "neural:alphaCutoff": ("float", 0.5),
 }
 
 
@@ -108,6 +114,7 @@ REGISTERED_SCRIPT = """
         assert spec.GetFallbackValue() == fallback, (name, spec.GetFallbackValue())
         assert spec.GetDocumentation(), name
     assert defn.GetAttributeDefinition("neural:activation").GetMetadata("allowedTokens") == ["relu"]
+    assert defn.GetAttributeDefinition("neural:alphaMode").GetMetadata("allowedTokens") == ["opaque", "mask", "blend"]
 
     stage = Usd.Stage.CreateInMemory()
     mat = UsdShade.Material.Define(stage, "/Looks/M")

@@ -310,7 +310,7 @@ PREVIEW_TEXTURES = ("diffuseColor", "roughness", "metallic", "normal")
 
 
 def author_preview_surface(stage, material_path, textures: dict, ior: float, prefix: str = "PreviewSurface",
-                           render_context: str = ""):
+                           render_context: str = "", surface: dict | None = None):
     """Author a UsdPreviewSurface network under ``material_path`` on ``stage`` (at its edit target) and
     connect the Material's ``outputs:surface`` (``outputs:<render_context>:surface`` when given) to it.
 
@@ -319,7 +319,9 @@ def author_preview_surface(stage, material_path, textures: dict, ior: float, pre
     (``UsdPrimvarReader_float2`` of the primvar ``st``) and ``<prefix>_<input>Texture`` (UsdUVTexture,
     ``sourceColorSpace = raw``: the maps are linear; the normal map's scale 2 / bias -1 undo its
     n * 0.5 + 0.5 encoding, tangent space). Ancestors missing on the stage are authored as ``over``.
-    Returns the UsdPreviewSurface shader.
+    ``surface``: the material's emission and opacity, the manifest of
+    :func:`mtlx2neural.export.surface_files.write_surface_files` with each ``file`` as the layer states it
+    (None: neither), authored by :func:`_preview_surface_terms`. Returns the UsdPreviewSurface shader.
     """
     # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
     from pxr import Sdf, UsdShade
@@ -341,20 +343,64 @@ def author_preview_surface(stage, material_path, textures: dict, ior: float, pre
     st.CreateIdAttr("UsdPrimvarReader_float2")
     st.CreateInput("varname", t.String).Set("st")
     st_out = st.CreateOutput("result", t.Float2)
+
+    def texture(name, asset):
+        tex = shader(f"{prefix}_{name}Texture")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", t.Asset).Set(Sdf.AssetPath(asset))
+        tex.CreateInput("sourceColorSpace", t.Token).Set("raw")
+        tex.CreateInput("st", t.Float2).ConnectToSource(st_out)
+        return tex
+
     wiring = {"diffuseColor": ("rgb", t.Color3f, t.Float3), "roughness": ("r", t.Float, t.Float),
               "metallic": ("r", t.Float, t.Float), "normal": ("rgb", t.Normal3f, t.Float3)}
     for name in PREVIEW_TEXTURES:
         out_name, in_type, out_type = wiring[name]
-        tex = shader(f"{prefix}_{name}Texture")
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", t.Asset).Set(Sdf.AssetPath(textures[name]))
-        tex.CreateInput("sourceColorSpace", t.Token).Set("raw")
-        tex.CreateInput("st", t.Float2).ConnectToSource(st_out)
+        tex = texture(name, textures[name])
         if name == "normal":  # stored as n * 0.5 + 0.5
             tex.CreateInput("scale", t.Float4).Set((2.0, 2.0, 2.0, 1.0))
             tex.CreateInput("bias", t.Float4).Set((-1.0, -1.0, -1.0, 0.0))
         surf.CreateInput(name, in_type).ConnectToSource(tex.CreateOutput(out_name, out_type))
+    if surface:
+        _preview_surface_terms(surf, surface, texture)
     return surf
+
+
+def _preview_surface_terms(surf, surface: dict, texture) -> None:
+    """``emissiveColor``, ``opacity`` and ``opacityThreshold`` of the UsdPreviewSurface ``surf`` from
+    ``surface`` (:func:`author_preview_surface`), only what the material has.
+
+    ``emissiveColor``: the emission map through ``<prefix>_emissionTexture`` (UsdUVTexture, ``raw``:
+    linear radiance, ``outputs:rgb``), or the constant. ``opacity``: ``<prefix>_opacityTexture``'s
+    ``outputs:r``, or the constant; ``opacityThreshold``: the cutoff (0.5) of a mask (a cut-out, which
+    UsdPreviewSurface renderers alpha-test), 0 for a blend (a fraction). The maps wrap (``repeat``), as
+    the latents do. ``texture(name, asset)`` makes the UsdUVTexture reader ``<prefix>_<name>Texture``."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
+    from pxr import Gf, Sdf
+
+    t = Sdf.ValueTypeNames
+
+    def wrapped(name, asset):
+        tex = texture(name, asset)
+        for axis in ("wrapS", "wrapT"):
+            tex.CreateInput(axis, t.Token).Set("repeat")
+        return tex
+
+    emission, opacity = surface.get("emission"), surface.get("opacity")
+    if emission:
+        emissive = surf.CreateInput("emissiveColor", t.Color3f)
+        if "file" in emission:
+            emissive.ConnectToSource(wrapped("emission", emission["file"]).CreateOutput("rgb", t.Float3))
+        else:
+            emissive.Set(Gf.Vec3f(*(float(x) for x in emission["constant"])))
+    if opacity:
+        value = surf.CreateInput("opacity", t.Float)
+        if "file" in opacity:
+            value.ConnectToSource(wrapped("opacity", opacity["file"]).CreateOutput("r", t.Float))
+        else:
+            value.Set(float(opacity["constant"]))
+        mask = surface.get("alpha_mode") == "mask"
+        surf.CreateInput("opacityThreshold", t.Float).Set(float(surface.get("alpha_cutoff") or 0.5) if mask else 0.0)
 
 
 def write_preview_textures(model: AnalyticMaterial, folder) -> dict:

@@ -26,15 +26,23 @@ variant set ``neuralMaterial`` (selected by default):
   ``neural:metrics:flipInScene``: the same on the stage's own bound meshes, with its camera and
   lights, for a USD input bound to meshes (the figure ``--max-error`` checks then);
   ``neural:metrics:previewFlip``: the UsdPreviewSurface fallback's, so a pipeline sees what each
-  render context costs);
+  render context costs); for a material that emits or is not opaque (``ExportedMaterial.surface``),
+  its emission and opacity: ``neural:emissionTexture`` (``emission.exr``) or ``neural:emissionColor``
+  (the constant radiance; (1, 1, 1), the texture's scale, beside a texture), ``neural:opacityTexture``
+  (``opacity.exr``) or ``neural:opacity`` (the constant), ``neural:alphaMode`` (``mask``: alpha-tested
+  at ``neural:alphaCutoff``; ``blend``), only what the material has (``_surface_attributes``);
 - ``outputs:neural:surface``: the ``NeuralBSDF`` Shader (with a ``UsdPrimvarReader_float2`` for
   ``st``), read by this project (:func:`~mtlx2neural.export.load.load_neural`);
 - ``outputs:mtlx:surface``: the MaterialX network of the material's ``NeuralMaterial_<ident>.mtlx``
-  (:mod:`.usd_mtlx_network`), for Hydra Storm and other renderers built with UsdMtlx;
+  (:mod:`.usd_mtlx_network`), for Hydra Storm and other renderers built with UsdMtlx; with the
+  emission on the ``ND_surface`` node's ``edf`` and the opacity on its ``opacity``;
 - ``outputs:surface`` (universal): a ``UsdPreviewSurface`` (Shader ``NeuralPreview``) of the
   analytic baseline (Lambert + GGX fitted to the reference) and its baked textures, for tools
   that read neither MaterialX nor custom shaders (Storm without UsdMtlx, Blender's importer,
-  RealityKit / QuickLook).
+  RealityKit / QuickLook), with the emission on ``emissiveColor`` and the opacity on ``opacity``
+  and ``opacityThreshold`` (0.5 for a cut-out, 0 for a blend).
+
+The emission and opacity maps are asset paths relative to the layer, as the latent textures are.
 
 The ``original`` variant holds nothing else (a variant cannot block an opinion authored outside
 it, so the neural opinions must not be authored outside), with one exception. For a USD input,
@@ -216,6 +224,43 @@ def _api_attributes(prim, m: ExportedMaterial, rel) -> None:
         _set(prim, "neural:quality", t.Token, "flagged" if m.quality["flagged"] else "passed")
         if m.quality["flagged"]:
             _set(prim, "neural:qualityReasons", t.StringArray, Vt.StringArray(list(m.quality["reasons"])))
+    _surface_attributes(prim, surface_assets(m, rel))
+
+
+def surface_assets(m: ExportedMaterial, rel) -> dict | None:
+    """``m.surface`` (None: the material emits nothing and is opaque) with each map's ``file`` as the layer
+    states it (``rel`` of the file in ``m.folder``), for :mod:`.usd_mtlx_network` and the preview."""
+    if not m.surface:
+        return None
+    out = dict(m.surface)
+    for key in ("emission", "opacity"):
+        entry = m.surface.get(key)
+        if entry and "file" in entry:
+            out[key] = {**entry, "file": rel(Path(m.folder) / entry["file"])}
+    return out
+
+
+def _surface_attributes(prim, surface: dict | None) -> None:
+    """The NeuralMaterialAPI's emission and opacity attributes (module docstring) from ``surface``
+    (:func:`surface_assets`), only what the material has."""
+    # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
+    from pxr import Gf, Sdf
+
+    t = Sdf.ValueTypeNames
+    emission, opacity = (surface or {}).get("emission"), (surface or {}).get("opacity")
+    if emission and "file" in emission:
+        _set(prim, "neural:emissionTexture", t.Asset, Sdf.AssetPath(emission["file"]))
+        _set(prim, "neural:emissionColor", t.Color3f, Gf.Vec3f(1.0, 1.0, 1.0))  # the texture's scale
+    elif emission:
+        _set(prim, "neural:emissionColor", t.Color3f, Gf.Vec3f(*(float(x) for x in emission["constant"])))
+    if opacity:
+        if "file" in opacity:
+            _set(prim, "neural:opacityTexture", t.Asset, Sdf.AssetPath(opacity["file"]))
+        else:
+            _set(prim, "neural:opacity", t.Float, float(opacity["constant"]))
+        _set(prim, "neural:alphaMode", t.Token, surface["alpha_mode"])
+        if surface["alpha_mode"] == "mask":
+            _set(prim, "neural:alphaCutoff", t.Float, float(surface.get("alpha_cutoff") or 0.5))
 
 
 def _neural_shader(stage, material, m: ExportedMaterial, rel) -> None:
@@ -247,14 +292,15 @@ def _replaced(m: ExportedMaterial) -> list[str]:
 
 
 def _neural_extras(stage, material, m: ExportedMaterial, rel) -> None:
-    """The MaterialX network and the UsdPreviewSurface fallback of ``m``, where it has them."""
+    """The MaterialX network and the UsdPreviewSurface fallback of ``m``, where it has them, with its
+    emission and opacity."""
     if m.mtlx_document is not None:
         # The node reads its latent atlases beside its document (codegen.materialx_node), one per texture.
         atlases = [m.mtlx_document.parent / f for f in atlas_file_names(len(m.latent_textures))]
-        author_mtlx_network(stage, material, m.name, [rel(p) for p in atlases])
+        author_mtlx_network(stage, material, m.name, [rel(p) for p in atlases], surface_assets(m, rel))
     if m.preview is not None:
         author_preview_surface(stage, material.GetPath(), {k: rel(p) for k, p in m.preview["textures"].items()},
-                               m.preview["ior"], prefix=PREVIEW_PREFIX)
+                               m.preview["ior"], prefix=PREVIEW_PREFIX, surface=surface_assets(m, rel))
 
 
 def _mtlx_original(stage, material, m: ExportedMaterial, asset: Path, rel) -> None:
