@@ -11,8 +11,8 @@ from mtlx2neural.report.options import ReportOptions
 
 NAME = "report"
 USAGE = "mtlx2neural report LAYER"
-HELP = ("HTML report of a neural layer: renders, FLIP, analytic baseline, error versus cost, polar plots, "
-        "training curves, latents, memory")
+HELP = ("HTML report of a neural layer: the whole scene (USD input), renders, FLIP, analytic baseline, error "
+        "versus cost, polar plots, training curves, latents, memory")
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -29,6 +29,14 @@ def run(args: argparse.Namespace) -> int:
     from mtlx2neural.report.html_report import write_report
 
     r = write_report(args.layer, **options.kwargs())
+    scene = r["scene"]
+    if isinstance(scene, dict):
+        t = scene["totals"]
+        print(f"scene: HDR FLIP neural {scene['flip']['neural']:.4f}, preview {scene['flip']['preview']:.4f}; "
+              f"{t['converted']} converted ({t['flagged']} flagged), {t['skipped']} skipped; shipped "
+              f"{t['shipped_memory']:,} bytes against {t['source_textures']:,} bytes of source textures")
+    else:
+        print(f"scene: none ({scene})")
     for m in r["materials"]:
         print(f"{m['material']}: HDR FLIP neural {m['flip']['neural']:.4f}, analytic {m['flip']['analytic']:.4f}")
     print(f"wrote {r['html']}")

@@ -27,6 +27,13 @@ tiles and views), the polar plots default to each trained tile's centre (``--tex
 inside a trained tile), the latent previews show every tile's files, and the shader cost is timed on
 a one-tile stand-in with the same decoder (the tile lookup is a few integer operations more).
 
+A layer whose input is a USD stage first gets the scene view (:mod:`.scene_view`, :func:`scene_section`): the
+stage from its camera with every material of the layer at once, rendered with the references, the neural
+models and the UsdPreviewSurface previews, their HDR FLIP maps, a table of every material (FLIP, energy,
+decoder, training time, shipped bytes, emission and opacity, status: converted, flagged or skipped) and the
+totals (training time, shipped memory against the source textures'; conventions in :mod:`.scene_view`).
+A ``.mtlx`` layer gets a one-line note instead.
+
 The figures are computed in :mod:`.material_figures` (baseline fit, renders, polar slices, curves,
 latents) and :mod:`.cost_table`; plots are inline SVG (:mod:`.svg_plots`, no plotting library);
 images are PNGs in the report folder, next to ``index.html``. The folder is written into a temporary sibling and
@@ -37,6 +44,7 @@ from __future__ import annotations
 
 import html
 import json
+import math
 import string
 from importlib import resources
 from pathlib import Path
@@ -67,6 +75,12 @@ from mtlx2neural.report.material_figures import (
     latent_figures,
     polar_figures,
     training_curves_svg,
+)
+from mtlx2neural.report.scene_view import (
+    OWN_MODELS,
+    SceneView,
+    scene_view,
+    surface_kinds,
 )
 from mtlx2neural.report.svg_plots import svg_scatter
 from mtlx2neural.scene.dependencies import input_files
@@ -225,19 +239,120 @@ against training seconds (three views at 48², 4 samples per pixel, so noisier t
     return body, numbers
 
 
+def _num(x, digits: int = 4) -> str:
+    """``x`` with ``digits`` decimals; a dash for a missing figure (None or NaN)."""
+    return "&ndash;" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _pair(a, b) -> str:
+    return f"{_num(a)} / {_num(b)}"
+
+
+def _status(entry) -> str:
+    e = html.escape
+    text = {"converted": "converted", "flagged": "flagged by the quality gate", "skipped": "skipped by the conversion",
+            "missing": "neural model missing"}[entry.status]
+    why = f"<br><small>{e(entry.reason)}</small>" if entry.reason else ""
+    drawn = "" if entry.drawn == OWN_MODELS else f"<br><small><i>drawn with {e(entry.drawn)}</i></small>"
+    return f'<td class="l status-{entry.status}"><b>{text}</b>{why}{drawn}</td>'
+
+
+def _scene_row(entry) -> str:
+    r, s = entry.record, entry.shipped or {}
+    kinds = surface_kinds(r)
+    surface = [f"emission: {kinds['emission']}" if kinds["emission"] != "none" else "",
+               f"opacity: {kinds['opacity']}" + (f" ({kinds['alpha_mode']})" if kinds["alpha_mode"] != "opaque" else "")
+               if kinds["opacity"] != "none" else ""]
+    surface = ", ".join(x for x in surface if x) or "no emission, opaque"
+    cells = [f'<td class="l">{html.escape(entry.prim)}<br><small>{surface}</small></td>', _status(entry)]
+    if r is None:
+        cells += ['<td colspan="6">&ndash;</td>']
+    else:
+        cells += [f"<td>{_pair(r.flip_mean, r.preview_flip)}</td>",
+                  f"<td>{_pair(r.flip_in_scene, r.preview_flip_in_scene)}</td>",
+                  f"<td>{_pair(entry.flip.get('neural'), entry.flip.get('preview'))}</td>",
+                  f"<td>{_num((r.energy or {}).get('min_ratio'), 2)}</td>",
+                  f"<td>{html.escape(r.decoder)}</td>", f"<td>{r.train_seconds:.1f}</td>"]
+    b = (lambda k: f"{s[k]:,}" if k in s else "&ndash;")
+    cells += [f"<td>{b('latent')}</td>", f"<td>{b('weights')}</td>", f"<td>{b('surface')}</td>",
+              f"<td>{sum(entry.textures.values()):,}</td>"]
+    return "<tr>" + "".join(cells) + "</tr>"
+
+
+def scene_section(layer: Path, out: Path, res: int, spp: int, seed: int) -> tuple[str, dict | str]:
+    """HTML of the scene view (:mod:`.scene_view`; images ``scene_*.png`` written into ``out``) and its
+    numbers, or a one-line note and why there is none."""
+    view = scene_view(layer, res, spp, seed)
+    if not isinstance(view, SceneView):
+        return f'<p class="note">No scene view: {html.escape(view)}.</p>', view
+    e = html.escape
+    for name, img in view.images.items():
+        save_png(out / f"scene_{name}.png", img, linear=not name.endswith("_flip"))
+    f = view.flip
+    figs = [("reference", "reference (MaterialX)"), ("neural", f"neural, FLIP {f['neural']:.4f}"),
+            ("preview", f"UsdPreviewSurface preview, FLIP {f['preview']:.4f}"),
+            ("neural_flip", "neural FLIP map"), ("preview_flip", "preview FLIP map")]
+    images = "".join(f'<figure><img class="scene" src="scene_{k}.png" alt="scene {k}"><figcaption>{c}</figcaption>'
+                     f"</figure>" for k, c in figs)
+    t = view.totals
+    ratio = f"{t['ratio']:.2f}x" if t["ratio"] is not None else "&ndash; (no source texture)"
+    setup = view.setup
+    notes = "".join(f"<li>{e(n)}</li>" for n in setup.get("notes", []))
+    rows = "".join(_scene_row(x) for x in view.entries)
+    mib = (lambda n: f"{n / 2**20:.2f} MiB ({n:,} bytes)")
+    body = f"""
+<h2 id="scene">Scene <small>({e(str(view.source))})</small></h2>
+<p class="note">Every material of the layer on its bound meshes, seen by {e(setup['camera'])}, lit by
+{e('; '.join(setup['lights']))}; {view.res}x{view.res} px, {view.spp} spp, seed {view.seed}, {setup['triangles']}
+triangles, the same random numbers in all three renders ({view.seconds:.1f} s). FLIP: HDR FLIP against the
+reference over the pixels that show a surface. {t['converted']} converted ({t['flagged']} flagged),
+{t['skipped']} skipped, {t['missing']} with no readable neural model (drawn with their reference).</p>
+{'<ul class="note">' + notes + '</ul>' if notes else ''}
+<div class="grid">{images}</div>
+<table class="scene">
+<tr><th class="l">material<br><small>emission, opacity</small></th><th class="l">status</th><th>HDR FLIP<br>sphere views</th>
+<th>HDR FLIP<br>in scene</th><th>HDR FLIP<br>this render</th><th>energy<br>kept</th>
+<th>decoder</th><th>training<br>(s)</th><th>latents<br>(bytes)</th><th>weights<br>(bytes)</th><th>emission,<br>opacity (bytes)</th>
+<th>source<br>textures (bytes)</th></tr>
+{rows}</table>
+<table class="scene">
+<tr><th class="l">totals</th><th></th></tr>
+<tr><td class="l">training time (sum of the materials' optimisation; whole conversions)</td>
+<td>{t['train_seconds']:.1f} s ({t['seconds']:.1f} s)</td></tr>
+<tr><td class="l">shipped: latents + weights + emission/opacity maps, in memory</td><td>{mib(t['shipped_memory'])}</td></tr>
+<tr><td class="l">shipped, on disk (file sizes)</td><td>{mib(t['shipped_disk'])}</td></tr>
+<tr><td class="l">source textures of the converted materials ({t['source_files']} files), decoded with MIP chains</td>
+<td>{mib(t['source_textures'])}</td></tr>
+<tr><td class="l">shipped memory / source textures</td><td>{ratio}</td></tr></table>
+<p class="note">HDR FLIP columns: neural / preview. <i>Sphere views</i> and <i>in scene</i> (the material alone
+on its meshes, from the stage's camera) are the conversion's figures; <i>this render</i> is over the material's own
+pixels in the images above. <i>Energy kept</i>: the lowest ratio, over MIP levels, of the neural model's directional
+albedo to the reference's. Bytes in memory: an EXR counts every stored MIP level at its stored bytes per channel (half: 2), a
+DDS its block data, weights.bin its size. Source textures count width x height x channels x bytes per channel of
+the file (8-bit: 1, half: 2, float: 4) plus a third for a MIP chain; a file read by several materials counts once;
+skipped materials' textures are left out (they ship as before). Training time: the records'
+<code>train_seconds</code> (<code>seconds</code>: the whole conversion of each material).</p>
+"""
+    return body, view.numbers()
+
+
 def default_report_dir(layer) -> Path:
     layer = Path(layer).resolve()
     return layer.parent / f"{layer.stem}_report"
 
 
 def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96, spp: int = 8,
-                 seed: int = 0, materials: list[str] | None = None, texels_at=None, train_sizes: bool = False) -> dict:
+                 seed: int = 0, scene_res: int = 128, scene_spp: int = 16, materials: list[str] | None = None,
+                 texels_at=None, train_sizes: bool = False) -> dict:
     """Write ``out/index.html`` (default ``<layer stem>_report/`` beside the layer) and its PNGs.
+
+    A USD input's report starts with the scene view (:func:`scene_section`, ``scene_res`` x ``scene_res``
+    pixels, ``scene_spp`` samples per pixel; ``scene_res=0`` leaves it out), its numbers in ``scene.json``.
 
     ``materials`` restricts the report to these prim paths; ``texels_at`` lists the (u, v)
     texture coordinates of the polar plots (default the centre, (0.5, 0.5)); ``train_sizes``
     trains the decoder sizes whose FLIP the conversion did not measure (:func:`cost_table`). Returns ``{"html": Path,
-    "materials": [per-material numbers]}``. Raises :class:`~mtlx2neural.errors.InputError` for a
+    "materials": [per-material numbers], "scene": the scene view's numbers, or why there is none}``. Raises :class:`~mtlx2neural.errors.InputError` for a
     missing or invalid layer.
     """
     layer = Path(layer).resolve()
@@ -252,6 +367,10 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
     with Staging(out.parent) as st:  # the whole report folder appears at once, or not at all
         tmp = st.stage(out)
         (tmp / REPORT_MARKER).write_text(report_marker(layer, __version__))
+        if scene_res > 0:
+            scene_body, scene = scene_section(layer, tmp, scene_res, scene_spp, seed)
+        else:
+            scene_body, scene = '<p class="note">No scene view (scene resolution 0).</p>', "left out (scene_res 0)"
         bodies, numbers = [], []
         for i, prim in enumerate(prims):
             b, n = material_section(layer, prim, tmp, i, analytic_iterations, res, spp, seed,
@@ -265,7 +384,8 @@ def write_report(layer, out=None, analytic_iterations: int = 300, res: int = 96,
             intro=html.escape(f"{len(prims)} neural material(s) in {layer}; reference = MaterialX reference BRDF, "
                               f"analytic = Lambert + GGX fitted with {analytic_iterations} steps, neural = the "
                               f"exported model (FP16 latents and weights)."),
-            body=f"<ul>{toc}</ul>" + "".join(bodies))
+            body=scene_body + f"<ul>{toc}</ul>" + "".join(bodies))
         (tmp / "index.html").write_text(page)
         (tmp / "report.json").write_text(json.dumps(numbers, indent=2))
-    return {"html": out / "index.html", "materials": numbers}
+        (tmp / "scene.json").write_text(json.dumps(scene, indent=2))
+    return {"html": out / "index.html", "materials": numbers, "scene": scene}

@@ -93,7 +93,12 @@ class ReportOptions:
     spp: int = field(default=8, metadata={"metavar": "N"})
     """Samples per pixel of the renders."""
     seed: int = field(default=0, metadata={"metavar": "N"})
-    """Seed of the analytic baseline's fit."""
+    """Seed of the analytic baseline's fit and of the scene view's renders."""
+    scene_res: int = field(default=128, metadata={"metavar": "PIXELS"})
+    """Width and height, in pixels, of the scene view (a USD input's whole stage from its camera, every
+    material of the layer at once: reference, neural, UsdPreviewSurface preview); 0 leaves the scene view out."""
+    scene_spp: int = field(default=16, metadata={"metavar": "N"})
+    """Samples per pixel of the scene view's renders."""
     materials: list[str] | None = field(default=None, metadata={"flag": "--material", "metavar": "M"})
     """Only this material (prim path or name); repeat the flag for several (default: every neural
     material of the layer)."""
