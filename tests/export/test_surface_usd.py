@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from usd_validation import VALIDATE  # noqa: E402  (USD's validators in a fresh process)
 
 from mtlx2neural.baseline.analytic_model import AnalyticMaterial, write_preview_textures
 from mtlx2neural.codegen.materialx_node import node_names
@@ -264,19 +265,6 @@ def test_preview_surface_reads_emission_and_opacity(scene):
 # ----------------------------------------------------------------------------- USD's validators
 
 
-VALIDATE = textwrap.dedent("""
-    import json, sys
-    from mtlx2neural import usd_schema
-    usd_schema.register()
-    from pxr import Usd, UsdValidation as V
-    ctx = V.ValidationContext(V.ValidationRegistry().GetOrLoadAllValidators())
-    out = {}
-    for name in sys.argv[1:]:
-        errs = [e for e in ctx.Validate(Usd.Stage.Open(name)) if e.GetType() == V.ValidationErrorType.Error]
-        out[name] = sorted({(e.GetName(), ",".join(str(s.GetPrim().GetPath()) if s.GetPrim() else ""
-                                                   for s in e.GetSites()), e.GetMessage()) for e in errs})
-    print(json.dumps(out))
-""")
 
 
 def test_usd_validators_find_nothing_new(scene):

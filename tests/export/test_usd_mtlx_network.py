@@ -14,13 +14,13 @@ import math
 import shutil
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import MaterialX as mx
 import numpy as np
 import pytest
 from conftest import SIMPLE_MTLX
+from usd_validation import VALIDATE  # noqa: E402  (USD's validators in a fresh process)
 
 from mtlx2neural.codegen.materialx_node import (
     generate_node_shader,
@@ -196,19 +196,6 @@ def test_no_preview_fallback_at_zero_preview_iterations(tmp_path):
     assert any("preview_iterations = 0" in n for n in summary.export_notes)
 
 
-VALIDATE = textwrap.dedent("""
-    import json, sys
-    from mtlx2neural import usd_schema
-    usd_schema.register()
-    from pxr import Usd, UsdValidation as V
-    ctx = V.ValidationContext(V.ValidationRegistry().GetOrLoadAllValidators())
-    out = {}
-    for name in sys.argv[1:]:
-        errs = [e for e in ctx.Validate(Usd.Stage.Open(name)) if e.GetType() == V.ValidationErrorType.Error]
-        out[name] = sorted({(e.GetName(), ",".join(str(s.GetPrim().GetPath()) if s.GetPrim() else ""
-                                                   for s in e.GetSites()), e.GetMessage()) for e in errs})
-    print(json.dumps(out))
-""")
 
 
 def test_usd_validation(red):
