@@ -52,7 +52,9 @@ def test_report_has_every_section_and_its_images(report):
     assert "/World/Looks/Plastic" in page
     images = re.findall(r'<img src="([^"]+)"', page)
     assert len(images) == 3 * 5 + 2  # 3 views x (reference, analytic, neural, 2 FLIP maps) + 2 latent EXRs
-    for name in images:
+    scene = re.findall(r'<img class="scene" src="([^"]+)"', page)  # the USD stage's scene section
+    assert len(scene) == 5  # reference, neural, preview, 2 FLIP maps
+    for name in images + scene:
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     svgs = re.findall(r"<svg.*?</svg>", page, re.DOTALL)
     # error versus cost, 2 polar plots at each of the 2 texels, training curves, FLIP against training time
