@@ -65,6 +65,7 @@ def fit_and_render(reference, neural, texels: tuple[int, int], tiles, analytic_i
         return BaselineRenders(stack, analytics[tiles[0]], analytics, renders, time.time() - t0)
     stack = build_parameter_stack(reference.compiled, resolution=texels)
     analytic = fit_analytic(reference, stack, iterations=analytic_iterations, batch=2048, seed=seed)
+    analytic.surface = getattr(neural, "surface", None)  # shown with the same emission and cut-out maps
     renders = compare_many(reference, {"neural": neural, "analytic": analytic}, texels, res=res, spp=spp)
     return BaselineRenders(stack, analytic, None, renders, time.time() - t0)
 
