@@ -65,7 +65,7 @@ from mtlx2neural.contract import (
 )
 from mtlx2neural.model.latent import LatentPyramid
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
-from mtlx2neural.textures.surface_maps import SurfacesBeside
+from mtlx2neural.textures.surface_maps import ALPHA_CUTOFF, SurfacesBeside
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
@@ -400,7 +400,7 @@ def _preview_surface_terms(surf, surface: dict, texture) -> None:
         else:
             value.Set(float(opacity["constant"]))
         mask = surface.get("alpha_mode") == "mask"
-        surf.CreateInput("opacityThreshold", t.Float).Set(float(surface.get("alpha_cutoff") or 0.5) if mask else 0.0)
+        surf.CreateInput("opacityThreshold", t.Float).Set(ALPHA_CUTOFF if mask else 0.0)
 
 
 def write_preview_textures(model: AnalyticMaterial, folder) -> dict:

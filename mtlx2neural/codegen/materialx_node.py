@@ -79,7 +79,6 @@ from mtlx2neural.codegen.materialx_shader import (
     prefix,
 )
 from mtlx2neural.codegen.spec import (
-    SURFACE_MANIFEST,
     SurfaceSpec,
     as_spec,
     read_surface_spec,
@@ -93,6 +92,7 @@ from mtlx2neural.formats.latent_codec import (
 )
 from mtlx2neural.graph.library import standard_library, with_libraries
 from mtlx2neural.imaging.mip_chain import read_mip_chain
+from mtlx2neural.textures.surface_maps import MANIFEST_FILE
 
 DEFAULT_ENV_SAMPLES = 16
 """Learned-sampler directions per pixel for environment light (MaterialXView's FIS default count)."""
@@ -364,7 +364,7 @@ def surface_files(model_or_export, base: Path, folder: Path) -> tuple[SurfaceSpe
     if surface is None:
         own = surface_spec(model_or_export) if not isinstance(model_or_export, (str, Path)) else None
         if own is not None and own.textured:
-            raise InputError(f"the model's emission or opacity is textured, but {base} holds no {SURFACE_MANIFEST}: "
+            raise InputError(f"the model's emission or opacity is textured, but {base} holds no {MANIFEST_FILE}: "
                              f"write its maps there first (mtlx2neural.export.surface_files.write_surface_files)")
         return own, []
     copies = []
@@ -374,7 +374,7 @@ def surface_files(model_or_export, base: Path, folder: Path) -> tuple[SurfaceSpe
         src = base / file
         chain = read_mip_chain(src, channels, what="emission map" if channels == 3 else "opacity map")
         if surface.levels and len(chain) != surface.levels:
-            raise InputError(f"{src} has {len(chain)} MIP level(s); {base / SURFACE_MANIFEST} says {surface.levels}")
+            raise InputError(f"{src} has {len(chain)} MIP level(s); {base / MANIFEST_FILE} says {surface.levels}")
         if (folder / file).resolve() != src.resolve():
             copies.append((src, folder / file))
     return surface, copies

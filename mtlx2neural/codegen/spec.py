@@ -13,7 +13,6 @@ so a spec built from a model and one read back from its export hold the same FP1
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -23,6 +22,12 @@ import numpy as np
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.fp16 import to_fp16
 from mtlx2neural.formats.weights import analytic_cosine_of, read_weights
+from mtlx2neural.textures.surface_maps import (
+    ALPHA_CUTOFF,
+    SurfaceMaps,
+    read_surface_manifest,
+    used_opacity,
+)
 
 
 @dataclass
@@ -142,12 +147,6 @@ def as_spec(model_or_export) -> NetworkSpec:
 
 # ------------------------------------------------------------------------------ emission and opacity
 
-SURFACE_MANIFEST = "surface.json"
-"""An export folder's manifest of its emission and opacity maps (written by
-:func:`mtlx2neural.export.surface_files.write_surface_files`, whose ``MANIFEST_FILE`` it is: the export
-layer sits above codegen, so the name is repeated here)."""
-
-
 @dataclass(frozen=True)
 class SurfaceSpec:
     """A material's emission and opacity as the shader generators need them: each a constant, a
@@ -167,7 +166,7 @@ class SurfaceSpec:
 
     @property
     def alpha_cutoff(self) -> float | None:
-        return 0.5 if self.alpha_mode == "mask" else None
+        return ALPHA_CUTOFF if self.alpha_mode == "mask" else None
 
     @property
     def emits(self) -> bool:
@@ -180,10 +179,7 @@ class SurfaceSpec:
     @property
     def coverage_constant(self) -> float | None:
         """The constant coverage a consumer uses (a mask's constant alpha-tested), None unless constant."""
-        a = self.opacity_constant
-        if a is None:
-            return None
-        return float(a >= self.alpha_cutoff) if self.alpha_cutoff is not None else min(max(float(a), 0.0), 1.0)
+        return None if self.opacity_constant is None else used_opacity(self.opacity_constant, self.alpha_mode)
 
 
 def _image_size(path: Path) -> tuple[int, int] | None:
@@ -214,9 +210,8 @@ def _from_manifest(manifest: dict, folder: Path) -> SurfaceSpec:
         size=_image_size(folder / files[0]) if files else None, folder=folder)
 
 
-def _from_maps(maps) -> SurfaceSpec:
-    """From a :class:`~mtlx2neural.textures.surface_maps.SurfaceMaps` (read by its fields: the textures
-    layer's class is not imported for this)."""
+def _from_maps(maps: SurfaceMaps) -> SurfaceSpec:
+    """From a :class:`~mtlx2neural.textures.surface_maps.SurfaceMaps`."""
     em, op = maps.emission_levels, maps.opacity_levels
     levels = em if em is not None else op
     return SurfaceSpec(
@@ -233,14 +228,9 @@ def read_surface_spec(folder) -> SurfaceSpec | None:
     ``surface.json``; None when there is none (the material emits nothing and is opaque)."""
     folder = Path(folder)
     folder = folder.parent if folder.is_file() else folder
-    path = folder / SURFACE_MANIFEST
-    if not path.is_file():
+    manifest = read_surface_manifest(folder)
+    if manifest is None:
         return None
-    try:
-        manifest = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as the surface maps' manifest ({exc}); export the material "
-                         f"again") from exc
     spec = _from_manifest(manifest or {}, folder)
     return spec if spec.emits or spec.alpha_mode != "opaque" else None
 
@@ -256,7 +246,7 @@ def surface_spec(source) -> SurfaceSpec | None:
         return read_surface_spec(source)
     if isinstance(source, dict):
         spec = _from_manifest(source, Path("."))
-    elif hasattr(source, "emission_levels") and hasattr(source, "alpha_mode"):
+    elif isinstance(source, SurfaceMaps):
         spec = _from_maps(source)
     elif hasattr(source, "surface") and not isinstance(source, NetworkSpec):
         return surface_spec(source.surface)

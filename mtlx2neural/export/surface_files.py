@@ -24,15 +24,17 @@ import numpy as np
 import torch
 
 from mtlx2neural.atomic import atomic_path
-from mtlx2neural.errors import InputError
 from mtlx2neural.export.latents import write_mip_chain
 from mtlx2neural.formats.fp16 import to_fp16
 from mtlx2neural.imaging.mip_chain import read_mip_chain
-from mtlx2neural.textures.surface_maps import SurfaceMaps
+from mtlx2neural.textures.surface_maps import (  # noqa: F401  (MANIFEST_FILE, read_surface_manifest: re-exported)
+    MANIFEST_FILE,
+    SurfaceMaps,
+    read_surface_manifest,
+)
 
 EMISSION_FILE = "emission.exr"
 OPACITY_FILE = "opacity.exr"
-MANIFEST_FILE = "surface.json"
 
 
 def _write(levels: list[torch.Tensor], path: Path, what: str, colorspace: str) -> list[str]:
@@ -69,18 +71,6 @@ def write_surface_files(maps: SurfaceMaps | None, folder) -> tuple[dict | None, 
     with atomic_path(folder / MANIFEST_FILE) as tmp:
         Path(tmp).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest, notes
-
-
-def read_surface_manifest(folder) -> dict | None:
-    """``surface.json`` of an export folder, or None when the material has no surface maps."""
-    path = Path(folder) / MANIFEST_FILE
-    if not path.is_file():
-        return None
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as the surface maps' manifest ({exc}); export the material "
-                         f"again") from exc
 
 
 def _read(path: Path, channels: int) -> list[torch.Tensor]:

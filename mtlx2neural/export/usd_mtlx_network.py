@@ -56,6 +56,7 @@ depends on the viewer's settings.
 from __future__ import annotations
 
 from mtlx2neural.codegen.materialx_node import node_names
+from mtlx2neural.textures.surface_maps import ALPHA_CUTOFF, used_opacity
 
 SURFACE_ID = "ND_surface"
 """The nodedef of MaterialX's ``surface`` node (BSDF, EDF and opacity into a surface shader)."""
@@ -123,18 +124,16 @@ def _surface_terms(stage, material, n, surface_shader, surface: dict, texcoord) 
         surface_shader.CreateInput("edf", t.Token).ConnectToSource(edf.CreateOutput("out", t.Token))
     if opacity:
         mask = surface.get("alpha_mode") == "mask"
-        cutoff = float(surface.get("alpha_cutoff") or 0.5)
         value = surface_shader.CreateInput("opacity", t.Float)
         if "file" not in opacity:
-            c = float(opacity["constant"])
-            value.Set((1.0 if c >= cutoff else 0.0) if mask else min(max(c, 0.0), 1.0))
+            value.Set(used_opacity(float(opacity["constant"]), surface.get("alpha_mode", "opaque")))
             return
         read = _image(stage, path.AppendChild(n.opacity), "float", opacity["file"], texcoord)
         if mask:
             cut = _define_shader(stage, path.AppendChild(n.cutout))
             cut.CreateIdAttr(CUTOUT_ID)
             cut.CreateInput("value1", t.Float).ConnectToSource(read)
-            cut.CreateInput("value2", t.Float).Set(cutoff)
+            cut.CreateInput("value2", t.Float).Set(ALPHA_CUTOFF)
             cut.CreateInput("in1", t.Float).Set(1.0)
             cut.CreateInput("in2", t.Float).Set(0.0)
             read = cut.CreateOutput("out", t.Float)

@@ -23,7 +23,7 @@ from mtlx2neural.graph.spatial import (
     texture,
     texture_colorspaces,
 )
-from mtlx2neural.graph.surface_terms import SurfaceTerms, surface_terms
+from mtlx2neural.graph.surface_terms import SurfaceTerms, constant_terms, surface_terms
 from mtlx2neural.graph.validate import check_image_modes
 from mtlx2neural.imaging.resolve import resolve_case
 
@@ -141,8 +141,7 @@ class CompiledMaterial:
         def kind(ts):
             if not ts:
                 return "none"
-            return "constant" if all(ev.is_constant(i) for t in ts for i in [t.value] + [f.value for f in t.factors]) \
-                else "textured"
+            return "constant" if constant_terms(ev, ts) else "textured"
         return {"emission": kind(terms.emission), "opacity": kind(terms.opacity), "refused": list(terms.refused)}
 
 

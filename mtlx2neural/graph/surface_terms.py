@@ -175,9 +175,14 @@ class _Walker:
             emission += [t.times(Factor(n.inputs["in2"])) for t in scaled]
 
 
+def constant_terms(ev: GraphEvaluator, terms: list[Term]) -> bool:
+    """Whether every value and factor of ``terms`` folds to a constant (no texture or geometry read)."""
+    return all(ev.is_constant(i) for t in terms for i in [t.value] + [f.value for f in t.factors])
+
+
 def _opaque(ev: GraphEvaluator, terms: list[Term]) -> bool:
     """Whether opacity ``terms`` fold to 1 everywhere (each term's value and factors constant, sum 1)."""
-    if not all(ev.is_constant(i) for t in terms for i in [t.value] + [f.value for f in t.factors]):
+    if not constant_terms(ev, terms):
         return False
     v = evaluate(ev, terms, {}, 1, 1)
     return bool((v >= 1.0 - 1e-6).all())

@@ -76,7 +76,7 @@ def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345, surface:
     g = torch.Generator().manual_seed(seed)
     wi, wo = half_difference_pairs(n, g)
     uv = draw_uv(n, stack.tiles if is_udim_stack(stack) else None, g)
-    if surface is not None and surface.coverage_levels and surface.coverage < 1 and not is_udim_stack(stack):
+    if surface is not None and surface.partial and not is_udim_stack(stack):
         keep = surface.texel_covered(uv)
         if bool(keep.any()):
             wi, wo, uv = wi[keep], wo[keep], uv[keep]
@@ -232,8 +232,7 @@ def with_energy(record: MaterialRecord, ref, model, stack, device, surface: Surf
     native = stack.channels and stack.texel_ratio == (1.0, 1.0)
     check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels), device=device,
                          params_at=(lambda pts: stack.sample(pts, 0)) if native else None,
-                         coverage=surface.coverage_at if surface is not None and surface.coverage < 1
-                         and surface.coverage_levels else None)
+                         coverage=surface.coverage_at if surface is not None and surface.partial else None)
     record = dataclasses.replace(record, energy=check.to_json())
     if check.min_ratio < ENERGY_WARNING:
         record = record.with_warning(

@@ -157,7 +157,7 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
                 lod = ray_cone_lod(frame, rays.spread * scale, grids[m], rays.width * scale)
                 at = ShadingPoint(uv=frame.uv, lod=lod, u_level=u_level[sub])
                 mat, smp = materials[m], samplers[m]
-                acc = _shade(mat, smp, lights, frame, sub, -rays.dirs[sub], at,
+                acc = _shade(mat, smp, lights, frame, -rays.dirs[sub], at,
                              [u if u is None else u[sub] for u in light_u], [u if u is None else u[sub] for u in bsdf_u])
                 with torch.no_grad():
                     alpha = coverage_of(mat, at)
@@ -180,13 +180,13 @@ MIN_THROUGHPUT = 1e-3
 """A ray stops once the surfaces in front leave less than this of its pixel."""
 
 
-def _shade(material: Material, sampler, lights, frame: Hits, idx, to_camera, at: ShadingPoint,
+def _shade(material: Material, sampler, lights, frame: Hits, to_camera, at: ShadingPoint,
            light_u, bsdf_u) -> torch.Tensor:
-    """[len(idx), 3] radiance towards the camera from the hits ``frame``: the emission (no cosine) plus,
+    """[N, 3] radiance towards the camera from the hits ``frame``: the emission (no cosine) plus,
     per light, ``f*cos * intensity`` (directional) or one light sample MIS-weighted against ``sampler``
     and one ``sampler`` direction (environment)."""
     wi = frame.to_local(to_camera)
-    n = len(idx)
+    n = wi.shape[0]
     acc = torch.zeros(n, 3)
     with torch.no_grad():
         emitted = emission_of(material, at)

@@ -24,6 +24,7 @@ wrap periodically, as the latents do.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,8 +33,9 @@ import torch
 import torch.nn.functional as F
 
 from mtlx2neural.contract import as_point
+from mtlx2neural.errors import InputError
 from mtlx2neural.graph.compile import CompiledMaterial
-from mtlx2neural.graph.surface_terms import evaluate
+from mtlx2neural.graph.surface_terms import constant_terms, evaluate
 from mtlx2neural.imaging.grid_lookup import bilinear_periodic
 
 ALPHA_CUTOFF = 0.5
@@ -54,6 +56,14 @@ def level_shapes(h: int, w: int) -> list[tuple[int, int]]:
         a, b = shapes[-1]
         shapes.append(((a + 1) // 2, (b + 1) // 2))
     return shapes
+
+
+def used_opacity(value: float, alpha_mode: str) -> float:
+    """A constant opacity as a consumer uses it: a ``mask``'s alpha-tested at :data:`ALPHA_CUTOFF` (0 or 1),
+    otherwise clamped to [0, 1] (what :func:`mtlx2neural.contract.coverage_of` does per point)."""
+    if alpha_mode == "mask":
+        return float(value >= ALPHA_CUTOFF)
+    return min(max(float(value), 0.0), 1.0)
 
 
 def coverage_preserving(level0: torch.Tensor, count: int, cutoff: float = ALPHA_CUTOFF) -> list[torch.Tensor]:
@@ -105,6 +115,12 @@ class SurfaceMaps:
     @property
     def emits(self) -> bool:
         return self.emission_levels is not None or self.emission_constant is not None
+
+    @property
+    def partial(self) -> bool:
+        """Whether some of level 0 has no surface (a cut-out or a blend below 1, with its coverage levels):
+        training, the energy check and the held-out error then look only where there is surface."""
+        return bool(self.coverage_levels) and self.coverage < 1
 
     @property
     def empty(self) -> bool:
@@ -202,11 +218,6 @@ class SurfacesBeside:
         return None if self.surface is None else self.surface.alpha_cutoff
 
 
-def _constant_terms(compiled: CompiledMaterial, terms) -> bool:
-    ev = compiled.evaluator
-    return all(ev.is_constant(i) for t in terms for i in [t.value] + [f.value for f in t.factors])
-
-
 def build_surface_maps(compiled: CompiledMaterial, resolution: tuple[int, int],
                        texel_ratio: tuple[float, float] = (1.0, 1.0), chunk: int = 1 << 16) -> SurfaceMaps:
     """The emission and opacity maps of ``compiled`` on a ``resolution`` (H, W) grid (the latent grid),
@@ -214,15 +225,15 @@ def build_surface_maps(compiled: CompiledMaterial, resolution: tuple[int, int],
     axis are averaged per texel. Constant emission or opacity gives no map (module docstring)."""
     terms, ev = compiled.surface, compiled.evaluator
     maps = SurfaceMaps()
-    textured_e = bool(terms.emission) and not _constant_terms(compiled, terms.emission)
-    textured_o = terms.opacity is not None and not _constant_terms(compiled, terms.opacity)
+    textured_e = bool(terms.emission) and not constant_terms(ev, terms.emission)
+    textured_o = terms.opacity is not None and not constant_terms(ev, terms.opacity)
     if terms.emission and not textured_e:
         maps.emission_constant = tuple(float(x) for x in evaluate(ev, terms.emission, {}, 1, 3)[0])
     if terms.opacity is not None and not textured_o:
         value = float(evaluate(ev, terms.opacity, {}, 1, 1)[0, 0])
-        maps.opacity_constant, maps.coverage = value, value
+        maps.opacity_constant = value
         maps.alpha_mode = "mask" if min(value, 1 - value) < BINARY_TOLERANCE else "blend"
-        maps.coverage = float(value >= ALPHA_CUTOFF) if maps.alpha_mode == "mask" else value
+        maps.coverage = used_opacity(value, maps.alpha_mode)
     if not (textured_e or textured_o):
         return maps
     h, w = resolution
@@ -298,6 +309,23 @@ def dilate(grid: torch.Tensor, covered: torch.Tensor, max_steps: int | None = No
         out = torch.where(grow[None], sums / count.clamp_min(1)[None], out)
         filled = filled | grow
     return out
+
+
+MANIFEST_FILE = "surface.json"
+"""An export folder's manifest of its emission and opacity maps (:mod:`mtlx2neural.export.surface_files`
+writes it; the shader generators and ``load_neural`` read it)."""
+
+
+def read_surface_manifest(folder) -> dict | None:
+    """``surface.json`` of an export folder, or None when the material has no surface maps."""
+    path = Path(folder) / MANIFEST_FILE
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot be read as the surface maps' manifest ({exc}); export the material "
+                         f"again") from exc
 
 
 SURFACE_FILE = "surface_maps.pt"

@@ -87,8 +87,7 @@ class Trainer:
         self.ref, self.stack, self.cfg = reference, stack, cfg
         # A cut-out's coverage (textures.surface_maps): rows are drawn where there is surface, footprints
         # weighted by it, and empty texels' latents dilated from their neighbours after training.
-        self.surface = (surface if surface is not None and surface.coverage_levels and surface.coverage < 1
-                        and not is_udim_stack(stack) else None)
+        self.surface = surface if surface is not None and surface.partial and not is_udim_stack(stack) else None
         self.out_dir = Path(out_dir)
         self.device = torch.device(device)
         self.textured = is_textured(stack)
