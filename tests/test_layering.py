@@ -43,6 +43,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("export",),
     ("pipeline",),
     ("report",),
+    ("mitsuba",),  # optional: Mitsuba 3 plugins and scenes, over the export and the report's scene
     ("api",),
     ("commands",),
     ("cli",),
