@@ -15,6 +15,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from mtlx2neural.errors import InputError
+
 
 def _kwargs(options) -> dict:
     """The fields of ``options`` by name (shallow: values are not copied)."""
@@ -73,10 +75,33 @@ class RenderOptions:
     """UDIM tile (1001, 1002, ...) the geometry shows, its uv wrapped into the tile (frac(uv) plus the
     tile's origin): for a UDIM material. Default: the neural model's first trained tile; the reference
     reads the geometry's own uv (tile 1001)."""
+    renderer: str = field(default="torch", metadata={"choices": ("torch", "mitsuba")})
+    """torch: this tool's renderer, one material on --geometry under --env (direct light, no shadows).
+    mitsuba: the whole USD stage in Mitsuba 3's path tracer (shadows, interreflections up to
+    --max-depth), every material of the neural layer bound to its Mitsuba plugin (mtlx_neural or
+    mtlx_reference, per --model), seen by the stage's camera under its lights (--material: that
+    material's meshes only); needs the optional Mitsuba component (pip install "mtlx2neural[mitsuba]").
+    --geometry, --env, --mis, --azimuth, --elevation, --distance, --fov, --tile, --frame, --fps and
+    --checkpoint are the torch renderer's (Mitsuba's reference reads the conversion's frame)."""
+    max_depth: int = field(default=3, metadata={"metavar": "N"})
+    """Mitsuba's longest path, in surface interactions (--renderer mitsuba; at least 3): 1 shows the
+    emitters, 2 adds direct light, 3 one bounce more; passing through a cut-out counts as one."""
+
+    MITSUBA_ONLY = ("renderer", "max_depth")
+    """Fields that :func:`~mtlx2neural.report.views.render_asset` does not take: they select and set up the
+    Mitsuba renderer (:func:`mtlx2neural.mitsuba.render.render_stage`)."""
 
     def kwargs(self) -> dict:
-        """The keyword arguments of :func:`~mtlx2neural.report.views.render_asset` after ``asset``."""
-        return _kwargs(self)
+        """The keyword arguments of :func:`~mtlx2neural.report.views.render_asset` after ``asset``: every field
+        but :attr:`MITSUBA_ONLY` (``render_asset`` is the torch renderer; the report layer cannot import the
+        Mitsuba component, which ranks above it). ``renderer="mitsuba"`` raises
+        :class:`~mtlx2neural.errors.InputError` naming :func:`mtlx2neural.mitsuba.render.render_stage`, so those
+        options never render silently with torch."""
+        if self.renderer != "torch":
+            raise InputError(f"renderer {self.renderer!r}: render_asset renders with the torch renderer; render "
+                             f"with Mitsuba through mtlx2neural.mitsuba.render.render_stage(asset, options) "
+                             f"(mtlx2neural render ASSET --renderer mitsuba)")
+        return {k: v for k, v in _kwargs(self).items() if k not in self.MITSUBA_ONLY}
 
 
 @dataclass

@@ -394,8 +394,11 @@ class SceneView:
                 "materials": [e.numbers() for e in self.entries]}
 
 
-def _scene_mesh(source: Path, entries: list[SceneEntry], res: int, seed: int):
-    """(InScene with the mesh's ``material_index`` set, or why not)."""
+def scene_mesh(source: Path, entries: list[SceneEntry], res: int, seed: int):
+    """The :class:`~mtlx2neural.render.in_scene.InScene` of every entry's bound meshes (one mesh; its
+    ``material_index`` is each triangle's entry's index in ``entries``; camera and lights as
+    :func:`.render.in_scene.setup_in_scene`; ``res`` pixels, ``seed`` the triangle subset's), or why there is
+    none. Sets each entry's ``triangles``. Also the Mitsuba renderer's scene (:mod:`mtlx2neural.mitsuba.render`)."""
     # Local: reading a stage loads pxr, needed only for a stage's scene view.
     from mtlx2neural.scene.stage_render import read_stage_view
     from mtlx2neural.scene.usd_stage import open_stage
@@ -470,7 +473,7 @@ def scene_view(layer, res: int = RES, spp: int = SPP, seed: int = 0) -> SceneVie
         return gathered
     source, entries = gathered
     t0 = time.time()
-    scene = _scene_mesh(source, entries, res, seed)
+    scene = scene_mesh(source, entries, res, seed)
     if isinstance(scene, str):
         return scene
     texels = [e.texels for e in entries]
