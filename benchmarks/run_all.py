@@ -31,6 +31,7 @@ BENCHMARKS = {
     "lighting": ("bench_lighting.py", ["CarPaint", "GlazedCeramic"], {}),
     "shaders": ("bench_shaders.py", [], {"OMP_NUM_THREADS": "1"}),
     "viewer": ("bench_viewer.py", [], {}),
+    "mitsuba": ("bench_mitsuba.py", [], {}),  # needs the mitsuba extra and libLLVM >= 16
 }
 
 
