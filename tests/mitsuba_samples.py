@@ -4,7 +4,9 @@ fixtures it uses: ``from mitsuba_samples import converted_layers, mi  # noqa: F4
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -21,6 +23,30 @@ CONVERTED_SAMPLES = {
     "scene": "scene/glow_and_leaves.usda",  # Lava (emission), Leaf (cut-out), Gold (near mirror)
 }
 """The bundled samples the tests convert, by key: every sample material but the UDIM and rotated ones."""
+
+
+TEXTURED_RES = 512
+"""Texture resolution of the textured sample when a test process writes it (``samples/textured`` is not in the
+repository: ``python samples/make_textured_sample.py`` writes it at 1024)."""
+
+_WRITTEN: dict[str, Path] = {}
+
+
+def sample_asset(key: str) -> Path:
+    """The bundled sample ``key`` (:data:`CONVERTED_SAMPLES`). The textured one is generated when the checkout
+    lacks it, once per test process, into a temporary folder of its own (never into ``samples/``, where
+    several test processes would write at once)."""
+    path = SAMPLES / CONVERTED_SAMPLES[key]
+    if path.exists():
+        return path
+    if key not in _WRITTEN:
+        spec = importlib.util.spec_from_file_location("make_textured_sample", SAMPLES / "make_textured_sample.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        folder = Path(tempfile.mkdtemp(prefix="m2n-textured-")) / "textured"
+        module.build(folder, TEXTURED_RES)
+        _WRITTEN[key] = folder / path.name
+    return _WRITTEN[key]
 
 
 @pytest.fixture(scope="session")
@@ -42,7 +68,7 @@ def convert_sample(key: str, folder: Path, iterations: int = 40) -> Path:
     from mtlx2neural.pipeline.options import ConvertOptions
     from mtlx2neural.train.config import preset
 
-    src = SAMPLES / CONVERTED_SAMPLES[key]
+    src = sample_asset(key)
     shutil.copytree(src.parent, folder, dirs_exist_ok=True)
     asset = folder / src.name
     train = preset("fast", iterations=iterations, batch=256, probe_every=0, preview_iterations=2)

@@ -47,7 +47,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from mitsuba_samples import CONVERTED_SAMPLES, SAMPLES, mi  # noqa: F401
+from mitsuba_samples import CONVERTED_SAMPLES, mi, sample_asset  # noqa: F401
 
 import mtlx2neural as m2n
 from mtlx2neural.contract import ShadingPoint
@@ -85,7 +85,7 @@ WHITE_LAMBERT = """<?xml version="1.0"?>
 
 
 def sample_file(key: str) -> str:
-    return str(SAMPLES / CONVERTED_SAMPLES[key])
+    return str(sample_asset(key))
 
 
 def spec(key: str, material: str, **extra) -> dict:
@@ -229,7 +229,7 @@ def test_a_neural_layer_names_its_source(mi, tmp_path):  # noqa: F811
 
     from mtlx2neural.export.usd_writer import RECORD_KEY
 
-    src = SAMPLES / CONVERTED_SAMPLES["layered"]
+    src = sample_asset("layered")
     layer = Sdf.Layer.CreateNew(str(tmp_path / "layered_spheres_neural.usda"))
     prim = "/World/Looks/Plastic"
     layer.customLayerData = {RECORD_KEY: {"source": str(src), "materials": {
