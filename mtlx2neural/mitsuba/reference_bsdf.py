@@ -77,9 +77,9 @@ import torch
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.material_record import read_record_or_none
-from mtlx2neural.pipeline.layout import material_folder
+from mtlx2neural.pipeline.layout import material_folder, names_entry
 from mtlx2neural.reference import ReferenceMaterial
-from mtlx2neural.reference.loading import load_reference
+from mtlx2neural.reference.loading import application_of, load_reference
 from mtlx2neural.report.views import conversion_outputs, neural_layer_record
 from mtlx2neural.scene import find_material
 from mtlx2neural.scene.dependencies import canonical
@@ -90,7 +90,6 @@ GLOSSY_CLOSURES = frozenset({"conductor_bsdf", "dielectric_bsdf", "generalized_s
 """pbrlib closures whose reflection Mitsuba calls glossy (microfacet and sheen lobes)."""
 # translucent_bsdf transmits only: the reference (reflection only) never shows it, so it adds no flag.
 
-DEFAULT_FRAME, DEFAULT_FPS = 1.0, 24.0
 ALL_COMPONENTS = 0xFFFFFFFF  # BSDFContext.component when every component is asked for (uint32 -1)
 
 
@@ -106,8 +105,8 @@ class ReferenceSource:
     material: str
     """The material's name as :func:`mtlx2neural.scene.find_material` resolved it."""
     allow_missing_textures: bool
-    frame: float
-    fps: float
+    application: Application | None
+    """The instant the conversion baked ``time``/``frame`` nodes at (None: frame 1 at 24 fps)."""
 
 
 def _layer_entry(entries: dict, material: str | None) -> str | None:
@@ -115,11 +114,7 @@ def _layer_entry(entries: dict, material: str | None) -> str | None:
     None when the record lists nothing matching (``material`` is then resolved against the source)."""
     if material is None:
         return next(iter(entries)) if len(entries) == 1 else None
-    for name, e in entries.items():
-        prim = e.get("prim") or ""
-        if material in (name, prim, prim.rsplit("/", 1)[-1]):
-            return name
-    return None
+    return next((name for name, e in entries.items() if names_entry(material, name, e.get("prim"))), None)
 
 
 def reference_source(filename, material: str | None = None) -> ReferenceSource:
@@ -143,13 +138,10 @@ def reference_source(filename, material: str | None = None) -> ReferenceSource:
     if folder is None:
         folder = conversion_outputs(path).folder / material_folder(src.name)
     record = read_record_or_none(folder) if folder.is_dir() else None
-    allow, frame, fps = False, DEFAULT_FRAME, DEFAULT_FPS
-    if record is not None:
-        allow = bool((record.options or {}).get("allow_missing_textures", False))
-        app = record.application or {}
-        if "frame" in app and "fps" in app:
-            frame, fps = float(app["frame"]), float(app["fps"])
-    return ReferenceSource(canonical(path), src.name, allow, frame, fps)
+    if record is None:
+        return ReferenceSource(canonical(path), src.name, False, None)
+    allow = bool((record.options or {}).get("allow_missing_textures", False))
+    return ReferenceSource(canonical(path), src.name, allow, application_of(record.application))
 
 
 _CACHE: dict[tuple, tuple[ReferenceSource, ReferenceMaterial]] = {}
@@ -163,7 +155,7 @@ def cached_reference(filename, material: str | None = None) -> tuple[ReferenceSo
     if key not in _CACHE:
         src = reference_source(path, material)
         ref = load_reference(src.path, src.material, device="cpu", allow_missing_textures=src.allow_missing_textures,
-                             application=Application(frame=float(src.frame), fps=float(src.fps)))
+                             application=src.application)
         _CACHE[key] = (src, ref)
     return _CACHE[key]
 
@@ -382,4 +374,4 @@ class ReferenceBSDF(mi.BSDF):
                          and bin(int(f)).count("1") == 1)
         return (f"ReferenceBSDF[\n  filename = \"{self.filename}\",\n  source = \"{self.source.path}\",\n"
                 f"  material = \"{self.source.material}\",\n  flags = {flags},\n  flip_v = {self.flip_v},\n"
-                f"  frame = {self.source.frame}, fps = {self.source.fps}\n]")
+                f"  application = {self.source.application or 'frame 1 at 24 fps'}\n]")

@@ -50,6 +50,7 @@ from mtlx2neural.mitsuba.scene import (
     scene_dict,
     surface_terms,
 )
+from mtlx2neural.pipeline.layout import names_entry
 from mtlx2neural.pipeline.output_safety import check_render_outputs
 from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.in_scene import stage_in_scene
@@ -103,9 +104,10 @@ def neural_layer_of(asset) -> Path:
 
 
 def _matches(entry: SceneEntry, material: str) -> bool:
-    names = {entry.prim, entry.prim.rsplit("/", 1)[-1], getattr(entry.record, "mtlx_material", None),
-             getattr(entry.record, "material", None)}
-    return material in names or "/" + material.lstrip("/") == entry.prim
+    """Whether ``material`` names the gathered ``entry`` (:func:`~mtlx2neural.pipeline.layout.names_entry`, or
+    its MaterialX material name)."""
+    return (names_entry(material, getattr(entry.record, "material", None), entry.prim)
+            or material == getattr(entry.record, "mtlx_material", None))
 
 
 def _load_bsdf(mi, spec: dict, what: str, notes: list[str]):

@@ -128,6 +128,13 @@ class LayerRecord:
     """Material name -> ``{"prim", "sourceHash", "folder"}`` (paths as recorded: relative to the layer)."""
 
 
+def names_entry(material: str, name: str | None, prim: str | None) -> bool:
+    """Whether ``material`` (as a user gives it: a recorded material name, a prim path with or without its
+    leading ``/``, or a prim name) names the layer record's entry ``name``, whose Material is at ``prim``."""
+    prim = prim or ""
+    return material in (name, prim, prim.rsplit("/", 1)[-1]) or (bool(prim) and "/" + material.lstrip("/") == prim)
+
+
 def read_layer_record(layer: Path) -> LayerRecord | None:
     """The record of the mtlx2neural layer at ``layer``; None when the file is not one (or not USD)."""
     # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.

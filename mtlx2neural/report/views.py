@@ -42,6 +42,7 @@ from mtlx2neural.pipeline.layout import (
     LayerRecord,
     OutputLayout,
     material_folder,
+    names_entry,
     read_layer_record,
     resolve_output,
 )
@@ -165,9 +166,8 @@ def _layer_entry(layer: Path, record: LayerRecord, material: str | None) -> tupl
         raise InputError(f"{layer}: {len(entries)} neural materials ({', '.join(sorted(entries))}); "
                          f"choose one with --material")
     for name, e in entries.items():
-        prim = e.get("prim") or ""
-        if material in (name, prim, prim.rsplit("/", 1)[-1]) or "/" + material.lstrip("/") == prim:
-            return name, prim
+        if names_entry(material, name, e.get("prim")):
+            return name, e.get("prim") or ""
     raise InputError(f"{layer}: no neural material {material!r}; it holds {', '.join(sorted(entries))}")
 
 
