@@ -14,7 +14,11 @@ each atomically (a temporary sibling renamed into place). The document holds
   inputs ``weight`` (float, 1), ``latent0`` .. ``latent<G-1>`` (filename: the latent textures,
   four channels each), ``texcoord`` (vector2, default geometry property UV0), ``normal``
   (vector3, Nworld), ``tangent`` (vector3, Tworld) and ``env_samples`` (uniform integer: learned
-  sampler directions per pixel for environment light; 0 or less uses the viewer's FIS sample count);
+  sampler directions per pixel for environment light, or with ``env_prefiltered`` lookups per
+  specular lobe; 0 or less uses the viewer's FIS sample count) and ``env_prefiltered`` (uniform
+  boolean, default true for a material with an environment head, else false: shade the environment
+  from the learned lobes' prefiltered lookups, no random numbers; :mod:`mtlx2neural.render.prefiltered`
+  is its torch twin);
 - the implementations ``IM_neural_<ident>_bsdf_genglsl`` / ``_genslang`` (``file`` relative to
   the document, function ``mx_neural_<ident>_bsdf``);
 - ``N_neural_<ident>`` (the node, its latent inputs set to the texture files, relative to the
@@ -279,10 +283,12 @@ def _udim_tiles(model_or_export) -> list[int] | None:
 
 
 def build_document(name: str, layout: LatentLayout, latent_values: list[str],
-                   env_samples: int = DEFAULT_ENV_SAMPLES, doc_string: str = "", surface: SurfaceSpec | None = None):
+                   env_samples: int = DEFAULT_ENV_SAMPLES, doc_string: str = "", surface: SurfaceSpec | None = None,
+                   env_prefiltered: bool = False):
     """The MaterialX document of material ``name`` (module docstring); ``latent_values`` are the
     latent inputs' file names as the document will state them; ``surface``: the emission and opacity
-    (its files named as the document states them), None: none and opaque."""
+    (its files named as the document states them), None: none and opaque; ``env_prefiltered`` the
+    default of the node's input (True only for networks with an environment head)."""
     n = node_names(name)
     doc = mx.createDocument()
     nd = doc.addNodeDef(n.nodedef, "BSDF", n.category)
@@ -298,6 +304,9 @@ def build_document(name: str, layout: LatentLayout, latent_values: list[str],
     samples = nd.addInput("env_samples", "integer")
     samples.setValue(int(env_samples))
     samples.setIsUniform(True)
+    prefiltered = nd.addInput("env_prefiltered", "boolean")
+    prefiltered.setValue(bool(env_prefiltered))
+    prefiltered.setIsUniform(True)
     for target, file in (("genglsl", n.glsl), ("genslang", n.slang)):
         impl = doc.addImplementation(f"IM_neural_{n.ident}_bsdf_{target}")
         impl.setNodeDef(nd)
@@ -388,7 +397,8 @@ def validate_document(doc, where: str = "the neural material document") -> None:
 
 
 def write_materialx_node(model_or_export, name: str, folder, *, latent_files=None,
-                         env_samples: int = DEFAULT_ENV_SAMPLES) -> Path:
+                         env_samples: int = DEFAULT_ENV_SAMPLES, seed: int = 0,
+                         env_prefiltered: bool | None = None) -> Path:
     """Write ``NeuralMaterial_<ident>.mtlx`` and its ``.glsl`` / ``.slang`` implementations for
     material ``name`` into ``folder``; returns the ``.mtlx`` path.
 
@@ -398,7 +408,9 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     for a model. They are checked (InputError naming the file when missing or malformed) and
     copied, level by level, into the atlases ``latent_atlas_<k>.exr`` in ``folder``, which the
     document names (module docstring). ``env_samples``: learned-sampler directions per pixel
-    under environment light. Directions and units as :mod:`.materialx_shader`: local frame z =
+    under environment light; ``seed`` offsets the sampled paths' random streams
+    (:func:`.materialx_shader.node_source`); ``env_prefiltered`` the default of the node's input of that
+    name (None: True when the networks have an environment head; True without one raises ValueError). Directions and units as :mod:`.materialx_shader`: local frame z =
     normal, x = tangent; the BSDF's response to a light is f * cos(wo) (cosine included). The emission
     and opacity come from ``surface.json`` in the export folder (for a model: in ``folder``), their maps
     copied into ``folder`` (:func:`surface_files`), and feed the surface node (:func:`add_surface_nodes`)."""
@@ -426,13 +438,17 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     folder.mkdir(parents=True, exist_ok=True)
     surface, copies = surface_files(model_or_export, base_folder, folder)
     atlases = atlas_file_names(layout.groups)
-    doc = build_document(name, layout, atlases, env_samples, surface=surface)
+    if env_prefiltered and not spec.environment:
+        raise ValueError(f"material {name}: env_prefiltered needs networks with an environment head "
+                         f"(convert with --environment-steps above 0)")
+    prefiltered = bool(spec.environment) if env_prefiltered is None else bool(env_prefiltered)
+    doc = build_document(name, layout, atlases, env_samples, surface=surface, env_prefiltered=prefiltered)
     validate_document(doc, f"the MaterialX document of material {name}")
     version, source = _version(), _describe_source(model_or_export)
     texts = {names.glsl: node_source(spec, name, layout, "genglsl", file=names.glsl, nodedef=names.nodedef,
-                                     version=version, source=source),
+                                     version=version, source=source, seed=seed),
              names.slang: node_source(spec, name, layout, "genslang", file=names.slang, nodedef=names.nodedef,
-                                      version=version, source=source),
+                                      version=version, source=source, seed=seed),
              names.mtlx: mx.writeToXmlString(doc)}
     for tile_chains, atlas in zip(chains, atlases):
         write_latent_atlas(tile_chains, folder / atlas)

@@ -14,7 +14,7 @@ sampling and pdf, the level choice, the BSDF function) follow the Slang runtime
 
 The function follows MaterialX's closure contract (docs/notes/materialx-custom-bsdf.md):
 ``void <function>(ClosureData closureData, float weight, <one sampler per latent texture>,
-vec2 texcoord, vec3 normal, vec3 tangent, int env_samples, inout BSDF bsdf)`` -- the nodedef's
+vec2 texcoord, vec3 normal, vec3 tangent, int env_samples, bool env_prefiltered, inout BSDF bsdf)`` -- the nodedef's
 inputs in order (:mod:`.materialx_node` writes that nodedef).
 
 Every identifier is prefixed with the material's (``nm_<ident>_`` for functions, ``NM_<ident>``
@@ -172,7 +172,20 @@ def _network_functions(spec: NetworkSpec, lang: str, p: str, P: str) -> str:
                        ["wi.x", "wi.y", "wi.z"] + [f"s.lat[{i}]" for i in range(c)])
     out += ["// Sampler network: [wi, latent] -> the proxy's 9 raw parameters.",
             f"void {p}_sampler({P}_Point s, {vec3} wi, out float y[9])", "{", *body,
-            *[f"    y[{i}] = {v};" for i, v in enumerate(y)], "}"]
+            *[f"    y[{i}] = {v};" for i, v in enumerate(y)], "}", ""]
+    out += ["// Environment head: [wi in each frame (t, b, n), latent] -> the reflectance of the sampler's",
+            "// specular and diffuse lobes, exp(min(y, 30) - 3) each (0 without an environment head).",
+            f"void {p}_lobeReflectance({P}_Point s, {vec3} wi, out {vec3} cSpec, out {vec3} cDiff)", "{"]
+    if spec.environment:
+        wi_lines = [f"    float wit{k} = dot(wi, s.t[{k}]), wib{k} = dot(wi, s.b[{k}]), win{k} = dot(wi, s.n[{k}]);"
+                    for k in range(slots)]
+        body, y = emit_mlp(describe("environment", spec.environment), Literal(f"{p}_relu", "e"), syntax,
+                           [f"wi{axis}{k}" for k in range(slots) for axis in "tbn"] + [f"s.lat[{i}]" for i in range(c)])
+        out += [*wi_lines, *body, f"    cSpec = {vec3}({', '.join(f'{p}_act({v})' for v in y[:3])});",
+                f"    cDiff = {vec3}({', '.join(f'{p}_act({v})' for v in y[3:])});"]
+    else:
+        out += [f"    cSpec = {vec3}(0.0);", f"    cDiff = {vec3}(0.0);"]
+    out.append("}")
     return "\n".join(out)
 
 
@@ -217,10 +230,12 @@ def _level_rect_function(layout: LatentLayout, lang: str, p: str) -> str:
 
 
 def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str, *, file: str, nodedef: str,
-                version: str = "", source: str = "") -> str:
+                version: str = "", source: str = "", seed: int = 0) -> str:
     """The text of the ``target`` (``genglsl`` or ``genslang``) implementation of ``nodedef`` for
     the material ``name`` whose networks are ``spec`` and latent textures ``layout``; ``file`` is
-    the name the text is written under (for its header), ``source`` says where the weights came from."""
+    the name the text is written under (for its header), ``source`` says where the weights came from;
+    ``seed`` (0 to 2^27 - 1) offsets every hashed random stream of the sampled paths (two seeds: two
+    independent renders, to measure noise)."""
     if target not in LANGUAGES:
         raise ValueError(f"unknown MaterialX target {target!r}: choose one of {', '.join(LANGUAGES)}")
     if layout.channels != spec.latent_channels or layout.groups != math.ceil(spec.latent_channels / 4):
@@ -254,5 +269,7 @@ def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str,
            if layout.tiles else ""),
         "latent_params": ", ".join(f"{LANGUAGES[target][2]} latent{g}" for g in range(layout.groups)),
         "latent_args": ", ".join(f"latent{g}" for g in range(layout.groups)),
+        "seed": int(seed), "has_environment_head": "true" if spec.environment else "false",
+        "environment_head": "yes" if spec.environment else "no",
     }
     return Template(template(LANGUAGES[target][0])).substitute(subs)

@@ -1,7 +1,7 @@
 """The renderer-side networks of a neural material as plain arrays, for code generation.
 
 A :class:`NetworkSpec` holds the decoder's frame layer, the decoder MLP, the optional albedo
-head and the sampler MLP of a :class:`~mtlx2neural.model.neural_material.NeuralMaterial`
+head, the sampler MLP and the optional environment head of a :class:`~mtlx2neural.model.neural_material.NeuralMaterial`
 (the training-only encoder is not part of it), as float32 NumPy arrays with torch's
 ``nn.Linear`` layout: weight ``[out, in]``, bias ``[out]``.
 
@@ -51,6 +51,7 @@ class NetworkSpec:
     notes: list[str] = field(default_factory=list)  # FP16 range-check notes
     analytic_cosine: bool = True      # the decoder's RGB times max(0, wo.z) (model.decoder)
     udim_tiles: list[int] | None = None  # a UDIM material's trained tiles (model.latent), None otherwise
+    environment: list[Layer] | None = None  # the prefiltered-lighting head (model.decoder), None without one
 
     @property
     def decoder_hidden(self) -> list[int]:
@@ -86,7 +87,8 @@ class NetworkSpec:
 
         return replace(self, frame=None if self.frame is None else r(self.frame, "frame_layer.weight"),
                        decoder=layers(self.decoder, "decoder"), sampler=layers(self.sampler, "sampler"),
-                       albedo=layers(self.albedo, "albedo") if self.albedo else None, notes=notes)
+                       albedo=layers(self.albedo, "albedo") if self.albedo else None,
+                       environment=layers(self.environment, "environment") if self.environment else None, notes=notes)
 
 
 def _layers(state: dict, prefix: str) -> list[Layer]:
@@ -114,7 +116,12 @@ def spec_from_state(state: dict, analytic_cosine: bool = True) -> NetworkSpec:
         raise InputError(f"the decoder must output 3 values and the sampler 9, got {decoder[-1].shape[0]} "
                          f"and {sampler[-1].shape[0]}")
     albedo = _layers(state, "decoder.albedo.") or None
-    return NetworkSpec(c, frames, frame, decoder, sampler, albedo, analytic_cosine=bool(analytic_cosine))
+    environment = _layers(state, "decoder.environment.") or None
+    if environment and (environment[0].shape[1] != 3 * max(frames, 1) + c or environment[-1].shape[0] != 6):
+        raise InputError(f"the environment head reads {environment[0].shape[1]} values and outputs "
+                         f"{environment[-1].shape[0]}; it must read {3 * max(frames, 1) + c} and output 6")
+    return NetworkSpec(c, frames, frame, decoder, sampler, albedo, analytic_cosine=bool(analytic_cosine),
+                       environment=environment)
 
 
 def spec_from_model(model) -> NetworkSpec:

@@ -3,7 +3,8 @@
 ``weights.bin``: IEEE binary16, little endian. Every Linear layer of the
 renderer-side networks, in this order: the decoder's frame layer (weight only,
 it has no bias; absent when frames = 0), the decoder MLP, the optional albedo
-head, the sampler MLP. Each weight is row-major [out_features, in_features] and
+head, the sampler MLP, the optional environment head (per-lobe reflectance for prefiltered
+lighting, ``model.decoder``). Each weight is row-major [out_features, in_features] and
 is followed by its bias [out_features]. Every tensor starts at a byte offset
 that is a multiple of 16; the gaps are zero. The training-only encoder is not
 exported.
@@ -38,7 +39,7 @@ FORMAT = "mtlx2neural-weights"
 VERSION = 1
 ALIGN = 16
 LAYOUT = "row_major_fp16"
-PREFIXES = ("decoder.frame_layer.", "decoder.net.", "decoder.albedo.", "sampler.net.")
+PREFIXES = ("decoder.frame_layer.", "decoder.net.", "decoder.albedo.", "sampler.net.", "decoder.environment.")
 # The decoder's output activation token (USD ``neural:outputActivation``) -> whether the cosine is analytic.
 OUTPUT_ACTIVATIONS = {"exp_minus_3_cos": True, "exp_minus_3": False}
 
@@ -86,6 +87,7 @@ def architecture(model) -> dict:
         "sampler_hidden": _hidden(model.sampler.net),
         "encoder_hidden": _hidden(model.encoder.net),
         "albedo_head": dec.albedo is not None,
+        "environment_head": dec.environment is not None,
         "activation": "relu",
         "output_activation": output_activation_token(dec.analytic_cosine),
         "output_offset": OUTPUT_OFFSET,
@@ -100,6 +102,9 @@ def architecture(model) -> dict:
         "sampler_input": f"[wi (3), latent[{c}]] = {3 + c} values",
         "sampler_output": "alpha_x, alpha_y, rho, slope_spec (2), slope_diffuse (2), logit_spec, logit_diffuse",
         "proxy_type": "tilted_cosine_aniso_ggx",
+        **({"environment_input": "as the albedo head: [wi in the frames, latent]",
+            "environment_output": "rgb_spec, rgb_diffuse = exp(min(x, 30) - output_offset): the reflectance of "
+                                  "the sampler's specular and diffuse lobe"} if dec.environment is not None else {}),
         "latent_resolution": [int(lat.levels[0].shape[-1]), int(lat.levels[0].shape[-2])],  # width, height
         "levels": int(lat.num_levels),
         # UDIM materials only: the trained tiles, in the order of the latents' leading axis

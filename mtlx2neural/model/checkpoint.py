@@ -13,6 +13,7 @@ shapes where they are not in the config:
   pyramid reads as uniform (the encoder is not used once the latents are baked);
 - ``frames``: the decoder's frame layer rows / 6; ``decoder``: its hidden widths;
 - ``albedo_head``: whether ``decoder.albedo.*`` weights are present;
+- ``environment_head``: whether ``decoder.environment.*`` weights are present;
 - ``latent_format``: the block format of ``latents.codec.codec_format`` (``exr`` without one);
 - ``analytic_cosine``: the config's, and False for a config without the key (checkpoints
   made before the option, whose networks learned f * cos themselves).
@@ -60,6 +61,7 @@ def model_arguments(state: dict, config: dict | None = None) -> dict:
     hidden = tuple(_linear_widths(state, "decoder.net.")[:-1]) or config.get("decoder", "2x32")
     args = {"resolution": (h, w), "in_dim": in_dim, "latent_dim": latent_dim, "frames": frames,
             "decoder": hidden, "albedo_head": any(k.startswith("decoder.albedo.") for k in state),
+            "environment_head": any(k.startswith("decoder.environment.") for k in state),
             "analytic_cosine": bool(config.get("analytic_cosine", False)),
             "tiles": None if tiles is None else [int(t) for t in tiles],
             "latent_format": format_of_code(state.get("latents.codec.codec_format"))}

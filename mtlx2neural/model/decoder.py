@@ -33,6 +33,15 @@ of the BRDF decoder MLP. Measured on the quality guard's material (seeds 1-4,
 docs/history/paper-choices-2026-12-03.md), those outputs fit the albedo 2-6x worse (mean absolute
 error 0.05-0.21 against 0.03-0.07) and the BRDF trains worse with them (HDR FLIP 0.15-0.44 against
 0.11-0.28), so the separate head is kept.
+
+``environment_head`` adds the prefiltered-lighting head (:mod:`mtlx2neural.render.prefiltered`): a
+small MLP of the albedo head's shape from (``wi`` in the learned frames, latent) to 6 numbers through
+exp(x - 3): the reflectance carried by the learned sampler's specular lobe (RGB) and by its diffuse
+lobe (RGB). Lobe k's reflectance is c_k(wi) = integral of f * cos(wo) * r_k(wo) over wo, with r_k the
+lobe's responsibility w_k p_k / p in the sampler's mixture; the two add up to the directional albedo.
+Under distant light, outgoing radiance ~= c_spec E_spec + c_diff E_diff, with E_k the incident
+radiance averaged over lobe k's density (exact when f * cos is proportional to each lobe's share of
+the sampler's density). It is fitted after the BRDF, against the reference (``train.environment_fit``).
 """
 
 from __future__ import annotations
@@ -49,7 +58,7 @@ NO_FRAME_LATENT_LAYER = 0
 
 class BrdfDecoder(nn.Module):
     def __init__(self, latent_dim: int = 8, frames: int = 2, hidden="2x32", albedo_head: bool = False,
-                 analytic_cosine: bool = True):
+                 analytic_cosine: bool = True, environment_head: bool = False):
         super().__init__()
         self.latent_dim, self.frames = latent_dim, frames
         self.analytic_cosine = bool(analytic_cosine)
@@ -61,6 +70,16 @@ class BrdfDecoder(nn.Module):
         self.net = mlp(2 * per_dir + latent_dim + extra, self.hidden, 3)
         # Optional albedo head: directional albedo from (latent, wi in the learned frames).
         self.albedo = mlp(per_dir + latent_dim, (self.hidden[-1],), 3) if albedo_head else None
+        self.environment = None
+        if environment_head:
+            self.add_environment_head()
+
+    def add_environment_head(self) -> None:
+        """Build the environment head (module docstring): (latent, wi in the learned frames) -> 6 values.
+        ``NeuralMaterial`` calls it after building its other networks, so their initial weights (drawn
+        from torch's global generator) are the same with or without it."""
+        per_dir = 3 * max(self.frames, 1)
+        self.environment = mlp(per_dir + self.latent_dim, (self.hidden[-1],), 6)
 
     def shading_frames(self, latent: torch.Tensor):
         """(t, b, n), each [N, frames, 3], from the latent [N, latent_dim]."""
@@ -107,3 +126,12 @@ class BrdfDecoder(nn.Module):
             raise RuntimeError("this decoder was built without an albedo head")
         x = torch.cat([*self._directions(latent, wi), latent], -1)
         return torch.exp(self.albedo(x).clamp(max=30.0) - OUTPUT_OFFSET)
+
+    def predict_lobe_reflectance(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
+        """[N, 2, 3]: the reflectance (linear RGB, no unit: f * cos integrated over wo) that the learned
+        sampler's specular (index 0) and diffuse (index 1) lobes carry at ``wi`` (local frame), from the
+        environment head (module docstring). RuntimeError without one."""
+        if self.environment is None:
+            raise RuntimeError("this decoder was built without an environment head")
+        x = torch.cat([*self._directions(latent, wi), latent], -1)
+        return torch.exp(self.environment(x).clamp(max=30.0) - OUTPUT_OFFSET).view(-1, 2, 3)

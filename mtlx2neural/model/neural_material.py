@@ -48,16 +48,19 @@ class NeuralMaterial(SurfacesBeside, nn.Module):
     for training, ``analytic_cosine`` whether the decoder multiplies by max(0, wo.z) itself, ``tiles`` the
     trained UDIM tiles of a UDIM material (one latent pyramid each, :mod:`mtlx2neural.model.latent`; a uv
     outside them raises ``ValueError``), None otherwise; ``latent_format`` the block format its latents
-    are read through (:mod:`mtlx2neural.formats.latent_codec`; ``exr``: as stored)."""
+    are read through (:mod:`mtlx2neural.formats.latent_codec`; ``exr``: as stored); ``environment_head``
+    the per-lobe reflectance head of prefiltered environment lighting (:meth:`environment_lobes`)."""
 
     def __init__(self, resolution: tuple[int, int], in_dim: int, latent_dim: int = 8, frames: int = 2,
                  decoder: str = "2x32", albedo_head: bool = False, analytic_cosine: bool = True, tiles=None,
-                 latent_format: str = "exr"):
+                 latent_format: str = "exr", environment_head: bool = False):
         super().__init__()
         self.latents = LatentPyramid(*resolution, channels=latent_dim, tiles=tiles, latent_format=latent_format)
         self.encoder = Encoder(in_dim, latent_dim)
         self.decoder = BrdfDecoder(latent_dim, frames, decoder, albedo_head, analytic_cosine)
         self.sampler = SamplerNet(latent_dim)
+        if environment_head:  # built last: the other networks' initial weights do not depend on it
+            self.decoder.add_environment_head()
         self.surface = None  # emission and opacity beside the latents (SurfacesBeside)
 
     @property
@@ -144,6 +147,20 @@ class NeuralMaterial(SurfacesBeside, nn.Module):
         not used here.)"""
         return estimate_albedo(self, self._wi(wi), at, samples, seed)
 
+    def environment_lobes(self, wi, at=None):
+        """The learned sampler's lobes and the reflectance each carries, for prefiltered environment
+        lighting (:mod:`mtlx2neural.render.prefiltered`): (``wi`` checked [N,3], :class:`.proxy.ProxyParams`,
+        reflectance [N, 2, 3] of the specular and the diffuse lobe, linear RGB, 0 where wi is at or below
+        the horizon). RuntimeError when the model has no environment head."""
+        wi = self._wi(wi)
+        lat = self._latent_at(wi.shape[0], at)
+        c = self.decoder.predict_lobe_reflectance(lat, wi)
+        return wi, self.sampler(wi, lat), torch.where(wi[:, None, 2:3] > 0, c, torch.zeros_like(c))
+
+    @property
+    def has_environment_head(self) -> bool:
+        return self.decoder.environment is not None
+
     def describe(self) -> dict:
         """Sizes and settings: latent resolution (h, w, per tile) and levels, the UDIM tiles (None: not
         UDIM), latent channels, learned frames, the decoder's hidden layers, whether it applies the cosine analytically or has an albedo head, and
@@ -156,7 +173,8 @@ class NeuralMaterial(SurfacesBeside, nn.Module):
         return {"kind": "neural", "resolution": list(self.latents.resolution), "udim_tiles": self.latents.tile_list,
                 "levels": self.latents.num_levels, "latent_dim": self.latents.channels, "frames": dec.frames,
                 "decoder_hidden": list(dec.hidden), "analytic_cosine": dec.analytic_cosine,
-                "albedo_head": dec.albedo is not None, "sampler_hidden": [m.out_features for m in
+                "albedo_head": dec.albedo is not None, "environment_head": dec.environment is not None,
+                "sampler_hidden": [m.out_features for m in
                                                                           self.sampler.net[:-1:2]],
                 "parameters": {"latents": count(self.latents), "decoder": count(dec),
                                "sampler": count(self.sampler), "encoder": count(self.encoder)},

@@ -48,6 +48,7 @@ from mtlx2neural.render.geometry import (
     ray_cone_lod,
 )
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
+from mtlx2neural.render.prefiltered import PrefilteredEnvironment, has_environment_head
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,9 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
     the reference to give several materials the same directions) adds one direction
     sampled from it per environment map and pass, combined with the light sample by
     multiple importance sampling (balance heuristic over the two densities).
+    A :class:`.prefiltered.PrefilteredEnvironment` in ``lights`` shades every material with an
+    environment head from its learned lobes, deterministically (:mod:`.prefiltered`), and the others
+    as its environment map.
     The estimate stays unbiased for ``material`` whatever the sampler is, because the
     environment's density covers every lit direction; a sharp lobe that light
     sampling alone finds only by chance (a clear coat reflecting the sky) then
@@ -139,9 +143,9 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
     for _ in range(spp):
         rays = camera.rays(res, centre, radius, g)
         u_level = torch.rand(npix, generator=g)
-        light_u = [torch.rand(npix, 3, generator=g) if isinstance(li, EnvironmentMap) else None for li in lights]
-        bsdf_u = [torch.rand(npix, 2, generator=g) if isinstance(li, EnvironmentMap) and sampler is not None
-                  else None for li in lights]
+        envs = [isinstance(li, (EnvironmentMap, PrefilteredEnvironment)) for li in lights]
+        light_u = [torch.rand(npix, 3, generator=g) if env else None for env in envs]
+        bsdf_u = [torch.rand(npix, 2, generator=g) if env and sampler is not None else None for env in envs]
         throughput = torch.ones(npix)  # what the surfaces in front left of each pixel (cut-outs, blending)
         for _layer in range(MAX_LAYERS):
             hits = geometry.intersect(rays)
@@ -184,7 +188,8 @@ def _shade(material: Material, sampler, lights, frame: Hits, to_camera, at: Shad
            light_u, bsdf_u) -> torch.Tensor:
     """[N, 3] radiance towards the camera from the hits ``frame``: the emission (no cosine) plus,
     per light, ``f*cos * intensity`` (directional) or one light sample MIS-weighted against ``sampler``
-    and one ``sampler`` direction (environment)."""
+    and one ``sampler`` direction (environment); a :class:`.prefiltered.PrefilteredEnvironment` shades a
+    material with an environment head without sampling (the others as its plain environment map)."""
     wi = frame.to_local(to_camera)
     n = wi.shape[0]
     acc = torch.zeros(n, 3)
@@ -193,6 +198,11 @@ def _shade(material: Material, sampler, lights, frame: Hits, to_camera, at: Shad
     if emitted is not None:
         acc += torch.where(wi[:, 2:3] > 0, emitted.to(acc.dtype), torch.zeros_like(acc))
     for li, u, ub in zip(lights, light_u, bsdf_u):
+        if isinstance(li, PrefilteredEnvironment):
+            if has_environment_head(material):
+                acc += li.shade(material, frame, wi, at).to(acc.dtype)
+                continue
+            li = li.env  # no environment head (a reference): the map's Monte-Carlo estimate
         if isinstance(li, DirectionalLight):
             wo = frame.to_local(li.vector().expand(n, 3))
             weight = li.rgb().expand(n, 3)

@@ -71,6 +71,9 @@ class _UvRewrite:
     def albedo(self, wi, at=None, samples: int = 256, seed: int = 0):
         return self.material.albedo(wi, self._point(at, len(wi)), samples=samples, seed=seed)
 
+    def environment_lobes(self, wi, at=None):
+        return self.material.environment_lobes(wi, self._point(at, len(wi)))
+
     def describe(self) -> dict:
         return self.material.describe()
 

@@ -63,6 +63,10 @@ class RenderOptions:
     seed: int = field(default=0, metadata={"metavar": "N"})
     """Seed of the render's random numbers: a reference and a neural render with the same seed share
     their light samples."""
+    env_mode: str = field(default="sampled", metadata={"choices": ("sampled", "prefiltered")})
+    """sampled: the environment by Monte Carlo (light samples, plus --mis); prefiltered: a neural model
+    with an environment head shades it from its learned lobes' prefiltered lookups, without noise, as
+    the MaterialX node does (the reference, and models without the head, stay sampled)."""
     allow_missing_textures: bool = False
     """Use an image node's declared default when its file is missing, instead of failing."""
     frame: float | None = field(default=None, metadata={"metavar": "F"})

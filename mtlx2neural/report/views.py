@@ -51,6 +51,7 @@ from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.reference.loading import application_of
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
 from mtlx2neural.render.lighting import EnvironmentMap
+from mtlx2neural.render.prefiltered import PrefilteredEnvironment
 from mtlx2neural.render.renderer import render_scene, save_png
 from mtlx2neural.render.udim_view import TileView, model_tiles
 from mtlx2neural.report.options import RenderOptions
@@ -199,7 +200,7 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
                  checkpoint=None,
                  geometry: str = "sphere", env: str | None = "sky", res: int = 256, spp: int = 16,
                  azimuth: float = 30.0, elevation: float = 20.0, distance: float = 4.0, fov: float = 30.0,
-                 seed: int = 0, allow_missing_textures: bool = False, mis: str = "own",
+                 seed: int = 0, env_mode: str = "sampled", allow_missing_textures: bool = False, mis: str = "own",
                  frame: float | None = None, fps: float | None = None, tile: int | None = None) -> dict:
     """Render ``material`` of ``asset`` with the reference or neural ``model``; write ``output`` (.exr)
     and a PNG beside it. Returns a summary (paths, settings, seconds). Bad input raises InputError.
@@ -225,6 +226,10 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     two models then draw different BSDF directions, so their renders share only the light
     samples; ``mis="none"`` (light samples only) keeps every random number common to both.
 
+    ``env_mode="prefiltered"``: a neural model with an environment head shades the environment from its
+    learned lobes (:class:`~mtlx2neural.render.prefiltered.PrefilteredEnvironment`, no noise); the
+    reference and models without the head stay sampled (``"sampled"``, the default).
+
     ``frame``/``fps`` (the reference only): the instant its ``time``/``frame`` nodes fold to; each
     left None is the conversion's (:func:`conversion_application`), else frame 1 at 24 fps.
 
@@ -247,6 +252,8 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
         raise InputError(f"unknown model '{model}': use reference or neural")
     if mis not in ("own", "none"):
         raise InputError(f"unknown --mis '{mis}': use own (the model's sampler) or none (light samples only)")
+    if env_mode not in ("sampled", "prefiltered"):
+        raise InputError(f"unknown --env-mode '{env_mode}': use sampled or prefiltered")
     if res < 1 or spp < 1:
         raise InputError(f"--res and --spp must be positive (got {res}, {spp})")
     if distance <= 1.0 or not 0.0 < fov < 180.0:
@@ -269,6 +276,8 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     png = output.with_suffix(".png")
     check_render_outputs([output, png], inputs, asset)  # never an input, an export or a neural layer
     geo, lights = make_geometry(geometry), make_lights(env)
+    if env_mode == "prefiltered":
+        lights = [PrefilteredEnvironment(li) if isinstance(li, EnvironmentMap) else li for li in lights]
     source, ck = None, None
     if model == "neural":
         if checkpoint:
@@ -314,5 +323,5 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
     write_png(png, img)
     return {"material": name, "model": model, "checkpoint": str(ck) if source == "checkpoint" else None,
             "neural_source": source, "neural_path": str(ck) if ck else None, "exr": str(output),
-            "png": str(png), "geometry": geometry, "env": env or "sky", "mis": mis, "res": res, "spp": spp,
+            "png": str(png), "geometry": geometry, "env": env or "sky", "env_mode": env_mode, "mis": mis, "res": res, "spp": spp,
             "seconds": round(seconds, 2), "mean": float(np.mean(img)), "tile": tile}

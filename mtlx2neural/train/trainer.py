@@ -11,7 +11,8 @@ and mollified reference target (the cone narrows with the paper's cosine decay, 
 at a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
 against the current neural BRDF, scored on the sampler's own samples mixed with cosine ones
 (latents detached; docs/history/paper-choices-2026-12-02.md), plus the albedo head's loss when it
-has one (every loss: ``train.losses``).
+has one (every loss: ``train.losses``). With ``environment_steps``, the environment head is fitted
+last, the rest frozen (``train.environment_fit``).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.
 
@@ -41,6 +42,7 @@ from mtlx2neural.textures.surface_maps import SurfaceMaps, dilate
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
 from mtlx2neural.train.encoder_input import EncoderInput
+from mtlx2neural.train.environment_fit import fit_environment_head
 from mtlx2neural.train.latent_init import (
     freeze_encoder,
     is_textured,
@@ -99,7 +101,8 @@ class Trainer:
         self.model = NeuralMaterial(self.latent_init.resolution, self.encoder_input.dim,
                                     cfg.latent_dim, cfg.frames, cfg.decoder, cfg.albedo_head,
                                     cfg.analytic_cosine, tiles=self.tiles,
-                                    latent_format=cfg.latent_format).to(self.device)
+                                    latent_format=cfg.latent_format,
+                                    environment_head=cfg.environment_steps > 0).to(self.device)
         if cfg.latent_format != "exr":  # DDS MIP chains halve rounding down: refuse other grids before training
             try:
                 check_block_shapes([tuple(lv.shape[-2:]) for lv in self.model.latents.levels])
@@ -110,6 +113,7 @@ class Trainer:
         self.baked = False
         self.history: list[dict] = []
         self.clipped_steps = 0
+        self.environment_history: list[dict] = []  # the environment head's fit, once the BRDF is trained
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
         self.targets = targets_for(reference, stack, cfg, self.gen,  # the rows' levels and targets for this kind
                                    self.surface.coverage_at if self.surface is not None else None)
@@ -135,7 +139,8 @@ class Trainer:
         _atomic_save({"model": self.model.state_dict(), "opt": self.opt.state_dict(), "step": self.step,
                       "baked": self.baked, "history": self.history, "config": dataclasses.asdict(self.cfg),
                       "rng": self.gen.get_state(), "udim_tiles": self.tiles,
-                      "replay": self.replay.state_dict()}, self.checkpoint_path)
+                      "replay": self.replay.state_dict(), "environment_history": self.environment_history},
+                     self.checkpoint_path)
         self._write_curves()
 
     def resume(self) -> bool:
@@ -148,6 +153,7 @@ class Trainer:
         self.clipped_steps = self.history[-1].get("clipped_steps", 0) if self.history else 0
         self.gen.set_state(ck["rng"])
         self.replay.load_state_dict(ck.get("replay"), self.device)
+        self.environment_history = ck.get("environment_history", [])
         return True
 
     def _write_curves(self) -> None:
@@ -300,6 +306,17 @@ class Trainer:
                 "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(cfg, self.step),
                 "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
 
+    def fit_environment(self) -> None:
+        """Fit the environment head (``cfg.environment_steps`` steps, :mod:`.environment_fit`) once the
+        BRDF is trained; nothing when the config has none or a resumed run already fitted it."""
+        cfg = self.cfg
+        if cfg.environment_steps <= 0 or self.environment_history:
+            return
+        t = time.time()
+        self.environment_history = fit_environment_head(self, cfg.environment_steps, cfg.environment_batch)
+        self.model.zero_grad(set_to_none=True)
+        self.environment_history[-1]["seconds"] = round(time.time() - t, 2)
+
     def run(self, progress: bool = True, listener=None, probe=None) -> NeuralMaterial:
         """Train to ``cfg.iterations`` steps (from the current step), showing progress when
         ``progress`` (a bar on a terminal, periodic log lines otherwise: :mod:`mtlx2neural.progress`); ``listener(step, total, record)`` is called with every logged record
@@ -344,6 +361,7 @@ class Trainer:
                 if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)
                     self.model.latents.codec.fit(list(self.model.latents.levels))
                 self.model.latents.codec_active = True
+            self.fit_environment()
         except KeyboardInterrupt:
             self.save()
             bar.close()

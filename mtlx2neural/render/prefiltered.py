@@ -1,0 +1,179 @@
+"""Prefiltered environment lighting: shade distant light from the learned sampler's lobes, no noise.
+
+A neural material with an environment head (:mod:`mtlx2neural.model.decoder`) shades an environment as
+
+    L_out(wi) = c_spec(wi) E_spec + c_diff(wi) E_diff,
+
+with c_k the reflectance that lobe k of the learned sampler carries (linear RGB, fitted against the
+reference: ``train.environment_fit``) and E_k the incident radiance averaged over lobe k's density
+(:mod:`mtlx2neural.model.proxy`: the anisotropic GGX lobe reflected about ``wi``, the tilted cosine lobe).
+Only the part of a lobe above the geometric horizon counts (the material reflects nothing from below),
+so E_k is the mean over the lobe's directions with z > 0.
+
+E_k is a deterministic quadrature, the same at every pixel (no per-pixel random numbers, so no
+sparkle): ``samples`` directions per lobe from a rank-1 lattice (the R2 sequence), each read from a
+prefiltered copy of the environment at the level whose texels cover the direction's share of the lobe
+(filtered importance sampling: a sample stands for the solid angle 1 / (samples * pdf), read
+:data:`LOD_BIAS` levels coarser). The MaterialX
+node (``codegen/templates/neural_bsdf.glsl.in``) does the same with the viewer's MIP chain; this module is
+its torch twin, for ``render --env-mode prefiltered`` and for the measurements.
+
+:class:`EnvironmentPyramid`: the lat-long map (:class:`.lighting.EnvironmentMap`'s conventions) and
+coarser levels, each texel the solid-angle weighted mean of the 2 x 2 texels below (rows weighted by
+their exact solid angle, :func:`row_solid_angles`), so every level keeps the map's integral exactly; lookups are bilinear within a level (wrapping in
+longitude, clamped at the poles) and linear between levels.
+
+:class:`PrefilteredEnvironment` is a light for :func:`.renderer.render_scene`: materials with an
+environment head are shaded by :func:`prefiltered_radiance`, the others (a reference) by the map's
+usual Monte-Carlo estimate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from mtlx2neural.model import proxy
+from mtlx2neural.render.lighting import EnvironmentMap, direction_to_uv
+
+LATTICE = (0.7548776662466927, 0.5698402909980532)
+"""The R2 sequence's increments: point j of a lattice is frac(0.5 + j * LATTICE)."""
+DEFAULT_SAMPLES = 16
+"""Lattice directions per lobe (the MaterialX node's ``env_samples`` default)."""
+MIN_WIDTH = 8
+"""The coarsest pyramid level is at least this many texels wide."""
+LOD_BIAS = 1.0
+"""Levels added to each lookup's footprint level: a texel then covers about twice the sample's share of
+the lobe on each axis, so neighbouring samples' footprints overlap and a small bright source spreads
+over the lobe instead of showing as separate spots (filtered importance sampling's usual +1)."""
+
+
+def lattice(samples: int, device=None) -> torch.Tensor:
+    """[samples, 2] points of the rank-1 lattice in [0, 1)^2 (the R2 sequence from 0.5)."""
+    j = torch.arange(samples, dtype=torch.float64, device=device)[:, None]
+    return torch.frac(0.5 + j * torch.tensor(LATTICE, dtype=torch.float64, device=device)).float()
+
+
+def row_solid_angles(height: int) -> torch.Tensor:
+    """[height] the solid angle of one texel's row band of a lat-long map, per unit of longitude
+    (cos theta_top - cos theta_bottom, row 0 at the zenith): a row of ``width`` texels covers
+    2 pi / width times this each."""
+    edges = torch.cos(torch.arange(height + 1, dtype=torch.float64) / height * math.pi)
+    return (edges[:-1] - edges[1:]).float()
+
+
+class EnvironmentPyramid:
+    """A lat-long environment and its solid-angle-weighted coarser levels (module docstring)."""
+
+    def __init__(self, env: EnvironmentMap):
+        self.env = env
+        level = env.image
+        self.levels = [level]
+        while level.shape[0] % 2 == 0 and level.shape[1] % 2 == 0 and level.shape[1] // 2 >= MIN_WIDTH:
+            rows = row_solid_angles(level.shape[0])[:, None, None]
+            weighted = (level * rows).view(level.shape[0] // 2, 2, level.shape[1] // 2, 2, 3).sum((1, 3))
+            norm = 2.0 * rows.view(-1, 2, 1, 1).sum(1)  # two texels per row
+            level = weighted / norm.clamp_min(1e-12)
+            self.levels.append(level)
+
+    def level_of(self, d: torch.Tensor, solid_angle: torch.Tensor) -> torch.Tensor:
+        """[N] the fractional level whose texels at unit world directions ``d`` [N,3] cover ``solid_angle``
+        [N] steradians (0: the map itself), clamped to the pyramid."""
+        h, w = self.levels[0].shape[:2]
+        sin = torch.sqrt((1.0 - d[:, 1] ** 2).clamp_min(0.0)).clamp_min(1.0 / h)
+        texel = (2.0 * math.pi / w) * (math.pi / h) * sin
+        lod = 0.5 * torch.log2((solid_angle / texel).clamp_min(1e-30)) + LOD_BIAS
+        return lod.clamp(0.0, len(self.levels) - 1.0)
+
+    def _bilinear(self, k: int, uv: torch.Tensor) -> torch.Tensor:
+        img = self.levels[k]
+        h, w = img.shape[:2]
+        x = uv[:, 0] * w - 0.5
+        y = (uv[:, 1] * h - 0.5).clamp(0.0, h - 1.0)
+        x0, y0 = torch.floor(x), torch.floor(y)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        x0, y0 = x0.long(), y0.long()
+        x1, y1 = (x0 + 1) % w, (y0 + 1).clamp(max=h - 1)
+        x0 = x0 % w
+        top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+        bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+        return top * (1 - fy) + bottom * fy
+
+    def lookup(self, d: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
+        """Radiance [N,3] along unit world directions ``d`` [N,3] at fractional levels ``lod`` [N]."""
+        uv = direction_to_uv(d)
+        lod = lod.clamp(0.0, len(self.levels) - 1.0)
+        k0 = torch.floor(lod).long()
+        out = torch.zeros(d.shape[0], 3, dtype=self.levels[0].dtype)
+        for k in torch.unique(k0).tolist():
+            rows = (k0 == k).nonzero()[:, 0]
+            f = (lod[rows] - k)[:, None]
+            value = self._bilinear(k, uv[rows])
+            if k + 1 < len(self.levels):
+                value = value * (1 - f) + self._bilinear(k + 1, uv[rows]) * f
+            out[rows] = value
+        return out
+
+
+def _lobe_mean(pyramid: EnvironmentPyramid, basis, wo: torch.Tensor, pdf: torch.Tensor, samples: int) -> torch.Tensor:
+    """[N,3] mean radiance over a lobe's ``samples`` directions per point (``wo`` [N, S, 3] local, ``pdf``
+    [N, S] their density in the lobe), counting only those above the horizon; 0 where none is."""
+    t, b, n = basis
+    world = wo[..., 0:1] * t[:, None] + wo[..., 1:2] * b[:, None] + wo[..., 2:3] * n[:, None]
+    world = world / world.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    flat = world.reshape(-1, 3)
+    lod = pyramid.level_of(flat, 1.0 / (samples * pdf.reshape(-1).clamp_min(1e-12)))
+    radiance = pyramid.lookup(flat.to(pyramid.levels[0].dtype), lod).view(*wo.shape[:2], 3)
+    up = ((wo[..., 2] > 0) & (pdf > 0)).to(radiance.dtype)
+    count = up.sum(1, keepdim=True)
+    return (radiance.to(wo.dtype) * up[..., None]).sum(1) / count.clamp_min(1.0)
+
+
+def lobe_means(pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, params: proxy.ProxyParams,
+               samples: int = DEFAULT_SAMPLES) -> torch.Tensor:
+    """[N, 2, 3]: E_spec and E_diff (module docstring) at the points whose shading frames are
+    ``basis`` = (tangent, bitangent, normal) [N,3] each in world space, viewer ``wi`` [N,3] local."""
+    n, s = wi.shape[0], samples
+    u = lattice(s, wi.device).to(wi.dtype).repeat(n, 1)
+    rep = proxy.ProxyParams(*(v.repeat_interleave(s, 0) for v in (params.alpha, params.rho, params.slope_spec,
+                                                                 params.slope_diff, params.w_spec)))
+    wi_r = wi.repeat_interleave(s, 0)
+    spec = proxy.sample_specular(wi_r, rep, u)
+    spec = spec / spec.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    diff = proxy.sample_diffuse(rep.slope_diff, u)
+    e_spec = _lobe_mean(pyramid, basis, spec.view(n, s, 3), proxy.pdf_specular(wi_r, spec, rep).view(n, s), s)
+    e_diff = _lobe_mean(pyramid, basis, diff.view(n, s, 3),
+                        proxy.pdf_diffuse(diff, rep.slope_diff).view(n, s), s)
+    return torch.stack([e_spec, e_diff], 1)
+
+
+def prefiltered_radiance(material, pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, at=None,
+                         samples: int = DEFAULT_SAMPLES) -> torch.Tensor:
+    """[N,3] radiance towards ``wi`` (local, to the viewer) reflected from the environment by ``material``
+    (a model with an environment head: :meth:`~mtlx2neural.model.neural_material.NeuralMaterial.environment_lobes`)
+    at ``at``; ``basis`` as :func:`lobe_means`. 0 where wi is at or below the horizon."""
+    with torch.no_grad():
+        wi, params, c = material.environment_lobes(wi, at)
+        e = lobe_means(pyramid, basis, wi, params, samples)
+    return (c * e.to(c.dtype)).sum(1)
+
+
+def has_environment_head(material) -> bool:
+    """Whether ``material`` can be shaded by :func:`prefiltered_radiance`."""
+    return bool(getattr(material, "has_environment_head", False))
+
+
+class PrefilteredEnvironment:
+    """An environment light that materials with an environment head shade by :func:`prefiltered_radiance`
+    (``samples`` lattice directions per lobe) and the others by ``env``'s Monte-Carlo estimate."""
+
+    def __init__(self, env: EnvironmentMap, samples: int = DEFAULT_SAMPLES):
+        self.env, self.samples = env, int(samples)
+        self.pyramid = EnvironmentPyramid(env)
+        self.name = env.name
+
+    def shade(self, material, frame, wi: torch.Tensor, at) -> torch.Tensor:
+        """[N,3] :func:`prefiltered_radiance` at the hits ``frame`` (a :class:`.geometry.Hits`)."""
+        basis = (frame.tangent, frame.bitangent, frame.normal)
+        return prefiltered_radiance(material, self.pyramid, basis, wi, at, self.samples)

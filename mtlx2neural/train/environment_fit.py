@@ -1,0 +1,107 @@
+"""Fit the environment head: how much of the reflected light each lobe of the learned sampler carries.
+
+Prefiltered environment lighting (:mod:`mtlx2neural.render.prefiltered`) shades distant light as
+c_spec(wi) E_spec + c_diff(wi) E_diff: E_k the incident radiance averaged over lobe k of the learned
+sampler's mixture p = w_spec p_spec + w_diff p_diff, and c_k the reflectance that lobe carries,
+
+    c_k(wi) = integral over wo of f(wi, wo) cos(wo) r_k(wo),   r_k = w_k p_k / p,
+
+so c_spec + c_diff is the directional albedo, and a constant environment L gives albedo x L exactly.
+This module fits the decoder's environment head to c_k after the BRDF and the sampler are trained
+(they, and the latents, stay frozen). The targets come from the **reference**, not from the neural
+BRDF, so the prefiltered path's error is measured on its own:
+
+- rows: uv and MIP level drawn as the BRDF's rows (``train.targets``), ``wi`` uniform in solid angle
+  over the upper hemisphere;
+- one direction per row, from the learned sampler or the reference's own sampler (half each), with
+  the combined density q = (p + p_ref) / 2, so a lobe sharper than the learned one is still found;
+- one-sample estimates y_k = f_ref(wi, wo) cos(wo) r_k(wo) / q(wo) (the footprint-filtered,
+  unmollified reference at textured rows), unbiased for c_k;
+- the relative squared error (c - y)^2 / (sg(c)^2 + eps) of neural radiance caching, whose
+  minimiser is the targets' mean (what c_k is), with the prediction's scale held out of the
+  gradient so dark and bright texels weigh alike.
+
+The step count is ``TrainConfig.environment_steps``; the rows per step ``environment_batch``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.model import proxy
+from mtlx2neural.train.udim import draw_uv
+
+RELATIVE_EPS = 1e-3
+"""eps of the relative squared error: reflectances far below it weigh as plain squared error."""
+LR_START, LR_END = 5e-3, 5e-4
+"""Adam's learning rate, decayed geometrically over the fit."""
+
+
+def uniform_hemisphere(n: int, generator: torch.Generator, device) -> torch.Tensor:
+    """[n, 3] unit directions uniform in solid angle over z > 0 (z = cos theta uniform in (0, 1])."""
+    u = torch.rand(n, 2, generator=generator).to(device)
+    z = 1.0 - u[:, 0]
+    r = torch.sqrt((1.0 - z * z).clamp_min(0.0))
+    phi = 2.0 * math.pi * u[:, 1]
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+def lobe_targets(reference, targets, model, uv, level, wi, generator) -> torch.Tensor:
+    """[N, 2, 3] one-sample estimates of (c_spec, c_diff) at the rows (module docstring), from the
+    reference ``reference`` filtered as ``targets`` (a ``train.targets`` object) filters it."""
+    dev, n = wi.device, wi.shape[0]
+    lat = model.latents.fetch(uv, level)
+    params = model.sampler(wi, lat)
+    u = torch.rand(n, 3, generator=generator).to(dev)
+    at = ShadingPoint(uv=targets.lobe_uv(uv))
+    wo_ref, _, _ = reference.sample(wi, u[:, :2], at)
+    wo_own = proxy.sample(wi, params, u[:, :2])
+    use_ref = (u[:, 2] < 0.5) & torch.isfinite(wo_ref).all(-1)
+    wo = torch.where(use_ref[:, None], torch.nan_to_num(wo_ref), wo_own)
+    wo = wo / wo.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    p_spec = params.w_spec[:, 0] * proxy.pdf_specular(wi, wo, params)
+    p_own = p_spec + (1.0 - params.w_spec[:, 0]) * proxy.pdf_diffuse(wo, params.slope_diff)
+    q = 0.5 * (p_own + reference.pdf(wi, wo, at))
+    f = targets.brdf(wi, wo, uv, level, 0.0)
+    ok = (wo[:, 2] > 0) & (q > 0) & torch.isfinite(f).all(-1)
+    y = torch.where(ok[:, None], f / q.clamp_min(1e-30)[:, None], torch.zeros_like(f))
+    r_spec = torch.where(p_own > 0, p_spec / p_own.clamp_min(1e-30), torch.zeros_like(p_own))[:, None]
+    return torch.stack([y * r_spec, y * (1.0 - r_spec)], 1)
+
+
+def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list[dict]:
+    """Fit ``trainer.model``'s environment head for ``steps`` Adam steps of ``batch`` rows each (module
+    docstring), drawing from ``trainer.gen``; the other networks and the latents are not changed.
+    Returns one record per 25 steps (``step``, ``loss_environment``); ``listener(step, steps, record)``
+    is called with each."""
+    model, dev, g = trainer.model, trainer.device, trainer.gen
+    head = model.decoder.environment
+    if head is None:
+        raise RuntimeError("the model has no environment head to fit")
+    opt = torch.optim.Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
+    history = []
+    for step in range(1, steps + 1):
+        with torch.no_grad():
+            uv = draw_uv(batch, trainer.tiles, g).to(dev)
+            level = trainer.targets.levels(batch, dev)
+            wi = uniform_hemisphere(batch, g, dev)
+            y = lobe_targets(trainer.ref, trainer.targets, model, uv, level, wi, g)
+            lat = model.latents.fetch(uv, level)
+        c = model.decoder.predict_lobe_reflectance(lat, wi)
+        loss = ((c - y) ** 2 / (c.detach() ** 2 + RELATIVE_EPS)).mean()
+        for group in opt.param_groups:
+            group["lr"] = LR_START * (LR_END / LR_START) ** ((step - 1) / max(1, steps - 1))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if not math.isfinite(loss.item()):
+            raise FloatingPointError(f"non-finite environment-head loss at step {step}")
+        if step % 25 == 0 or step == steps:
+            rec = {"step": step, "loss_environment": round(loss.item(), 6)}
+            history.append(rec)
+            if listener is not None:
+                listener(step, steps, rec)
+    return history
