@@ -7,8 +7,10 @@ A neural material with an environment head (:mod:`mtlx2neural.model.decoder`) sh
 with c_k the reflectance that lobe k of the learned sampler carries (linear RGB, fitted against the
 reference: ``train.environment_fit``) and E_k the incident radiance averaged over lobe k's density
 (:mod:`mtlx2neural.model.proxy`: the anisotropic GGX lobe reflected about ``wi``, the tilted cosine lobe).
-Only the part of a lobe above the geometric horizon counts (the material reflects nothing from below),
-so E_k is the mean over the lobe's directions with z > 0.
+A lobe direction below the geometric horizon reads the environment at its mirror image above it
+(z -> -z): the material reflects nothing from below, and a grazing lobe then still averages all its
+lookups (the few directions left above the horizon alone flicker on a bright source; the mirror images
+lie near the horizon, where the grazing lobe's reflection looks).
 
 E_k is a deterministic quadrature, the same at every pixel (no per-pixel random numbers, so no
 sparkle): ``samples`` directions per lobe from a rank-1 lattice (the R2 sequence), each read from a
@@ -118,16 +120,17 @@ class EnvironmentPyramid:
 
 def _lobe_mean(pyramid: EnvironmentPyramid, basis, wo: torch.Tensor, pdf: torch.Tensor, samples: int) -> torch.Tensor:
     """[N,3] mean radiance over a lobe's ``samples`` directions per point (``wo`` [N, S, 3] local, ``pdf``
-    [N, S] their density in the lobe), counting only those above the horizon; 0 where none is."""
+    [N, S] their density in the lobe), those below the horizon mirrored above it; 0 where none has a density."""
     t, b, n = basis
+    wo = torch.cat([wo[..., :2], wo[..., 2:].abs()], -1)
     world = wo[..., 0:1] * t[:, None] + wo[..., 1:2] * b[:, None] + wo[..., 2:3] * n[:, None]
     world = world / world.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     flat = world.reshape(-1, 3)
     lod = pyramid.level_of(flat, 1.0 / (samples * pdf.reshape(-1).clamp_min(1e-12)))
     radiance = pyramid.lookup(flat.to(pyramid.levels[0].dtype), lod).view(*wo.shape[:2], 3)
-    up = ((wo[..., 2] > 0) & (pdf > 0)).to(radiance.dtype)
-    count = up.sum(1, keepdim=True)
-    return (radiance.to(wo.dtype) * up[..., None]).sum(1) / count.clamp_min(1.0)
+    valid = (pdf > 0).to(radiance.dtype)
+    count = valid.sum(1, keepdim=True)
+    return (radiance.to(wo.dtype) * valid[..., None]).sum(1) / count.clamp_min(1.0)
 
 
 def lobe_means(pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, params: proxy.ProxyParams,
