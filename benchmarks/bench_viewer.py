@@ -19,10 +19,13 @@ the unchanged conversions. For each material:
     (``render.renderer.render_scene``, 16 jittered samples per pixel);
 (c) the ORIGINAL material (the source document's surfacematerial, converted from the USD
     network as the tool reads it) by the same ``GlslRenderer``, same view and light;
-(a) and (c) again under MaterialX's environment lighting (filtered importance sampling, 64
-    directions per pixel (``--compare-samples``), no direct light): the project's procedural sky
-    (``EnvironmentMap.sky``, turned so MaterialX shows it as the torch renderer does) with its
-    irradiance map (``glsl_render.irradiance_map``).
+(a) and (c) again under MaterialX's environment lighting (``--compare-samples`` directions per
+    pixel, no direct light): the project's procedural sky (``EnvironmentMap.sky``, turned so MaterialX
+    shows it as the torch renderer does) with its irradiance map (``glsl_render.irradiance_map``). The
+    node (a) as exported shades it prefiltered when the model has an environment head
+    (``env_prefiltered``); it is also rendered with the environment sampled by its learned sampler
+    (``env_prefiltered`` false), and both again with their random streams offset (``seed`` 1): the
+    noise is the HDR FLIP between the two renders of one node.
 
 Comparison frames: GlslRenderer at 256² (``--compare-size``; ``--gl-supersample 4``: 512²), compared
 box-filtered to 128² with torch's 128² (16 samples per pixel); mean HDR FLIP over the whole frame (background included, as the tool's own summary
@@ -30,7 +33,9 @@ FLIP; the JSON also has the mean over the sphere's pixels, and a diagnosis again
 reference BSDF of the original, :func:`diagnose`). Frame time: (a) and (c) at 512² in the same
 GlslRenderer process, light rig plus the sky at 16 directions (MaterialXView's default count), the
 median of ``--frames`` draws after a warm-up draw, in ``--rounds`` alternating rounds; the ratio
-(a) / (c) is reported (llvmpipe is a CPU rasteriser: the ratio matters, not the time).
+(a) / (c) is reported for both environment modes (llvmpipe is a CPU rasteriser: the ratio matters,
+not the time). The diagnosis also compares the torch renderer's prefiltered mode
+(``render.prefiltered``) with the reference converged (256 samples per pixel).
 
 Prints a Markdown table and writes the figures as JSON (``--json``) with the machine (host, CPU,
 cores, GL renderer string). ``--screenshot PNG`` writes the original (left) and the neural node
@@ -79,6 +84,7 @@ from mtlx2neural.pipeline.layout import material_folder  # noqa: E402
 from mtlx2neural.reference import ReferenceMaterial  # noqa: E402
 from mtlx2neural.render.geometry import Camera, Sphere  # noqa: E402
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap  # noqa: E402
+from mtlx2neural.render.prefiltered import PrefilteredEnvironment  # noqa: E402
 from mtlx2neural.render.renderer import image_errors, render_scene, save_png  # noqa: E402
 from mtlx2neural.scene.loader import find_material  # noqa: E402
 from mtlx2neural.usd_schema import register as register_usd_schema  # noqa: E402
@@ -159,11 +165,20 @@ def prepare(name: str, conv: dict, work: Path) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     summary = conv["summary"]
     # env_samples 0: the renderer's FIS count, the one standard_surface uses, for both (a) and (c).
-    neural = write_materialx_node(conv["folder"] / "neural", summary["material"], folder / "neural", env_samples=0)
+    # The node as exported (prefiltered environment when the model has an environment head), the same node
+    # sampling the environment with its learned sampler, and both again with their random streams offset
+    # (seed 1): two renders that differ only in random numbers.
+    exported = conv["folder"] / "neural"
+    nodes = {}
+    for mode, prefiltered in (("neural", None), ("neural_sampled", False)):
+        for seed in (0, 1):
+            key = mode if seed == 0 else f"{mode}_seed1"
+            nodes[key] = write_materialx_node(exported, summary["material"], folder / key, env_samples=0, seed=seed,
+                                              env_prefiltered=prefiltered)
     src = find_material(summary["source"], summary["material"])
     original = folder / "original.mtlx"
     mx.writeToXmlFile(src.document, str(original))
-    return {"folder": folder, "neural": neural, "original": original, "original_material": src.material, "source": src}
+    return {"folder": folder, **nodes, "original": original, "original_material": src.material, "source": src}
 
 
 def downsample(img: np.ndarray, k: int = 2) -> np.ndarray:
@@ -201,6 +216,13 @@ def diagnose(d: dict, model, texels, b: np.ndarray, gl: dict, size: int, supersa
         env[label] = render_scene(m, sphere, cam, sky, res=size // 4, spp=64, texels=texels, seed=2, sampler=m,
                                   footprint=1.0)
         save_png(d["folder"] / f"torch_{label}_environment.png", env[label])
+    # The torch renderer's prefiltered mode (render.prefiltered, no noise) against the reference converged
+    # (256 samples per pixel, light and BSDF samples by MIS).
+    converged = render_scene(ref, sphere, cam, sky, res=size // 4, spp=256, texels=texels, seed=3, sampler=ref,
+                             footprint=1.0)
+    env["prefiltered"] = render_scene(model, sphere, cam, [PrefilteredEnvironment(sky[0])], res=size // 4, spp=16,
+                                      texels=texels, seed=2, footprint=1.0)
+    save_png(d["folder"] / "torch_prefiltered_environment.png", env["prefiltered"])
     save_png(d["folder"] / "torch_reference_directional.png", ref_dir)
     c_dir = downsample(gl[("directional", "original")], supersample)[..., :3]
     a_env = downsample(gl[("environment", "neural")], 2 * supersample)[..., :3]
@@ -212,6 +234,8 @@ def diagnose(d: dict, model, texels, b: np.ndarray, gl: dict, size: int, supersa
         return round(image_errors(x, y)["flip"], 4)
 
     return {"directional": {"reference_vs_c": f(ref_dir, c_dir), "reference_vs_b": f(ref_dir, b)},
+            "torch_prefiltered_vs_converged_reference": f(converged, env["prefiltered"]),
+            "torch_sampled_vs_converged_reference": f(converged, env["neural"]),
             "environment_quarter": {"reference_vs_c": f(env["reference"], c_env), "reference_vs_a": f(env["reference"], a_env),
                                 "reference_vs_torch_neural": f(env["reference"], env["neural"]),
                                 "a_vs_c": f(c_env, a_env),
@@ -241,9 +265,11 @@ def run(args) -> dict:
 
     docs = {m: prepare(m, convs[m], work) for m in materials}
     jobs, keys = [], []
+    env_labels = ("neural", "neural_seed1", "neural_sampled", "neural_sampled_seed1", "original")
     for m, d in docs.items():
-        for light, extra in (("directional", directional), ("environment", environment)):
-            for label in ("neural", "original"):
+        for light, extra, labels in (("directional", directional, ("neural", "original")),
+                                     ("environment", environment, env_labels)):
+            for label in labels:
                 mat = d["original_material"] if label == "original" else None
                 jobs.append({**extra, "mtlx": str(d[label]), "material": mat,
                              "out": str(d["folder"] / f"gl_{light}_{label}.exr"),
@@ -252,7 +278,7 @@ def run(args) -> dict:
                 keys.append((m, light, label))
     for r in range(args.rounds):
         for m, d in docs.items():
-            for label in ("neural", "original"):
+            for label in ("neural", "neural_sampled", "original"):
                 mat = d["original_material"] if label == "original" else None
                 jobs.append({**timing, "mtlx": str(d[label]), "material": mat,
                              "out": str(d["folder"] / f"gl_timing_{label}.exr"), "size": SIZE, "frames": args.frames})
@@ -285,7 +311,12 @@ def run(args) -> dict:
         ab = image_errors(b, rgb[("directional", "neural")])  # torch as the reference, as the test
         ac_dir = image_errors(rgb[("directional", "original")], rgb[("directional", "neural")])
         ac_env = image_errors(rgb[("environment", "original")], rgb[("environment", "neural")])
+        ac_env_sampled = image_errors(rgb[("environment", "original")], rgb[("environment", "neural_sampled")])
+        # Noise: two renders of one node that differ only in their random streams (HDR FLIP between them).
+        noise = {mode: image_errors(rgb[("environment", mode)], rgb[("environment", f"{mode}_seed1")])["flip"]
+                 for mode in ("neural", "neural_sampled")}
         sa, sc = float(np.median(o["seconds_neural"])), float(np.median(o["seconds_original"]))
+        ss = float(np.median(o["seconds_neural_sampled"]))
         for name, img in (("a_directional", rgb[("directional", "neural")]), ("b_torch_directional", b),
                           ("c_directional", rgb[("directional", "original")]),
                           ("a_environment", rgb[("environment", "neural")]),
@@ -299,6 +330,10 @@ def run(args) -> dict:
             "flip_a_b": round(ab["flip"], 4),
             "flip_a_c_directional": round(ac_dir["flip"], 4),
             "flip_a_c_environment": round(ac_env["flip"], 4),
+            "environment_mode": "prefiltered" if model.has_environment_head else "sampled",
+            "flip_a_c_environment_sampled": round(ac_env_sampled["flip"], 4),
+            "noise_flip_environment": round(noise["neural"], 4),
+            "noise_flip_environment_sampled": round(noise["neural_sampled"], 4),
             "sphere_only": {"flip_a_b": round(sphere_flip(b, rgb[("directional", "neural")], covered), 4),
                             "flip_a_c_directional": round(sphere_flip(rgb[("directional", "original")],
                                                                       rgb[("directional", "neural")], covered), 4),
@@ -308,7 +343,9 @@ def run(args) -> dict:
             "mean_rgb_sphere": {f"{light}_{label}": np.round(rgb[(light, label)][covered].mean(0), 4).tolist()
                                 for light in ("directional", "environment") for label in ("neural", "original")},
             "seconds_per_frame_neural": o["seconds_neural"], "seconds_per_frame_original": o["seconds_original"],
-            "frame_time_ratio": round(sa / sc, 2), "images": str(d["folder"]),
+            "seconds_per_frame_neural_sampled": o["seconds_neural_sampled"],
+            "frame_time_ratio": round(sa / sc, 2), "frame_time_ratio_sampled": round(ss / sc, 2),
+            "images": str(d["folder"]),
         })
         if args.screenshot and m == args.screenshot_material:
             light = args.screenshot_lighting
@@ -343,12 +380,18 @@ def machine(gl_renderer: str | None) -> dict:
 
 def table(report: dict) -> str:
     lines = ["| material | decoder | tool's FLIP (summary.json) | FLIP (a)-(b) | FLIP (a)-(c) directional | "
-             "FLIP (a)-(c) environment | frame time (a) / (c) |", "|---|---|---|---|---|---|---|"]
+             "FLIP (a)-(c) environment, prefiltered / sampled | noise, prefiltered / sampled | "
+             "frame time (a) / (c), prefiltered / sampled | torch prefiltered vs converged reference |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         sa, sc = np.median(r["seconds_per_frame_neural"]), np.median(r["seconds_per_frame_original"])
+        ss = np.median(r["seconds_per_frame_neural_sampled"])
         lines.append(f"| {r['material'].rsplit('/', 1)[-1]} | {r['decoder']} | {r['summary_flip']:.3f} | "
-                     f"{r['flip_a_b']:.3f} | {r['flip_a_c_directional']:.3f} | {r['flip_a_c_environment']:.3f} | "
-                     f"**{r['frame_time_ratio']:.2f}x** ({sa * 1000:.0f} / {sc * 1000:.0f} ms) |")
+                     f"{r['flip_a_b']:.3f} | {r['flip_a_c_directional']:.3f} | {r['flip_a_c_environment']:.3f} / "
+                     f"{r['flip_a_c_environment_sampled']:.3f} | {r['noise_flip_environment']:.3f} / "
+                     f"{r['noise_flip_environment_sampled']:.3f} | **{r['frame_time_ratio']:.2f}x** / "
+                     f"{r['frame_time_ratio_sampled']:.2f}x ({sa * 1000:.0f} / {ss * 1000:.0f} / {sc * 1000:.0f} ms) | "
+                     f"{r['diagnosis']['torch_prefiltered_vs_converged_reference']:.3f} |")
     m = report["machine"]
     lines.append("")
     lines.append(f"Machine: {m['host']}, {m['cpu']}, {m['cores']} cores; GL: {m['gl_renderer']}; "

@@ -27,7 +27,7 @@ from mtlx2neural.codegen.generate import identifier
 from mtlx2neural.codegen.paths import runtime_path, template
 from mtlx2neural.codegen.weight_layout import coopvec_blob, fp16_blob
 
-OPS = {"eval": 0, "pdf": 1, "sample": 2, "albedo": 3}
+OPS = {"eval": 0, "pdf": 1, "sample": 2, "albedo": 3, "lobes": 4, "environment": 5}
 _lock = threading.Lock()
 _devices: dict[tuple, object] = {}
 
@@ -182,6 +182,15 @@ class CpuMaterial:
 
     def albedo(self, latent, wi):
         return self.run("albedo", latent, wi)[:, :3]
+
+    def lobe_reflectance(self, latent, wi):
+        """[N, 2, 3]: the specular and diffuse lobes' reflectance from the environment head (zero without one)."""
+        return self.run("lobes", latent, wi)[:, :6].reshape(-1, 2, 3)
+
+    def shade_environment(self, latent, wi):
+        """[N, 3] ``shadeEnvironment`` under the harness's linear probe, L(d) = 1 + (0.3, 0.5, -0.2) . d
+        (local frame = world; its irradiance / pi along n is 1 + (2/3) (0.3, 0.5, -0.2) . n)."""
+        return self.run("environment", latent, wi)[:, :3]
 
     def fetch(self, levels: list[np.ndarray], uv, lod, u) -> np.ndarray:
         """Latents [N, C] from pyramid ``levels`` (each [C, H, W], finest first) at uv [N,2],

@@ -178,6 +178,39 @@ def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layo
     return "\n".join(out)
 
 
+def _environment_head(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec) -> str:
+    """The environment head in the module (its weights as constants, in access order): ``<p>_lobes32`` and
+    ``<p>_lobes16<W>`` give the reflectance of the proxy's specular and diffuse lobes at ``wi``, from the
+    albedo head's inputs; zero without a head. Every FP16 variant evaluates it from the constants
+    (``<p>_Env16``): it runs once per shading point, so it has no buffer or cooperative form."""
+    p, c = ctx.p, ctx.c
+    head = f"NMLatent<{c}> lat, float3 wi, out float3 cSpec, out float3 cDiff"
+    zero = "{ cSpec = float3(0.0); cDiff = float3(0.0); }"
+    if not spec32.environment:
+        return "\n".join([f"public struct {p}_Env16 : INMWeights16 {{ public half2 w2(int i) {{ return half2(half(0.0)); }} }}",
+                          f"public void {p}_lobes32({head}) {zero}",
+                          f"public void {p}_lobes16<W : INMWeights16>(W w, {head}) {zero}"])
+    k = 3 * max(ctx.frames, 1) + c
+    ret = ("    cSpec = float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]));\n"
+           "    cDiff = float3(nmOutputActivation(y[3]), nmOutputActivation(y[4]), nmOutputActivation(y[5]));")
+    v32, _ = stream32(spec32.environment)
+    v16, _ = stream16(spec16.environment)
+    out = ["// environment head, FP32, per neuron: bias, weights",
+           _array("float", f"{p}_ENV32", [_f32(v) for v in v32]),
+           "// environment head, FP16 pairs, per neuron pair: bias pair, one pair per input",
+           _array("half2", f"{p}_ENV16", [f"half2({_f16(a)}, {_f16(b)})" for a, b in v16], per_line=4),
+           f"public struct {p}_Env32 : INMWeights32 {{ public float w(int i) {{ return {p}_ENV32[i]; }} }}",
+           f"public struct {p}_Env16 : INMWeights16 {{ public half2 w2(int i) {{ return {p}_ENV16[i]; }} }}", ""]
+    body, cur = emit_mlp(describe("environment", spec32.environment), Stream32(f"{p}_Env32()"), SLANG, "x")
+    out += [f"public void {p}_lobes32({head})", "{", f"    float x[{k}]; {p}_albedoInputs({p}_Frame32(), lat, wi, x);",
+            *body, f"    float y[6] = {cur};", ret, "}", ""]
+    body16, _ = emit_mlp(describe("environment", spec16.environment), Stream16("w"), SLANG, "xh")
+    out += [f"public void {p}_lobes16<W : INMWeights16>(W w, {head})", "{",
+            f"    float x[{k}]; {p}_albedoInputs({p}_Frame16(), lat, wi, x);",
+            f"    half xh[{k}]; nmToHalfArray<{k}>(x, xh);", *body16, ret, "}"]
+    return "\n".join(out)
+
+
 def _coopmat_functions(ctx: _Ctx, spec32: NetworkSpec, layout: dict) -> str:
     """``<p>_decodeCM`` / ``_proxyCM`` / ``_albedoCM``: the networks on cooperative matrices
     (templates/coopmat.slang.in), weights from the .coopmat.bin ``layout``."""
@@ -271,7 +304,10 @@ def generate_slang(model_or_export_dir, name: str | None = None, *, coherent: bo
         "sampler_arch": "x".join(map(str, spec32.sampler_hidden)) or "linear",
         "albedo_head": "yes" if spec32.albedo else "no", "has_albedo": "true" if spec32.albedo else "false",
         "arrays": arrays, "weight_structs": structs, "input_functions": "\n\n".join(inputs),
-        "network_functions": _network_functions(ctx, spec32, spec16, layout),
+        "network_functions": _network_functions(ctx, spec32, spec16, layout) + "\n\n"
+        + _environment_head(ctx, spec32, spec16),
+        "environment_head": "yes" if spec32.environment else "no",
+        "has_environment": "true" if spec32.environment else "false",
         "dec16_offset": f"{offsets16['decoder']}u", "smp16_offset": f"{offsets16['sampler']}u",
         "alb16_offset": f"{offsets16.get('albedo', 0)}u", "coherent_doc": coherent_doc,
         "fp16_notes": "".join(f"// FP16 note: {n}\n" for n in spec16.notes),

@@ -21,6 +21,7 @@ from conftest import SIMPLE_MTLX, write_float_image
 from materials import usd_painted_ball
 from pxr import Usd
 
+from mtlx2neural.errors import InputError
 from mtlx2neural.export import export_asset
 from mtlx2neural.export.load import load_neural
 from mtlx2neural.material_record import MaterialRecord, write_record
@@ -103,6 +104,38 @@ def test_the_neural_layer_renders_its_exported_files_not_a_checkpoint(exported, 
     assert (s["material"], s["neural_source"]) == ("Red", None)
     np.testing.assert_array_equal(pixels(tmp_path / "ref.exr"), pixels(tmp_path / "ref_direct.exr"))
     assert direct["mean"] > 0
+
+
+def test_env_mode_prefiltered_shades_the_environment_head_of_the_exported_layer(tmp_path, capsys):
+    """A model with an environment head, exported and read back: ``--env-mode prefiltered`` shades the sky
+    from its learned lobes (the same image as render.prefiltered on the loaded model), the reference stays
+    sampled (the same image in both modes), and an unknown mode is an InputError."""
+    from mtlx2neural.render.geometry import Camera, Plane
+    from mtlx2neural.render.lighting import EnvironmentMap
+    from mtlx2neural.render.prefiltered import PrefilteredEnvironment
+    from mtlx2neural.render.renderer import render_scene
+
+    asset = tmp_path / "red.mtlx"
+    asset.write_text(SIMPLE_MTLX)
+    layout = resolve_output(asset)
+    torch.manual_seed(4)
+    model = NeuralMaterial((3, 5), in_dim=2, latent_dim=6, frames=2, decoder="2x16", environment_head=True).train(False)
+    layer, _ = export_asset(asset, [(model, summary("Red"), layout.folder / material_folder("Red"))], layout.folder, "fast")
+    loaded = load_neural(layer, "Red")
+    assert loaded.has_environment_head  # the head travels through weights.bin / weights.json
+    out = tmp_path / "prefiltered.exr"
+    code, _, err = run_cli(capsys, "render", layer, "--model", "neural", "--env-mode", "prefiltered", "-o", out, *COMMON)
+    assert code == 0, err
+    direct = render_scene(loaded, Plane(), Camera(30.0, 20.0, 4.0, 30.0), [PrefilteredEnvironment(EnvironmentMap.sky())],
+                          12, 2, tuple(loaded.latents.levels[0].shape[-2:]), 0, sampler=loaded)
+    np.testing.assert_allclose(pixels(out), direct, rtol=1e-6, atol=1e-7)
+    sampled = render_asset(layer, tmp_path / "sampled.exr", model="neural", **KW)
+    assert sampled["env_mode"] == "sampled" and np.abs(pixels(tmp_path / "sampled.exr") - pixels(out)).max() > 1e-3
+    for mode in ("sampled", "prefiltered"):
+        render_asset(layer, tmp_path / f"ref_{mode}.exr", env_mode=mode, **KW)
+    np.testing.assert_array_equal(pixels(tmp_path / "ref_sampled.exr"), pixels(tmp_path / "ref_prefiltered.exr"))
+    with pytest.raises(InputError, match="--env-mode"):
+        render_asset(layer, tmp_path / "x.exr", env_mode="split", **KW)
 
 
 def test_the_original_asset_prefers_the_layer_beside_it_then_the_checkpoint(exported, tmp_path):
