@@ -322,12 +322,15 @@ def test_every_preset_is_a_choice_and_overrides_apply(capsys):
     args = parse("--preset", "standard", "--iterations", "20", "--seed", "3")
     assert options_of(args).train_config() == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
     # standard is fast for longer: the same sampling and schedule shapes, 8x the steps (and the
-    # preview fallback's fit at its full 200 steps instead of fast's 100, FLIP probes 5x sparser).
+    # preview fallback's fit at its full 200 steps instead of fast's 100, FLIP probes 5x sparser, the
+    # environment head fitted for 1000 steps instead of 300).
     assert PRESETS["standard"].preview_iterations == 2 * PRESETS["fast"].preview_iterations
     assert PRESETS["standard"].probe_every == 5 * PRESETS["fast"].probe_every
+    assert PRESETS["standard"].environment_steps > PRESETS["fast"].environment_steps > 0
     assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations,
                                preview_iterations=PRESETS["fast"].preview_iterations,
-                               probe_every=PRESETS["fast"].probe_every) == PRESETS["fast"]
+                               probe_every=PRESETS["fast"].probe_every,
+                               environment_steps=PRESETS["fast"].environment_steps) == PRESETS["fast"]
     with pytest.raises(SystemExit) as exc:
         parse("--preset", "nope")
     assert exc.value.code == 2 and "standard" in capsys.readouterr().err
