@@ -57,10 +57,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from mtlx2neural.codegen.materialx_node import generation_context, load_node_document
 from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.graph.library import standard_library
+from mtlx2neural.render.lighting import uv_to_direction
+from mtlx2neural.render.prefiltered import irradiance_coefficients, sh9
 
 TIMEOUT = 300.0
 LIGHTING_KEYS = ("lights", "environment", "irradiance", "environment_samples")
@@ -125,30 +128,15 @@ def environment_for_torch(image: np.ndarray) -> np.ndarray:
 def irradiance_map(radiance: np.ndarray, height: int = 32, width: int = 64) -> np.ndarray:
     """The cosine-convolved irradiance divided by pi of a lat-long ``radiance`` map [H, W, 3]
     (what MaterialX's FIS mode reads from its irradiance map for diffuse lobes), [height, width, 3],
-    from the map's order-2 spherical-harmonic projection (exact for the cosine lobe up to the
-    ~1% of its energy above order 2)."""
-    h, w = radiance.shape[:2]
-    theta = (np.arange(h) + 0.5) / h * np.pi
-    phi = ((np.arange(w) + 0.5) / w - 0.5) * 2 * np.pi
-    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
-    d = np.stack(np.broadcast_arrays(st * np.sin(phi), ct, -st * np.cos(phi)), -1)  # MaterialX lat-long
-    area = (st * (np.pi / h) * (2 * np.pi / w)) * np.ones((1, w))
-    basis = _sh9(d)  # [H, W, 9]
-    coeff = np.einsum("hwk,hwc,hw->kc", basis, radiance[..., :3].astype(np.float64), area)
-    band = np.array([np.pi] + [2 * np.pi / 3] * 3 + [np.pi / 4] * 5)  # cosine-lobe convolution per band
-    th = (np.arange(height) + 0.5) / height * np.pi
-    ph = ((np.arange(width) + 0.5) / width - 0.5) * 2 * np.pi
-    s2, c2 = np.sin(th)[:, None], np.cos(th)[:, None]
-    n = np.stack(np.broadcast_arrays(s2 * np.sin(ph), c2, -s2 * np.cos(ph)), -1)
-    irr = np.einsum("hwk,kc->hwc", _sh9(n), coeff * band[:, None]) / np.pi
-    return np.clip(irr, 0, None).astype(np.float32)
-
-
-def _sh9(d: np.ndarray) -> np.ndarray:
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([0.282095 * np.ones_like(x), 0.488603 * y, 0.488603 * z, 0.488603 * x,
-                     1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1), 1.092548 * x * z,
-                     0.546274 * (x * x - y * y)], -1)
+    from the map's order-2 spherical-harmonic projection (:func:`~mtlx2neural.render.prefiltered.irradiance_coefficients`,
+    exact for the cosine lobe up to the ~1% of its energy above order 2; MaterialX's lat-long directions are
+    the torch renderer's)."""
+    coefficients = irradiance_coefficients(radiance)
+    v, u = torch.meshgrid((torch.arange(height, dtype=torch.float64) + 0.5) / height,
+                          (torch.arange(width, dtype=torch.float64) + 0.5) / width, indexing="ij")
+    n = uv_to_direction(torch.stack([u, v], -1).reshape(-1, 2))
+    irr = (sh9(n) @ coefficients).reshape(height, width, 3)
+    return irr.clamp_min(0.0).numpy().astype(np.float32)
 
 
 def write_exr(path, image: np.ndarray) -> None:

@@ -56,7 +56,8 @@ def _tangents(n: torch.Tensor):
     return s, torch.linalg.cross(n, s, dim=-1)
 
 
-def _axis(slope: torch.Tensor) -> torch.Tensor:
+def slope_axis(slope: torch.Tensor) -> torch.Tensor:
+    """[N, 3] the unit direction normalize(-slope.x, -slope.y, 1) of a lobe tilted by ``slope`` [N, 2]."""
     n = torch.cat([-slope, torch.ones_like(slope[:, :1])], -1)
     return n / n.norm(dim=-1, keepdim=True)
 
@@ -66,13 +67,13 @@ def sample_diffuse(slope: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     phi = 2.0 * math.pi * u[:, 0:1]
     r = u[:, 1:2].clamp(0, 1).sqrt()
     local = torch.cat([r * phi.cos(), r * phi.sin(), (1.0 - u[:, 1:2]).clamp_min(0).sqrt()], -1)
-    n = _axis(slope)
+    n = slope_axis(slope)
     s, t = _tangents(n)
     return local[:, 0:1] * s + local[:, 1:2] * t + local[:, 2:3] * n
 
 
 def pdf_diffuse(wo: torch.Tensor, slope: torch.Tensor) -> torch.Tensor:
-    return ((wo * _axis(slope)).sum(-1) / math.pi).clamp_min(0.0)
+    return ((wo * slope_axis(slope)).sum(-1) / math.pi).clamp_min(0.0)
 
 
 def sample_specular(wi: torch.Tensor, p: ProxyParams, u: torch.Tensor) -> torch.Tensor:
@@ -84,7 +85,7 @@ def sample_specular(wi: torch.Tensor, p: ProxyParams, u: torch.Tensor) -> torch.
     c = torch.sqrt((1.0 - p.rho * p.rho).clamp_min(1e-8))
     sx = p.alpha[:, 0:1] * x + p.slope_spec[:, 0:1]
     sy = p.alpha[:, 1:2] * (p.rho * x + c * y) + p.slope_spec[:, 1:2]
-    h = _axis(torch.cat([sx, sy], -1))
+    h = slope_axis(torch.cat([sx, sy], -1))
     return 2.0 * (wi * h).sum(-1, keepdim=True) * h - wi
 
 
