@@ -330,7 +330,7 @@ def test_every_preset_is_a_choice_and_overrides_apply(capsys):
     assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations,
                                preview_iterations=PRESETS["fast"].preview_iterations,
                                probe_every=PRESETS["fast"].probe_every,
-                               environment_steps=PRESETS["fast"].environment_steps) == PRESETS["fast"]
+                               environment_fraction=PRESETS["fast"].environment_fraction) == PRESETS["fast"]
     with pytest.raises(SystemExit) as exc:
         parse("--preset", "nope")
     assert exc.value.code == 2 and "standard" in capsys.readouterr().err

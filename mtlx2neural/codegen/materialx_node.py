@@ -440,7 +440,7 @@ def write_materialx_node(model_or_export, name: str, folder, *, latent_files=Non
     atlases = atlas_file_names(layout.groups)
     if env_prefiltered and not spec.environment:
         raise ValueError(f"material {name}: env_prefiltered needs networks with an environment head "
-                         f"(convert with --environment-steps above 0)")
+                         f"(convert with --environment-fraction above 0)")
     prefiltered = bool(spec.environment) if env_prefiltered is None else bool(env_prefiltered)
     doc = build_document(name, layout, atlases, env_samples, surface=surface, env_prefiltered=prefiltered)
     validate_document(doc, f"the MaterialX document of material {name}")

@@ -93,11 +93,11 @@ class TrainConfig:
     """Level distribution P(k) ~ exp(-rate k): larger favours fine levels more."""
     albedo_head: bool = False
     """Train the optional albedo head (L2 against one-sample Monte Carlo estimates)."""
-    environment_steps: int = field(default=0, metadata={"metavar": "N"})
-    """Adam steps fitting the environment head after the BRDF (``train.environment_fit``): the
-    reflectance of each lobe of the learned sampler, which prefiltered environment lighting shades
-    with (``render --env-mode prefiltered``, the MaterialX node's default). 0: no head; viewers then
-    sample the environment with the decoder."""
+    environment_fraction: float = 0.0
+    """Adam steps fitting the environment head after the BRDF (``train.environment_fit``), as a share of
+    ``iterations`` (:attr:`environment_steps`): the reflectance of each lobe of the learned sampler, which
+    prefiltered environment lighting shades with (``render --env-mode prefiltered``, the MaterialX node's
+    default). 0: no head; viewers then sample the environment with the decoder."""
     environment_batch: int = field(default=1024, metadata={"metavar": "N"})
     """Rows per environment-head step (one reference direction each)."""
     checkpoint_every: int = 500
@@ -118,6 +118,11 @@ class TrainConfig:
     Their time is left out of the curves' ``seconds``, and they draw none of the training's random
     numbers, so a run is the same with or without them. 0: none. A probe costs about 0.2 CPU s
     (BENCHMARKS.md, "Setting notes")."""
+    @property
+    def environment_steps(self) -> int:
+        """Steps of the environment head's fit: ``environment_fraction`` of ``iterations``, rounded."""
+        return round(self.environment_fraction * self.iterations)
+
     compile: bool = False
     """torch.compile the decoder/sampler losses (and a uniform material's reference): faster
     steps after tens of seconds of compilation; worth it for long runs only."""
@@ -125,7 +130,7 @@ class TrainConfig:
 
 _FAST = TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
                     mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, preview_iterations=100,
-                    probe_every=100, footprint_samples=8, environment_steps=300)
+                    probe_every=100, footprint_samples=8, environment_fraction=0.3)
 
 PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
@@ -145,16 +150,16 @@ PRESETS = {
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
-    # Every preset fits the environment head (prefiltered environment lighting), about a tenth of the
-    # BRDF's time in fast (docs/history/environment-lighting-2026-12-05.md).
+    # Every preset fits the environment head (prefiltered environment lighting): 300 steps in fast, about a
+    # tenth of the BRDF's time; standard 1000, balanced 2000, paper 6000 (docs/history/environment-lighting-2026-12-05.md).
     "standard": dataclasses.replace(_FAST, iterations=8000, preview_iterations=200, probe_every=500,
-                                    environment_steps=1000),
+                                    environment_fraction=0.125),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
-                            lobe_fraction=0.1, probe_every=2000, environment_steps=2000, environment_batch=4096),
+                            lobe_fraction=0.1, probe_every=2000, environment_fraction=0.1, environment_batch=4096),
     "paper": TrainConfig(iterations=300_000, batch=65_536, mollify_fraction=20_000 / 300_000,
                          mollify_samples=256, footprint_samples=64, decoder="3x64", max_resolution=None,
-                         compile=True, probe_every=10_000, environment_steps=5000, environment_batch=16_384),
+                         compile=True, probe_every=10_000, environment_fraction=0.02, environment_batch=16_384),
 }
 
 
@@ -167,9 +172,10 @@ def preset(name: str, **overrides) -> TrainConfig:
 
 _COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples": 1, "checkpoint_every": 1,
            "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0, "target_reuse": 1,
-           "environment_steps": 0, "environment_batch": 1}
+           "environment_batch": 1}
 """Integer settings and their smallest valid value."""
-_SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction", "block_fraction")
+_SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction", "block_fraction",
+           "environment_fraction")
 """Settings that are a share of something, in [0, 1]."""
 _FLAGS = {"batch": "--batch", "frames": "--frames", "iterations": "--iterations", "decoder": "--decoder",
           "max_resolution": "--max-texels", "seed": "--seed", "preview_iterations": "--preview-iterations"}

@@ -21,7 +21,8 @@ BRDF, so the prefiltered path's error is measured on its own:
   minimiser is the targets' mean (what c_k is), with the prediction's scale held out of the
   gradient so dark and bright texels weigh alike.
 
-The step count is ``TrainConfig.environment_steps``; the rows per step ``environment_batch``.
+The step count is ``TrainConfig.environment_steps`` (``environment_fraction`` of the iterations); the rows per
+step ``environment_batch``.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ and mollified reference target (the cone narrows with the paper's cosine decay, 
 at a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
 against the current neural BRDF, scored on the sampler's own samples mixed with cosine ones
 (latents detached; docs/history/paper-choices-2026-12-02.md), plus the albedo head's loss when it
-has one (every loss: ``train.losses``). With ``environment_steps``, the environment head is fitted
+has one (every loss: ``train.losses``). With ``environment_fraction``, the environment head is fitted
 last, the rest frozen (``train.environment_fit``).
 Adam(0.9, 0.999, 1e-7) with a cosine learning-rate decay. Progress shows phase,
 loss and ETA; checkpoints are written atomically and on Ctrl-C; curves go to a CSV.

@@ -357,7 +357,7 @@ def trained_node(tmp_path_factory):
     # 12 steps: not a fit, but networks whose outputs have the material's scale (random MLPs can
     # overflow exp(x - 3)); the comparison is between two renderers of the same networks.
     cfg = preset("fast", iterations=12, batch=256, seed=5, decoder="2x32", mollify_fraction=0.0,
-                 footprint_samples=4, environment_steps=40, environment_batch=256)
+                 footprint_samples=4, environment_fraction=1.0, environment_batch=256)
     model = fp16_rounded(Trainer(ref, stack, cfg, root / "train").run(progress=False))
     folder = export(model, root / "neural")
     # env_samples 0: the renderer's FIS sample count (the plans below set it), as standard_surface uses.

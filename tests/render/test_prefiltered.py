@@ -132,7 +132,7 @@ def test_the_environment_head_fits_the_references_albedo():
     from mtlx2neural.train.trainer import Trainer
 
     ref, stack = layered_spheres_material("CarPaint")
-    cfg = preset("fast", iterations=300, batch=1024, seed=1, environment_steps=300, probe_every=0)
+    cfg = preset("fast", iterations=300, batch=1024, seed=1, environment_fraction=1.0, probe_every=0)
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
