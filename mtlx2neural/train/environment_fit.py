@@ -50,11 +50,11 @@ def uniform_hemisphere(n: int, generator: torch.Generator, device) -> torch.Tens
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
 
 
-def lobe_targets(reference, targets, model, uv, level, wi, generator) -> torch.Tensor:
+def lobe_targets(reference, targets, model, lat, uv, level, wi, generator) -> torch.Tensor:
     """[N, 2, 3] one-sample estimates of (c_spec, c_diff) at the rows (module docstring), from the
-    reference ``reference`` filtered as ``targets`` (a ``train.targets`` object) filters it."""
+    reference ``reference`` filtered as ``targets`` (a ``train.targets`` object) filters it; ``lat`` the
+    rows' latents (``model.latents.fetch(uv, level)``), read by ``model``'s sampler."""
     dev, n = wi.device, wi.shape[0]
-    lat = model.latents.fetch(uv, level)
     params = model.sampler(wi, lat)
     u = torch.rand(n, 3, generator=generator).to(dev)
     at = ShadingPoint(uv=targets.lobe_uv(uv))
@@ -89,8 +89,8 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
             uv = draw_uv(batch, trainer.tiles, g).to(dev)
             level = trainer.targets.levels(batch, dev)
             wi = uniform_hemisphere(batch, g, dev)
-            y = lobe_targets(trainer.ref, trainer.targets, model, uv, level, wi, g)
             lat = model.latents.fetch(uv, level)
+            y = lobe_targets(trainer.ref, trainer.targets, model, lat, uv, level, wi, g)
         c = model.decoder.predict_lobe_reflectance(lat, wi)
         loss = ((c - y) ** 2 / (c.detach() ** 2 + RELATIVE_EPS)).mean()
         for group in opt.param_groups:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from neural_models import randomise_latents
 from test_codegen import make_inputs, make_model, rel, report
 
 from mtlx2neural.codegen import as_spec, generate_slang
@@ -30,9 +31,7 @@ def udim_model():
     m = type(base)((5, 7), in_dim=0, latent_dim=8, frames=2, decoder="2x16", tiles=TILES)
     state = {k: v for k, v in base.state_dict().items() if not k.startswith("latents.")}
     m.load_state_dict({**m.state_dict(), **state})
-    with torch.no_grad():
-        for lv in m.latents.levels:
-            lv.copy_(torch.randn(lv.shape))
+    randomise_latents(m)
     return m.train(False)
 
 

@@ -22,6 +22,7 @@ import MaterialX as mx
 import numpy as np
 import pytest
 import torch
+from neural_models import randomise_latents
 
 from mtlx2neural.codegen.compile import find_slangc, slangc
 from mtlx2neural.codegen.glsl_render import (
@@ -126,9 +127,7 @@ def random_node(tmp_path_factory):
     """A seeded random model (8x8 latents, 8 channels, 2 frames) exported with its node."""
     torch.manual_seed(0)
     model = NeuralMaterial((8, 8), in_dim=2, latent_dim=8, frames=2, decoder="2x16")
-    with torch.no_grad():
-        for lv in model.latents.levels:
-            lv.copy_(torch.randn(lv.shape) * 0.5)
+    randomise_latents(model, 0.5)
     folder = export(fp16_rounded(model), tmp_path_factory.mktemp("random") / "neural")
     return folder, model, write_materialx_node(folder, "/World/Looks/Car Paint", folder)
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from neural_models import randomise_latents
 from test_export import RED_MTLX, _export_red, directions, fake_summary
 
 import mtlx2neural as m2n
@@ -26,9 +27,7 @@ def block_model(latent_format: str, resolution=(8, 8), channels=8, seed=0) -> Ne
     torch.manual_seed(seed)
     m = NeuralMaterial(resolution, in_dim=2, latent_dim=channels, frames=2, decoder="2x16",
                        latent_format=latent_format)
-    with torch.no_grad():
-        for lv in m.latents.levels:
-            lv.copy_(torch.randn(lv.shape))
+    randomise_latents(m)
     m.latents.codec.fit(list(m.latents.levels))
     return m.train(False)
 

@@ -31,6 +31,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import SHARED
+from neural_models import randomise_latents
 
 import mtlx2neural as m2n
 from mtlx2neural.cli import main
@@ -129,9 +130,7 @@ def random_model(resolution=(3, 5), channels=6, frames=2, seed=0, analytic_cosin
     torch.manual_seed(seed)
     m = NeuralMaterial(resolution, in_dim=2, latent_dim=channels, frames=frames, decoder="2x16",
                        analytic_cosine=analytic_cosine)
-    with torch.no_grad():
-        for lv in m.latents.levels:
-            lv.copy_(torch.randn(lv.shape))
+    randomise_latents(m)
     return m.train(False)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import SIMPLE_MTLX
+from neural_models import randomise_latents
 
 import mtlx2neural as m2n
 from mtlx2neural.contract import ShadingPoint
@@ -32,9 +33,7 @@ def udim_model(seed=0) -> NeuralMaterial:
     """A (5, 3)-texel, two-tile model with random latents (what training leaves, for the files)."""
     torch.manual_seed(seed)
     m = NeuralMaterial((5, 3), in_dim=2, latent_dim=6, decoder="2x16", tiles=TILES)
-    with torch.no_grad():
-        for lv in m.latents.levels:
-            lv.copy_(torch.randn(lv.shape))
+    randomise_latents(m)
     return m.train(False)
 
 

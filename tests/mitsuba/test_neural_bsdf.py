@@ -39,6 +39,7 @@ import pytest
 import torch
 from conftest import SIMPLE_MTLX
 from mitsuba_samples import converted_layers, mi  # noqa: F401
+from neural_models import randomise_latents
 
 import mtlx2neural as m2n
 from mtlx2neural.contract import ShadingPoint
@@ -84,9 +85,7 @@ def random_layer(tmp_path_factory):
     """The neural layer of a random (untrained, seeded) textured model, exported without training."""
     torch.manual_seed(11)
     model = NeuralMaterial((3, 5), in_dim=2, latent_dim=6, frames=2, decoder="2x16")
-    with torch.no_grad():
-        for lv in model.latents.levels:
-            lv.copy_(torch.randn(lv.shape) * 0.7)
+    randomise_latents(model, 0.7)
     return export_model(model.train(False), tmp_path_factory.mktemp("random"))
 
 

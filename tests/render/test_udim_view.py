@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from neural_models import randomise_latents
 
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.model.neural_material import NeuralMaterial
@@ -25,9 +26,7 @@ TILES = [1002, 1011]  # no 1001: the sphere's own uv would raise
 def udim_model(seed: int = 0) -> NeuralMaterial:
     torch.manual_seed(seed)
     m = NeuralMaterial((4, 4), in_dim=2, latent_dim=6, decoder="2x16", tiles=TILES)
-    with torch.no_grad():
-        for lv in m.latents.levels:
-            lv.copy_(torch.randn(lv.shape))
+    randomise_latents(m)
     return m.train(False)
 
 

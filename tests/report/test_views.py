@@ -19,6 +19,7 @@ import torch
 from cli_helpers import assert_clean_input_error, run_cli
 from conftest import SIMPLE_MTLX, write_float_image
 from materials import usd_painted_ball
+from neural_models import randomise_latents
 from pxr import Usd
 
 from mtlx2neural.errors import InputError
@@ -43,9 +44,7 @@ def random_model(seed: int) -> NeuralMaterial:
     """A textured (5x3 latent grid, 6 channels: two latent EXRs) model with random latents."""
     torch.manual_seed(seed)
     m = NeuralMaterial((3, 5), in_dim=2, latent_dim=6, frames=2, decoder="2x16")
-    with torch.no_grad():
-        for lv in m.latents.levels:
-            lv.copy_(torch.randn(lv.shape))
+    randomise_latents(m)
     return m.train(False)
 
 
