@@ -18,6 +18,9 @@ network stays MaterialX: a Shader ``MaterialX`` whose implementation is the
 ``outputs:mtlx:surface``. It is authored in the ``original`` variant, so that the
 ``neural`` variant's own ``outputs:mtlx:surface`` is not shadowed.
 
+A measured BRDF (a MERL ``.binary`` table) is written as ``.mtlx`` input is, under ``/Materials``, except
+that its variant set has only the ``neural`` variant: the table has no network USD could show.
+
 Per converted Material, everything neural lives in the ``neural`` variant of the
 variant set ``neuralMaterial`` (selected by default):
 
@@ -100,6 +103,8 @@ NEURAL, ORIGINAL = "neural", "original"
 SHADER_ID = "NeuralBSDF"
 API = "NeuralMaterialAPI"
 MTLX_SCOPE = "/Materials"
+MEASURED_SUFFIXES = (".binary",)
+"""Inputs that are measured BRDFs (MERL tables): their Materials hold only the ``neural`` variant."""
 RECORD_KEY = "mtlx2neural"
 """``customLayerData`` key of the layer's record (module docstring)."""
 PREVIEW_PREFIX = "NeuralPreview"
@@ -383,8 +388,10 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     is_mtlx = asset.suffix.lower() == ".mtlx"
+    measured = asset.suffix.lower() in MEASURED_SUFFIXES  # a MERL table: no original network to offer
+    standalone = is_mtlx or measured  # no USD input to sublayer: the layer defines its Materials
     kept = {k: v for k, v in (keep.entries if keep else {}).items() if k not in {m.name for m in materials}}
-    if is_mtlx:
+    if standalone:
         paths = _mtlx_prim_paths(materials, [e["prim"] for e in kept.values()])
         stage = Usd.Stage.Open(layer)
         UsdGeom.Scope.Define(stage, MTLX_SCOPE)
@@ -407,7 +414,7 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
         stage = Usd.Stage.OpenMasked(layer, mask, load=Usd.Stage.LoadNone)
     stage.SetEditTarget(stage.GetRootLayer())
     for m, path in zip(materials, paths):
-        if is_mtlx:
+        if standalone:
             material = UsdShade.Material.Define(stage, path)
             material.GetPrim().SetCustomDataByKey("mtlx2neural:material", m.material)
         else:
@@ -419,13 +426,14 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
             # usdMtlx plugin) is not on this stage: the over still applies where usdMtlx composes it.
             material = UsdShade.Material(prim if prim else stage.OverridePrim(path))
         # what the input itself connects, read before anything is authored on the Material (.usd_switch)
-        switched = {} if is_mtlx else input_connections(material, _replaced(m))
-        if not is_mtlx and not material.GetPrim().IsDefined() and _replaced(m):
+        switched = {} if standalone else input_connections(material, _replaced(m))
+        if not standalone and not material.GetPrim().IsDefined() and _replaced(m):
             m.notes.append(f"{m.name}: usd-core cannot compose this Material, so its own terminal outputs are "
                            f"unknown; where a usdMtlx build composes outputs it connects, they shadow the "
                            f"'{NEURAL}' variant's networks")
         vset = material.GetPrim().GetVariantSets().AddVariantSet(VARIANT_SET)
-        vset.AddVariant(ORIGINAL)
+        if not measured:  # a measured table has no USD or MaterialX network of its own
+            vset.AddVariant(ORIGINAL)
         vset.AddVariant(NEURAL)
         if is_mtlx or switched:
             vset.SetVariantSelection(ORIGINAL)
@@ -443,12 +451,12 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
                 author_switch(stage, material, take_variant_connections(stage, material, list(switched)))
         if switched:  # outside the variants: stronger than the sublayered input's opinion
             connect_material_to_switch(material, list(switched))
-        if m.quality and m.quality["flagged"] and m.quality["policy"] == "original":
+        if m.quality and m.quality["flagged"] and m.quality["policy"] == "original" and not measured:
             vset.SetVariantSelection(ORIGINAL)  # a flagged model is not the default render (pipeline.quality)
     del stage  # a live stage would recompose (and warn) when the sublayer path becomes relative
     if kept:
         _copy_kept(keep.layer, layer, kept)
-    if not is_mtlx:
+    if not standalone:
         layer.subLayerPaths[0] = rel(asset)
     entries = {m.name: {"prim": str(p), "sourceHash": m.source_hash, "folder": rel(Path(m.folder).parent)}
                for m, p in zip(materials, paths)}
@@ -464,8 +472,10 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
     if documents:  # what a UsdMtlx viewer must find (module docstring)
         record["mtlxPluginSearchPaths"] = Vt.StringArray(sorted({d.rsplit("/", 1)[0] for d in documents}))
     layer.customLayerData = {**dict(layer.customLayerData), RECORD_KEY: record}
+    variants = f"'{NEURAL}' only (a measured table has no network USD can show)" if measured else \
+        f"'{NEURAL}' (default) or '{ORIGINAL}'"
     layer.documentation = (f"{LEGACY_DOC_PREFIX} {asset.name}: " + ", ".join(sorted(entries))
-                           + f". Variant set '{VARIANT_SET}' on each Material: '{NEURAL}' (default) or '{ORIGINAL}'.")
+                           + f". Variant set '{VARIANT_SET}' on each Material: {variants}.")
     if documents:
         layer.documentation += (" MaterialX viewers: list the folders of " + ", ".join(documents)
                                 + " (relative to this layer) in PXR_MTLX_PLUGIN_SEARCH_PATHS.")

@@ -17,6 +17,7 @@ from __future__ import annotations
 from mtlx2neural.errors import InputError
 from mtlx2neural.pipeline.options import InspectOptions
 from mtlx2neural.pipeline.plan import plan_materials
+from mtlx2neural.reference.measured import load_measured
 from mtlx2neural.scene import load_asset
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.udim import training_tiles
@@ -54,7 +55,7 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
     for plan in plan_materials(sources, cfg, allow_missing_textures, texel_density=texel_density,
                                asset=scene.asset):
         src = plan.source
-        info = plan.compiled.describe()
+        info = _measured_info(src) if plan.compiled is None else plan.compiled.describe()
         info["material"] = src.name
         info["source"] = src.source_file
         info["bound_prims"] = list(src.bound_prims)
@@ -63,8 +64,8 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
         info["identical_to"] = plan.shared_with
         info["warnings"] = list(plan.warnings)
         # the UDIM tiles a conversion trains (None: no UDIM set), with why, as train.udim decides them
-        info["udim_tiles"], info["udim_notes"] = training_tiles(plan.compiled, getattr(src, "stage_file", None),
-                                                                src.bound_prims)
+        info["udim_tiles"], info["udim_notes"] = (None, []) if plan.compiled is None else training_tiles(
+            plan.compiled, getattr(src, "stage_file", None), src.bound_prims)
         report["materials"].append(info)
     if material and not report["materials"] and not any(
             material in (name, name.rsplit("/", 1)[-1]) for name, _ in scene.skipped):
@@ -73,6 +74,16 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
         raise InputError(f"{scene.asset}: no material named {material!r}. "
                          f"Available materials:\n{listing or '  (none)'}")
     return report
+
+
+def _measured_info(src) -> dict:
+    """``describe()``'s fields for a measured BRDF: one tabulated lobe, nothing spatial."""
+    table = load_measured(src.source_file).describe()
+    return {"lobes_kept": [{"closure": "measured (MERL table)", "node": src.source_file}], "lobes_pruned": [],
+            "approximations": [f"isotropic table {'x'.join(map(str, table['dims']))} read with "
+                               f"{table['interpolation']} interpolation; {table['unmeasured_entries']} unmeasured "
+                               f"entries read as 0"],
+            "spatial_inputs": [], "textures": [], "varying_parameters": [], "measured": table}
 
 
 _SURFACE_KIND = {"constant": "kept (a constant)", "textured": "kept (a map beside the latents)"}

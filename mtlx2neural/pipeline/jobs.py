@@ -93,9 +93,13 @@ class MaterialJob:
     """The USD stage whose bound meshes provide the geometry the graph reads (``MaterialSource.stage_file``)."""
     application: Application | None = None
     """The instant ``time``/``frame`` nodes fold to (``--frame``/``--fps``; None: frame 1 at 24 fps)."""
+    measured: bool = False
+    """A measured BRDF: ``source_file`` is its MERL table and ``document_xml`` is empty."""
 
     def source(self):
-        """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML."""
+        """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML (or the MERL file's path)."""
+        if self.measured:
+            return MaterialSource(self.name, None, self.material, self.source_file, [], measured=True)
         doc = mx.createDocument()
         mx.readFromXmlString(doc, self.document_xml)
         return MaterialSource(self.name, doc, self.material, self.source_file, list(self.bound_prims),
@@ -105,10 +109,12 @@ class MaterialJob:
 def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
     """The job for a :class:`mtlx2neural.pipeline.plan.MaterialPlan` (``options``: the other fields)."""
     src = plan.source
+    measured = getattr(src, "measured", False)
     return MaterialJob(src.name, src.material, src.source_file, list(src.bound_prims),
-                       mx.writeToXmlString(src.document), str(folder), cfg, plan.digest, plan.content,
-                       tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
-                       stage_file=getattr(src, "stage_file", None), input_hash=input_hash(src), **options)
+                       "" if measured else mx.writeToXmlString(src.document), str(folder), cfg, plan.digest,
+                       plan.content, tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
+                       stage_file=getattr(src, "stage_file", None), input_hash=input_hash(src), measured=measured,
+                       **options)
 
 
 def run_job(job: MaterialJob) -> MaterialRecord | Shipped:

@@ -48,11 +48,16 @@ from mtlx2neural.pipeline.devices import device_name
 from mtlx2neural.pipeline.in_scene_measure import measure_in_scene
 from mtlx2neural.pipeline.plan import latent_resolution, scaled_grid
 from mtlx2neural.reference import ReferenceMaterial
+from mtlx2neural.reference.measured import MeasuredMaterial, load_measured
 from mtlx2neural.render.flip_probe import FlipProbe
 from mtlx2neural.render.renderer import compare_many, save_png
 from mtlx2neural.render.udim_view import compare_tiles
 from mtlx2neural.textures.footprint import footprint_targets
-from mtlx2neural.textures.parameter_stack import texture_resolution
+from mtlx2neural.textures.parameter_stack import (
+    ParameterStack,
+    texture_resolution,
+    uniform_stack,
+)
 from mtlx2neural.textures.surface_maps import (
     SURFACE_FILE,
     SurfaceMaps,
@@ -88,6 +93,11 @@ def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345, surface:
 
 
 
+def measured_reference(src, device: str) -> tuple[MeasuredMaterial, ParameterStack]:
+    """The reference and the (uniform, channel-less) training stack of a measured source's MERL table."""
+    return load_measured(src.source_file, device=device), uniform_stack()
+
+
 def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
                    allow_missing_textures: bool, digest: str, resolution: tuple[int, int] | None = None,
                    extra: dict | None = None, preview: bool = True, application: Application | None = None,
@@ -115,14 +125,20 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     preview = preview and cfg.preview_iterations > 0
     if not preview:  # a baseline of an earlier run would otherwise be exported as this run's fallback
         (folder / BASELINE_FILE).unlink(missing_ok=True)
-    compiled = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures, application=application)
-    geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
-    ref = ReferenceMaterial(compiled)
-    stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
-                                              resolution=resolution or latent_resolution(compiled, cfg))
+    geometry_note = None
+    if getattr(src, "measured", False):  # a MERL table: its own reference, uniform, nothing beside the BRDF
+        compiled, (ref, stack) = None, measured_reference(src, device)
+        stack_notes, surface = [], SurfaceMaps()
+        (folder / SURFACE_FILE).unlink(missing_ok=True)
+    else:
+        compiled = compile_material(src.document, src.material, device=device,
+                                    allow_missing_textures=allow_missing_textures, application=application)
+        geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
+        ref = ReferenceMaterial(compiled)
+        stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                                  resolution=resolution or latent_resolution(compiled, cfg))
+        surface = surface_maps(compiled, stack, cfg, src.name, folder)
     tiles = list(stack.tiles) if is_udim_stack(stack) else None
-    surface = surface_maps(compiled, stack, cfg, src.name, folder)
     trainer = Trainer(ref, stack, cfg, folder, device=device, surface=surface)
     if resume:
         trainer.resume()
@@ -164,7 +180,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         threads=torch.get_num_threads(), worker=f"{platform.node()}:{os.getpid()}",
         flip_per_view=[round(e["flip"], 4) for e in errors],
         flip_mean=round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
-        surface={**surface.describe(), "refused": list(compiled.surface.refused)},
+        surface={**surface.describe(), "refused": list(compiled.surface.refused) if compiled else []},
         relmse_mean=round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
         **in_scene,
         notes=list(extra.pop("notes", [])) + list(stack.notes) + list(stack_notes)
@@ -175,7 +191,7 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
                                               / sum(1 for e in errors if e["tile"] == t), 4) for t in tiles}
     if preview:
         record = dataclasses.replace(record, **preview_record(preview_errors, fit_seconds, cfg.preview_iterations))
-    if compiled.reads_application:
+    if compiled is not None and compiled.reads_application:
         app = compiled.application
         record.application = {"frame": app.frame, "fps": app.fps, "time": app.time,
                                "nodes": list(compiled.reads_application)}
@@ -282,12 +298,15 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
     """Fit (``iterations`` steps), save and measure the preview baseline for a material trained without
     it (the chosen decoder of an error budget, :func:`~mtlx2neural.pipeline.budget.train_within_budget`);
     returns ``record`` with the fit's figures."""
-    compiled = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures, application=application)
-    bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
-    ref = ReferenceMaterial(compiled)
-    stack, _ = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
-                                    resolution=tuple(resolution))
+    if getattr(src, "measured", False):
+        ref, stack = measured_reference(src, device)
+    else:
+        compiled = compile_material(src.document, src.material, device=device,
+                                    allow_missing_textures=allow_missing_textures, application=application)
+        bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
+        ref = ReferenceMaterial(compiled)
+        stack, _ = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                        resolution=tuple(resolution))
     analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
     analytic.surface = load_surface_maps(folder / SURFACE_FILE)  # the emission and opacity it is shown with
     if is_udim_stack(stack):

@@ -261,6 +261,9 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
     plans, first = [], {}
     stage, no_stage = _density_stage(texel_density, asset)
     for src in sources:
+        if getattr(src, "measured", False):  # a MERL table: uniform, nothing to compile
+            plans.append(_measured_plan(src, cfg, allow_missing_textures, max_error, first))
+            continue
         try:
             compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
                                         strict_case=strict, application=application)
@@ -303,6 +306,18 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         first.setdefault(content, src.name)
         plans.append(plan)
     return plans
+
+
+def _measured_plan(src, cfg: TrainConfig, allow_missing_textures: bool, max_error: float | None,
+                   first: dict) -> MaterialPlan:
+    """The plan of a measured BRDF (``MaterialSource.measured``): a 1x1 grid, hashed by the table's bytes."""
+    content = content_hash(None, cfg, allow_missing_textures, f"{budget_tag(max_error)}\0grid=1x1",
+                           measured=src.source_file)
+    plan = MaterialPlan(src, None, cache_key(src, cfg, allow_missing_textures, max_error), content, (1, 1), None,
+                        "uniform", shared_with=first.get(content), cfg=cfg, max_texels=cfg.max_resolution,
+                        notes=["a measured BRDF (MERL table): isotropic and uniform, one latent code"])
+    first.setdefault(content, src.name)
+    return plan
 
 
 def _density_stage(texel_density, asset):

@@ -96,6 +96,9 @@ def _put_input(put, source) -> None:
     """Feed the material's own input (name, MaterialX document, referenced files' contents) to ``put``."""
 
     put("material", f"{source.name}\0{source.material}")
+    if getattr(source, "measured", False):  # a MERL table: its bytes are the whole input
+        put("measured", file_digest(source.source_file))
+        return
     put("document", mx.writeToXmlString(source.document))
     for f in referenced_files(source.document):
         put("file", f)
@@ -164,10 +167,12 @@ def graph_files(compiled) -> list[str]:
     return sorted(files)
 
 
-def content_hash(compiled, cfg, allow_missing_textures: bool = False, extra: str = "") -> str:
+def content_hash(compiled, cfg, allow_missing_textures: bool = False, extra: str = "",
+                 measured: str | None = None) -> str:
     """Hex sha256 of what a material trains to, without its name (see the module docstring).
 
-    ``extra`` adds settings that live outside ``cfg`` (an error budget).
+    ``extra`` adds settings that live outside ``cfg`` (an error budget). ``measured``: the MERL file of a
+    measured BRDF (``compiled`` is then None), hashed by its bytes.
     """
     h = hashlib.sha256()
 
@@ -177,10 +182,13 @@ def content_hash(compiled, cfg, allow_missing_textures: bool = False, extra: str
 
     put("format", str(FORMAT_VERSION))
     put("training", str(TRAINING_VERSION))
-    put("graph", graph_text(compiled))
-    for f in graph_files(compiled):
-        put("file", f)
-        put("digest", file_digest(f) if os.path.isfile(f) else "missing")
+    if measured is not None:
+        put("measured", file_digest(measured))
+    else:
+        put("graph", graph_text(compiled))
+        for f in graph_files(compiled):
+            put("file", f)
+            put("digest", file_digest(f) if os.path.isfile(f) else "missing")
     put("allow_missing_textures", str(bool(allow_missing_textures)))
     put("settings", json.dumps(settings_for_hash(cfg), sort_keys=True, default=str))
     put("ocio", os.environ.get("OCIO", ""))

@@ -6,6 +6,7 @@ from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.reference.material import ReferenceMaterial
+from mtlx2neural.reference.measured import MeasuredMaterial, load_measured
 from mtlx2neural.scene import find_material
 
 
@@ -20,8 +21,10 @@ def application_of(recorded: dict | None) -> Application | None:
 
 
 def load_reference(path, material: str | None = None, device: str = "cpu",
-                   allow_missing_textures: bool = False, application: Application | None = None) -> ReferenceMaterial:
-    """Load ``material`` from a ``.mtlx`` file or a USD stage and compile its reference BRDF.
+                   allow_missing_textures: bool = False, application: Application | None = None
+                   ) -> ReferenceMaterial | MeasuredMaterial:
+    """Load ``material`` from a ``.mtlx`` file or a USD stage and compile its reference BRDF (a MERL
+    ``.binary`` file: its :class:`~mtlx2neural.reference.measured.MeasuredMaterial`).
 
     ``material`` is a USD material prim path (or prim name) or a MaterialX
     surfacematerial name; it may be omitted when the asset selects exactly one.
@@ -33,6 +36,8 @@ def load_reference(path, material: str | None = None, device: str = "cpu",
     which :func:`application_of` reads back from its record).
     """
     src = find_material(path, material)
+    if src.measured:  # a MERL table: tabulated, nothing to compile
+        return load_measured(src.source_file, device=device)
     compiled = compile_material(src.document, src.material, device=device,
                                 allow_missing_textures=allow_missing_textures, application=application)
     compiled.name = src.name

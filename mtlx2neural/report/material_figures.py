@@ -26,7 +26,7 @@ from mtlx2neural.imaging.udim import tile_of_udim, udim_at
 from mtlx2neural.render.renderer import compare_many, save_png
 from mtlx2neural.render.udim_view import TileView
 from mtlx2neural.report.svg_plots import svg_lines, svg_polar
-from mtlx2neural.textures.parameter_stack import build_parameter_stack
+from mtlx2neural.textures.parameter_stack import build_parameter_stack, uniform_stack
 from mtlx2neural.train.udim import build_tiled_stack
 
 
@@ -63,7 +63,8 @@ def fit_and_render(reference, neural, texels: tuple[int, int], tiles, analytic_i
             for k in renders:
                 renders[k] += [{**r, "tile": t} for r in per[k]]
         return BaselineRenders(stack, analytics[tiles[0]], analytics, renders, time.time() - t0)
-    stack = build_parameter_stack(reference.compiled, resolution=texels)
+    compiled = getattr(reference, "compiled", None)  # None: a measured table, uniform
+    stack = uniform_stack() if compiled is None else build_parameter_stack(compiled, resolution=texels)
     analytic = fit_analytic(reference, stack, iterations=analytic_iterations, batch=2048, seed=seed)
     analytic.surface = getattr(neural, "surface", None)  # shown with the same emission and cut-out maps
     renders = compare_many(reference, {"neural": neural, "analytic": analytic}, texels, res=res, spp=spp)

@@ -330,7 +330,7 @@ def gather(layer: Path) -> tuple[Path, list[SceneEntry]] | str:
         return "the layer does not record its input, so there is no scene to draw"
     source = record.source
     if source.suffix.lower() not in USD_SUFFIXES:
-        return f"the input {source.name} is a MaterialX document, not a USD stage: there is no scene to draw"
+        return f"the input {source.name} is not a USD stage (a MaterialX document or a measured table): there is no scene to draw"
     if not source.is_file():
         return f"the input {source} is missing, so there is no scene to draw"
     entries = [_converted(layer, source, e.get("prim") or name, e) for name, e in record.materials.items()]

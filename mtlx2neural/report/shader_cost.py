@@ -92,6 +92,8 @@ def shader_rates(neural: dict, analytic=None, mtlx_source=None, n: int = 16384, 
         try:
             if not ok:
                 raise OracleError(why)
+            if getattr(mtlx_source, "measured", False):
+                raise OracleError("a measured table (MERL) has no MaterialX shader to time")
             # the oracle kernel shades each query twice (lit and unlit): one BSDF costs half
             rates["reference"] = 2 * n / best_time(
                 lambda: mtlx_slang_eval(mtlx_source.document, mtlx_source.material, wi, wo), repeats)

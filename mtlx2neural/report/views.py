@@ -49,6 +49,7 @@ from mtlx2neural.pipeline.layout import (
 from mtlx2neural.pipeline.output_safety import check_render_outputs
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.reference.loading import application_of
+from mtlx2neural.reference.measured import load_measured
 from mtlx2neural.render.geometry import Camera, Plane, Sphere, load_obj
 from mtlx2neural.render.lighting import EnvironmentMap
 from mtlx2neural.render.prefiltered import PrefilteredEnvironment
@@ -305,10 +306,13 @@ def render_asset(asset, output: str | Path | RenderOptions, material: str | None
         app = Application(frame=app.frame if frame is None else float(frame), fps=app.fps if fps is None else float(fps))
         if not (math.isfinite(app.frame) and math.isfinite(app.fps) and app.fps > 0):
             raise InputError(f"--frame {app.frame!r} / --fps {app.fps!r}: must be finite, --fps positive")
-        compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
-                                    application=app)
-        bind_geometry(compiled, src.stage_file, src.bound_prims)  # as the conversion bakes it
-        shading, texels, name = ReferenceMaterial(compiled), (1, 1), src.name
+        if src.measured:  # a MERL table
+            shading, texels, name = load_measured(src.source_file), (1, 1), src.name
+        else:
+            compiled = compile_material(src.document, src.material, allow_missing_textures=allow_missing_textures,
+                                        application=app)
+            bind_geometry(compiled, src.stage_file, src.bound_prims)  # as the conversion bakes it
+            shading, texels, name = ReferenceMaterial(compiled), (1, 1), src.name
     if tile is not None:
         if int(tile) < 1001:
             raise InputError(f"--tile {tile}: UDIM tiles are numbered from 1001")

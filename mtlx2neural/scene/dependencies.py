@@ -110,5 +110,6 @@ def input_files(asset, sources=()) -> set[Path]:
     for src in sources:
         if src.source_file and not _is_anonymous(src.source_file):
             found.add(canonical(src.source_file))
-        found |= _mtlx_dependencies(src.document)
+        if src.document is not None:  # None: a measured BRDF, whose table is its source_file
+            found |= _mtlx_dependencies(src.document)
     return found

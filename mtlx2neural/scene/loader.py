@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import os
+import re
 
 import MaterialX as mx
 
 from mtlx2neural.errors import InputError
+from mtlx2neural.formats.merl import read_merl
 from mtlx2neural.scene import mtlx_file, usd_stage
 from mtlx2neural.scene.materials import (
     Candidate,
@@ -16,6 +18,8 @@ from mtlx2neural.scene.materials import (
 )
 
 MTLX_EXTENSIONS = (".mtlx",)
+MEASURED_EXTENSIONS = (".binary",)
+"""Measured BRDFs: MERL tables (:mod:`mtlx2neural.formats.merl`)."""
 
 
 def _candidates(path) -> tuple[str, list[Candidate]]:
@@ -27,10 +31,27 @@ def _candidates(path) -> tuple[str, list[Candidate]]:
         return asset, _mtlx_candidates(asset)
     if ext in usd_stage.USD_EXTENSIONS:
         return asset, usd_stage.candidates(asset)
-    supported = ", ".join(MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS)
+    if ext in MEASURED_EXTENSIONS:
+        return asset, [_measured_candidate(asset)]
+    supported = ", ".join(MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS + MEASURED_EXTENSIONS)
     raise InputError(
-        f"{asset}: unsupported file type {ext or '(no extension)'!r}. Give a MaterialX or USD file ({supported})."
+        f"{asset}: unsupported file type {ext or '(no extension)'!r}. Give a MaterialX or USD file, or a "
+        f"measured BRDF ({supported})."
     )
+
+
+def _measured_candidate(asset: str) -> Candidate:
+    """The one material of a MERL file, named after the file (its stem made a valid identifier). Loading
+    reads the table, so a malformed file fails there, naming itself."""
+    stem = os.path.splitext(os.path.basename(asset))[0]
+    name = re.sub(r"\W", "_", stem) if stem else "measured"
+    name = f"m_{name}" if name[0].isdigit() else name
+
+    def load() -> MaterialSource:
+        read_merl(asset)  # InputError naming the file when it is missing or malformed
+        return MaterialSource(name=name, document=None, material=name, source_file=asset, measured=True)
+
+    return Candidate(key=name, aliases=(stem,), reason=None, load=load)
 
 
 def _mtlx_candidates(asset: str) -> list[Candidate]:
@@ -68,8 +89,8 @@ def _mtlx_loader(asset: str, doc: "mx.Document", name: str, error: InputError | 
 def load_asset(path, keep_going: bool = False) -> SceneMaterials:
     """Find and convert every material that the asset's renderable geometry uses.
 
-    ``path`` is a ``.mtlx`` file (every ``surfacematerial`` is a material) or a
-    USD file (``.usd``/``.usda``/``.usdc``/``.usdz``), whose Materials are
+    ``path`` is a ``.mtlx`` file (every ``surfacematerial`` is a material), a measured BRDF
+    (a MERL ``.binary`` file: one material, named after the file), or a USD file (``.usd``/``.usda``/``.usdc``/``.usdz``), whose Materials are
     selected only when bound to visible gprims of purpose ``default`` or
     ``render``; the others are listed in ``skipped`` with the reason. ``path``
     may also be an open ``Usd.Stage`` (in memory or not): its composed scene,

@@ -17,9 +17,9 @@ class MaterialSource:
 
     name: str
     """USD Material prim path (``/World/Looks/Brass``), or the surfacematerial node name for ``.mtlx`` input."""
-    document: "mx.Document"
+    document: "mx.Document | None"
     """MaterialX document holding only the user's content (standard libraries not imported);
-    ``filename`` values are absolute paths."""
+    ``filename`` values are absolute paths. None for a measured BRDF (``measured``)."""
     material: str
     """Name of the ``surfacematerial`` node inside ``document``."""
     source_file: str
@@ -34,6 +34,9 @@ class MaterialSource:
     stage_file: str | None = None
     """Absolute path of the USD stage (its root layer) whose meshes ``bound_prims`` names, for geometry a
     graph reads (:mod:`mtlx2neural.scene.uv_raster`); None for ``.mtlx`` input or an in-memory stage."""
+    measured: bool = False
+    """True for a measured BRDF (a MERL ``.binary`` table at ``source_file``): ``document`` is then None,
+    and the material's reference is :class:`mtlx2neural.reference.measured.MeasuredMaterial`."""
 
 
 @dataclass

@@ -129,6 +129,11 @@ class ParameterStack:
 
 
 
+def uniform_stack() -> ParameterStack:
+    """The stack of a material without varying parameters: no channels, one 1x1 level."""
+    return ParameterStack(channels=[], levels=[torch.zeros(0, 1, 1)])
+
+
 def _semantic(name: str, mx_type: str) -> tuple[str, str, str]:
     """(semantic, filter, unit) of a parameter from its input name and type."""
     leaf_input = name.rsplit(".", 1)[-1]

@@ -40,7 +40,8 @@ def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs
         return reference.eval(wi, wo, at)
     point = as_point(at)
     uv, params = point.uv, point.params
-    if params is None and uv is not None and reference.compiled.spatial_nodes:
+    compiled = getattr(reference, "compiled", None)  # a measured material has no graph
+    if params is None and uv is not None and compiled is not None and compiled.spatial_nodes:
         params, uv = reference.parameters_at(uv), None  # the material graph once, not five times
     n = wi.shape[0]
     omega = 2.0 * math.pi * (1.0 - math.cos(angle))
