@@ -41,7 +41,7 @@ EPILOG = ("exit codes: 0 every selected material converted; 3 some were skipped 
 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}.", epilog=EPILOG)
-    p.add_argument("asset", metavar="ASSET", help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz)")
+    p.add_argument("asset", metavar="ASSET", help=".mtlx file, USD stage (.usda/.usdc/.usd/.usdz), or measured BRDF (MERL .binary)")
     add_options(p, ConvertOptions, parsers=PARSERS, bases=TRAIN_BASES)
     return p
 

@@ -24,7 +24,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}, and the latent grid and "
                                                     f"source hash a conversion would use.")
     p.add_argument("asset", metavar="ASSET", nargs="?", default=None,
-                   help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz); not needed with --coverage")
+                   help=".mtlx file, USD stage (.usda/.usdc/.usd/.usdz) or MERL .binary; not needed with --coverage")
     p.add_argument("--coverage", action="store_true",
                    help="print which MaterialX node categories are supported (the coverage table) and exit")
     p.set_defaults(_inspect_parser=p)

@@ -10,7 +10,7 @@ from mtlx2neural.commands import bench, convert, inspection, render, report
 
 COMMANDS = {m.NAME: m for m in (inspection, convert, render, report, bench)}
 """Subcommand name -> its module (``add_parser(subparsers)``, ``run(args) -> exit code``)."""
-ASSET_SUFFIXES = (".mtlx", ".usd", ".usda", ".usdc", ".usdz")
+ASSET_SUFFIXES = (".mtlx", ".usd", ".usda", ".usdc", ".usdz", ".binary")
 
 
 def looks_like_asset(word: str) -> bool:

@@ -16,8 +16,8 @@ HELP = "render one material (reference or neural) to an EXR and a PNG"
 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(NAME, help=HELP, description=f"{HELP[0].upper()}{HELP[1:]}.")
-    p.add_argument("asset", metavar="ASSET", help=".mtlx file or USD stage (.usda/.usdc/.usd/.usdz), or the neural "
-                   "layer that mtlx2neural ASSET wrote (<asset stem>_neural.usda)")
+    p.add_argument("asset", metavar="ASSET", help=".mtlx file, USD stage (.usda/.usdc/.usd/.usdz), MERL .binary, or the "
+                   "neural layer that mtlx2neural ASSET wrote (<asset stem>_neural.usda)")
     add_options(p, RenderOptions)
     return p
 
