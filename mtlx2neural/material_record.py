@@ -138,6 +138,11 @@ class MaterialRecord:
     """What a user should act on (a missed budget, a capped grid, an HDR FLIP computed on a black view)."""
 
     # --- how the conversion obtained it
+    network: dict | None = None
+    """With ``--network scene``: the group sharing this material's decoder and sampler (``materials``), the
+    ``joint_steps``, ``rows_per_material`` per joint step, the ``latent_steps`` of each material's own
+    fine-tune, and the phases' wall ``seconds`` (``joint``, ``latents``, ``environment``); None for a
+    network of its own."""
     shared_with: str | None = None
     """The material whose training this one reuses, being identical to it; None when trained itself."""
     cached: bool = False

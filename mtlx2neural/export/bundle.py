@@ -28,6 +28,9 @@ default; the layer sits beside it, so by default next to the input)::
             emission.exr, opacity.exr  emitted radiance and opacity with their own MIP chains, and
             surface.json               their manifest (mtlx2neural.export.surface_files; only what the material has)
             export.json                source hash, metrics and FP16 notes of this export
+        network/                       --network scene only: the one network every material shares
+          NeuralMaterial_<group>.slang (+ blobs, runtime), weights.bin, weights.json, network.json
+                                       (the module, and each material's latent textures)
 
 Every file is first written into a staging folder beside the layer and moved into
 place only when all of them were written (:mod:`.staging`); on any failure the
@@ -36,6 +39,7 @@ previous export, if any, stays as it was and nothing partial remains.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -48,6 +52,7 @@ from mtlx2neural.baseline.analytic_model import (
 )
 from mtlx2neural.codegen import as_spec, write_material_shader
 from mtlx2neural.codegen.engine import EngineFilesError, write_engine_files
+from mtlx2neural.codegen.generate import identifier
 from mtlx2neural.codegen.materialx_node import write_materialx_node
 from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.export.latents import write_latent_textures
@@ -63,6 +68,8 @@ from mtlx2neural.staging import Staging
 from mtlx2neural.textures.surface_maps import SURFACE_FILE, load_surface_maps
 
 EXPORT_FOLDER = "neural"
+NETWORK_FOLDER = "network"
+"""``OUT/network/``: the one network of a ``--network scene`` conversion (:func:`export_shared_network`)."""
 PREVIEW_FOLDER = "preview"
 MATERIALX_FOLDER = "materialx"
 
@@ -136,9 +143,38 @@ def export_material(model, record: MaterialRecord, staged: Path, final: Path, pr
     return m
 
 
+def export_shared_network(model, exported: list[ExportedMaterial], staged: Path, final: Path, name: str,
+                          weights: list[Path]) -> dict:
+    """Write the one network a ``--network scene`` group shares into ``staged`` (paths point at ``final``):
+    its Slang module ``NeuralMaterial_<name>.slang`` (+ weight blobs and the runtime; BRDF, sampler and
+    environment head only: each material's emission and opacity stay in its own module), ``weights.bin`` /
+    ``weights.json``, and ``network.json``: the module and, per material, its latent textures (relative to
+    ``final``). Every material's exported weights (``weights``: where each was written, in ``exported``'s
+    order) must be the group's, byte for byte (``ValueError`` otherwise). Returns the manifest."""
+    digests = {m.name: _digest(w) for m, w in zip(exported, weights)}
+    write_material_shader(as_spec(model), staged, name)  # a NetworkSpec carries no emission or opacity
+    manifest, _ = write_weights(model, staged)
+    mine = _digest(staged / manifest["file"])
+    differ = sorted(k for k, d in digests.items() if d != mine)
+    if differ:
+        raise ValueError(f"--network scene: the weights of {differ} are not the shared network's")
+    stem = f"NeuralMaterial_{identifier(name)}"
+    listing = {"module": f"{stem}.slang", "weights": manifest["file"], "manifest": "weights.json",
+               "architecture": manifest["architecture"],
+               "materials": {m.name: {"latent_textures": [os.path.relpath(p, final) for p in m.latent_textures],
+                                      "surface": None if m.surface is None else os.path.relpath(m.folder, final)}
+                             for m in exported}}
+    (staged / "network.json").write_text(json.dumps(listing, indent=2) + "\n")
+    return listing
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep: KeptMaterials | None = None,
                  tool_version: str = "", skipped: dict[str, str] | None = None,
-                 engine_shaders: bool = False) -> tuple[Path, list[ExportedMaterial]]:
+                 engine_shaders: bool = False, shared_network: str | None = None) -> tuple[Path, list[ExportedMaterial]]:
     """Export every ``(model, MaterialRecord, material folder[, fresh])`` of ``trained`` and write the layer.
 
     ``fresh`` (optional; None: none) is a folder holding the material's new training files
@@ -149,10 +185,12 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
     ``usda`` defaults to :func:`layer_path` of ``out``. ``keep``: materials of the
     previous layer at ``usda`` to carry over (:func:`~.usd_writer.write_neural_layer`); ``skipped``:
     materials left out (name -> reason), for the layer's record; ``engine_shaders``: as
-    :func:`export_material`. Returns (layer path, exported materials).
+    :func:`export_material`. ``shared_network``: the group name of a ``--network scene`` conversion, whose
+    one network is also written to ``OUT/network/`` (:func:`export_shared_network`) and recorded in the
+    layer. Returns (layer path, exported materials).
     """
     usda = Path(usda).resolve() if usda else layer_path(out)
-    exported = []
+    exported, written = [], []
     with Staging(usda.parent) as st:
         for model, record, folder, *rest in trained:
             fresh = rest[0] if rest else None
@@ -167,8 +205,14 @@ def export_asset(asset, trained: list[tuple], out, preset: str, usda=None, keep:
                 staged.mkdir(exist_ok=True)
             exported.append(export_material(model, record, staged, final, preset, baseline=baseline,
                                             engine_shaders=engine_shaders, surface=surface))
+            written.append(staged / exported[-1].weights.name)
+        shared = None
+        if shared_network is not None and exported:
+            final = Path(out).resolve() / NETWORK_FOLDER
+            listing = export_shared_network(trained[0][0], exported, st.stage(final), final, shared_network, written)
+            shared = {"folder": final, "module": final / listing["module"], "materials": sorted(listing["materials"])}
         write_neural_layer(asset, exported, st.stage_file(usda), anchor=usda, keep=keep, tool_version=tool_version,
-                           skipped=skipped)
+                           skipped=skipped, shared_network=shared)
     return usda, exported
 
 

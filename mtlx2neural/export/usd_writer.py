@@ -365,7 +365,7 @@ def _copy_kept(old_path: Path, layer, kept: dict[str, dict]) -> None:
 
 def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, anchor=None,
                        keep: KeptMaterials | None = None, tool_version: str = "",
-                       skipped: dict[str, str] | None = None) -> Path:
+                       skipped: dict[str, str] | None = None, shared_network: dict | None = None) -> Path:
     """Write the neural layer for ``materials`` of ``asset`` to ``out_usda``.
 
     ``anchor`` is where the layer will finally live (default ``out_usda``): relative
@@ -374,6 +374,8 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
     ``anchor`` whose prim specs are copied over unchanged (those not in ``materials``).
     ``skipped``: material name -> why it could not be converted; recorded as the
     record's ``skippedMaterials`` (those materials keep their original network only).
+    ``shared_network``: ``{"folder", "module", "materials"}`` of a ``--network scene`` conversion, recorded as
+    the record's ``sharedNetwork`` (paths relative to the layer).
     Returns ``out_usda``. The input is only read.
     """
     # Local: pxr loads USD's plugins on import (about 0.15 s); only USD work needs it.
@@ -468,6 +470,9 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
               "materials": {k: entries[k] for k in sorted(entries)}}
     if skipped:
         record["skippedMaterials"] = {k: skipped[k] for k in sorted(skipped)}
+    if shared_network:
+        record["sharedNetwork"] = {"folder": rel(shared_network["folder"]), "module": rel(shared_network["module"]),
+                                   "materials": Vt.StringArray(list(shared_network["materials"]))}
     documents = sorted(e["mtlxDocument"] for e in entries.values() if "mtlxDocument" in e)
     if documents:  # what a UsdMtlx viewer must find (module docstring)
         record["mtlxPluginSearchPaths"] = Vt.StringArray(sorted({d.rsplit("/", 1)[0] for d in documents}))

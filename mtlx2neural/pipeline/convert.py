@@ -101,6 +101,7 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     plan_materials,
 )
 from mtlx2neural.pipeline.quality import judge, verdict
+from mtlx2neural.pipeline.scene_network import apply_scene_digests, run_scene_jobs
 from mtlx2neural.pipeline.source_hash import cached_record, input_hash
 from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
@@ -347,6 +348,8 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
         sources, folders = [sources[i] for i in kept], [folders[i] for i in kept]
     for p in plans:
         p.compiled = None  # the workers compile again (on their device); keep the parent small
+    if options.network == "scene":
+        apply_scene_digests(plans)
     if options.resume:
         _check_resume(plans, folders, options.max_error)
     keep = _kept_materials(layout, record, {s.name for s in sources}, material, scene.materials)
@@ -359,7 +362,7 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
             summaries, trained = _train_and_share(plans, folders, cfg, device, options.resume, options.progress,
                                                   options.allow_missing_textures, options.force, workers,
                                                   options.max_error, options_record(options),
-                                                  application_of(options))
+                                                  application_of(options), options.network)
             trained = _quality_gate(summaries, trained, options.flagged)
             if summaries.failed and (options.strict or not trained):  # all or nothing: no layer
                 error = (_training_failed(scene.asset, summaries.failed) if options.strict
@@ -414,9 +417,10 @@ def _export(summaries, trained, scene, material, cfg, flat, source, layout, labe
             s.warnings = [*s.warnings, "exported untrained (--iterations 0 --allow-untrained)"]
     if flat is not None:
         write_snapshot(flat, source)
+    group = layout.folder.name if options.network == "scene" else None  # the shared module's name
     layer, exported = export_asset(source, trained, layout.folder, label, layout.layer, keep=keep,
                                    tool_version=__version__, skipped={f.material: f.reason for f in failures},
-                                   engine_shaders=options.engine_shaders)
+                                   engine_shaders=options.engine_shaders, shared_network=group)
     if flat is None and not (keep and keep.entries):
         # An earlier conversion's snapshot of an in-memory or edited stage: the new layer sublayers
         # the file instead, so it is stale (kept materials' summaries may still name it: kept then).
@@ -449,11 +453,17 @@ def training_failure(material: str, exc: BaseException) -> MaterialFailure:
 
 
 def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures, force, workers,
-                     max_error, options: dict | None = None, application=None) -> tuple[Summaries, list[tuple]]:
+                     max_error, options: dict | None = None, application=None,
+                     network: str = "material") -> tuple[Summaries, list[tuple]]:
     """Reuse, train (as jobs) or share each plan's material: (summaries, (model, record, folder, fresh)
     per converted plan; ``fresh``: the work folder holding its new training files, None when reused).
     ``options``: the conversion's options record (:func:`options_record`). A plan whose training raised (and one sharing its result) is left out and listed
-    in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end."""
+    in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end.
+    ``network="scene"``: the jobs train together with one shared network
+    (:mod:`~mtlx2neural.pipeline.scene_network`); unless every material is reused, all of them train."""
+    if network == "scene" and not force and any(_reuse(f, p.digest) is None and _reuse(work_folder(f), p.digest)
+                                                is None for p, f in zip(plans, folders) if not p.shared_with):
+        force = True  # one material to train: the shared network is trained again for all
     results: dict[int, tuple] = {}  # plan index -> (model or None, record, cached)
     uncommitted: dict[int, Path] = {}  # plan index -> the work folder of a reused result not yet committed
     jobs, job_plans = [], []
@@ -500,7 +510,8 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
         if progress:
             print(f"{plans[i].name}: {errors[i].reason}", flush=True)
 
-    for k, s in enumerate(run_jobs(jobs, workers, report, failed)):
+    ran = run_scene_jobs(jobs, report, failed) if network == "scene" else run_jobs(jobs, workers, report, failed)
+    for k, s in enumerate(ran):
         i = job_plans[k]
         if s is not None:
             results[i] = (load_checkpoint(jobs[k].folder), s, False)

@@ -29,6 +29,7 @@ import math
 import os
 import platform
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -118,6 +119,55 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     with ``cfg.preview_iterations = 0`` there is none (and no baseline file is left in ``folder``).
     """
 
+    setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application)
+    if resume:
+        setup.trainer.resume()
+    if progress:
+        print(setup.describe(), flush=True)
+    # FLIP against training time for the report (not for a UDIM stack: its views are per tile).
+    probe = FlipProbe(setup.ref, tuple(setup.stack.resolution)) if not setup.tiles else None
+    model = setup.trainer.run(progress=progress, listener=listener, probe=probe)
+    return model, finish_material(setup, model, digest, extra)
+
+
+@dataclass
+class MaterialSetup:
+    """One material ready to train: its reference, training stack, surface maps and trainer
+    (:func:`prepare_material`), for :func:`finish_material` once the trainer has run."""
+
+    src: object
+    cfg: TrainConfig
+    folder: Path
+    device: str
+    compiled: object
+    """The :class:`~mtlx2neural.graph.compile.CompiledMaterial`; None for a measured table."""
+    ref: object
+    stack: object
+    stack_notes: list[str]
+    geometry_note: str | None
+    surface: SurfaceMaps
+    trainer: Trainer
+    preview: bool
+    t0: float
+
+    @property
+    def tiles(self) -> list[int] | None:
+        return list(self.stack.tiles) if is_udim_stack(self.stack) else None
+
+    def describe(self) -> str:
+        """The progress line announcing the training."""
+        stack, cfg, tiles = self.stack, self.cfg, self.tiles
+        return (f"{self.src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid"
+                f"{f' per UDIM tile, tiles {tiles}' if tiles else ''}, "
+                f"{stack.levels[0].shape[0]} varying channels, decoder {cfg.decoder}, "
+                f"{cfg.iterations} steps x {cfg.batch}")
+
+
+def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,
+                     resolution: tuple[int, int] | None = None, preview: bool = True,
+                     application: Application | None = None) -> MaterialSetup:
+    """Compile ``src`` (or read its MERL table), build its training stack and surface maps in ``folder``,
+    and make its :class:`Trainer` (:func:`train_material` has the arguments)."""
     t0 = time.time()
     folder.mkdir(parents=True, exist_ok=True)
     # An interrupted run must not leave an old record (and its hash) beside a new checkpoint.
@@ -138,18 +188,18 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
         stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
                                                   resolution=resolution or latent_resolution(compiled, cfg))
         surface = surface_maps(compiled, stack, cfg, src.name, folder)
-    tiles = list(stack.tiles) if is_udim_stack(stack) else None
     trainer = Trainer(ref, stack, cfg, folder, device=device, surface=surface)
-    if resume:
-        trainer.resume()
-    if progress:
-        print(f"{src.name}: {stack.resolution[1]}x{stack.resolution[0]} latent grid"
-              f"{f' per UDIM tile, tiles {tiles}' if tiles else ''}, "
-              f"{stack.levels[0].shape[0]} varying channels, decoder {cfg.decoder}, "
-              f"{cfg.iterations} steps x {cfg.batch}", flush=True)
-    # FLIP against training time for the report (not for a UDIM stack: its views are per tile).
-    probe = FlipProbe(ref, tuple(stack.resolution)) if not tiles else None
-    model = trainer.run(progress=progress, listener=listener, probe=probe)
+    return MaterialSetup(src, cfg, folder, device, compiled, ref, stack, list(stack_notes), geometry_note, surface,
+                         trainer, preview, t0)
+
+
+def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None = None) -> MaterialRecord:
+    """After training: fit the preview fallback, render and measure the views (and the scene), check the
+    energy, and write the material's record (``summary.json``), which it returns."""
+    src, cfg, folder, device = setup.src, setup.cfg, setup.folder, setup.device
+    compiled, ref, stack, surface, trainer = setup.compiled, setup.ref, setup.stack, setup.surface, setup.trainer
+    tiles, preview, t0 = setup.tiles, setup.preview, setup.t0
+    stack_notes, geometry_note = setup.stack_notes, setup.geometry_note
     model.surface = surface
     train_seconds = time.time() - t0
     models = {"neural": model}
@@ -201,7 +251,9 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
         record.warnings = [*record.warnings, *(f"HDR FLIP: {n}" for n in flip_notes)]
     write_record(folder, record)
-    return model, record
+    return record
+
+
 
 
 def surface_maps(compiled, stack, cfg: TrainConfig, name: str, folder: Path) -> SurfaceMaps:

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from mtlx2neural.errors import InputError
 from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
 
+NETWORKS = ("material", "scene")
+
 
 def _preset_config(preset: str, train: TrainConfig | None) -> TrainConfig:
     """``train`` if given, else a copy of the preset's settings (InputError for an unknown preset)."""
@@ -50,6 +52,11 @@ class ConvertOptions:
     workers: int | str | None = field(default=None, metadata={"metavar": "N|ray|ray://HOST:PORT"})
     """Materials trained in parallel: N local processes (1: this process), ``ray`` (a local cluster or
     $RAY_ADDRESS) or ``ray://HOST:PORT``; None: one per material up to the CPU (or GPU) count."""
+    network: str = field(default="material", metadata={"choices": NETWORKS})
+    """material: each material gets its own decoder and sampler. scene: every material converted in
+    this run shares one decoder and one sampler (each keeps its own latent pyramid), trained jointly
+    in this process, then each material's latents fine-tuned alone; the materials then differ only
+    in their latent textures. Not with --max-error, --resume or --material."""
     max_error: float | None = field(default=None, metadata={"metavar": "F"})
     """HDR FLIP budget: per material, the smallest decoder of 2x16, 2x32, 3x64 that meets it (the
     preset's decoder is then ignored; conflicts with ``--decoder``); when even 3x64 misses, the best
@@ -161,7 +168,23 @@ def check_options(options: ConvertOptions) -> TrainConfig:
         v = getattr(options, name)
         if v is not None and not (isinstance(v, (int, float)) and 0 < v < float("inf")):
             raise InputError(f"--{name.replace('_', '-')} {v!r}: must be a positive number")
+    _check_network(options)
     return cfg
+
+
+def _check_network(options: ConvertOptions) -> None:
+    """``--network``: a known choice, and for ``scene`` none of the options that decide per material."""
+    if options.network not in NETWORKS:
+        raise InputError(f"--network {options.network!r}: choose one of {', '.join(NETWORKS)}")
+    if options.network != "scene":
+        return
+    clash = [flag for flag, given in (("--max-error", options.max_error is not None), ("--resume", options.resume),
+                                      ("--material", options.material is not None)) if given]
+    if clash:
+        raise InputError(f"--network scene trains every material of the run together, so {', '.join(clash)} "
+                         f"(which decide or continue one material at a time) cannot be used with it")
+    if isinstance(options.workers, str):
+        raise InputError(f"--workers {options.workers}: --network scene trains in this process; leave --workers out")
 
 
 def application_of(options: ConvertOptions):

@@ -73,24 +73,36 @@ def lobe_targets(reference, targets, model, lat, uv, level, wi, generator) -> to
     return torch.stack([y * r_spec, y * (1.0 - r_spec)], 1)
 
 
+def _rows(trainer, batch: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``batch`` rows of ``trainer``'s material: (latents, wi, the reference's per-lobe reflectance)."""
+    model, dev, g = trainer.model, trainer.device, trainer.gen
+    with torch.no_grad():
+        uv = draw_uv(batch, trainer.tiles, g).to(dev)
+        level = trainer.targets.levels(batch, dev)
+        wi = uniform_hemisphere(batch, g, dev)
+        lat = model.latents.fetch(uv, level)
+        y = lobe_targets(trainer.ref, trainer.targets, model, lat, uv, level, wi, g)
+    return lat, wi, y
+
+
 def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list[dict]:
     """Fit ``trainer.model``'s environment head for ``steps`` Adam steps of ``batch`` rows each (module
     docstring), drawing from ``trainer.gen``; the other networks and the latents are not changed.
+    ``trainer`` may be a list of trainers whose models share one decoder (:mod:`.shared`): each step then
+    takes ``batch // len(trainers)`` rows (at least 64) of every material.
     Returns one record per 25 steps (``step``, ``loss_environment``); ``listener(step, steps, record)``
     is called with each."""
-    model, dev, g = trainer.model, trainer.device, trainer.gen
+    trainers = list(trainer) if isinstance(trainer, (list, tuple)) else [trainer]
+    model = trainers[0].model
     head = model.decoder.environment
     if head is None:
         raise RuntimeError("the model has no environment head to fit")
+    per = batch if len(trainers) == 1 else max(64, batch // len(trainers))
     opt = torch.optim.Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     history = []
     for step in range(1, steps + 1):
-        with torch.no_grad():
-            uv = draw_uv(batch, trainer.tiles, g).to(dev)
-            level = trainer.targets.levels(batch, dev)
-            wi = uniform_hemisphere(batch, g, dev)
-            lat = model.latents.fetch(uv, level)
-            y = lobe_targets(trainer.ref, trainer.targets, model, lat, uv, level, wi, g)
+        rows = [_rows(t, per) for t in trainers]
+        lat, wi, y = (torch.cat(parts) for parts in zip(*rows))
         c = model.decoder.predict_lobe_reflectance(lat, wi)
         loss = ((c - y) ** 2 / (c.detach() ** 2 + RELATIVE_EPS)).mean()
         for group in opt.param_groups:

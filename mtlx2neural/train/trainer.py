@@ -279,7 +279,9 @@ class Trainer:
                 if tuple(lv.shape[-2:]) == tuple(cov.shape):
                     lv.copy_(dilate(lv.detach(), cov.to(lv.device) > 0))
 
-    def train_step(self) -> dict:
+    def step_loss(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One batch's training loss (``(total, brdf, kl)``, scalars with graphs): fresh or replayed rows,
+        the BRDF and sampler losses, and the albedo head's when it has one. No optimiser step."""
         self._block_phase()
         cfg, g, dev = self.cfg, self.gen, self.device
         uv, level, wi, wo, target = self.replay.batch(self.draw_rows)
@@ -292,8 +294,18 @@ class Trainer:
             with torch.no_grad():
                 weight = self.albedo_targets(wi, uv, level)
             loss = loss + albedo_loss(self.model.decoder.predict_albedo(latent, wi), weight)
+        return loss, loss_brdf, loss_kl
+
+    def step_record(self, loss_brdf, loss_kl, grad_norm: float) -> dict:
+        """The curves' record of the step just taken."""
+        return {"step": self.step, "phase": "finetune" if self.baked else "encoder",
+                "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(self.cfg, self.step),
+                "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
+
+    def train_step(self) -> dict:
+        loss, loss_brdf, loss_kl = self.step_loss()
         for group in self.opt.param_groups:
-            group["lr"] = _lr(cfg, self.step)
+            group["lr"] = _lr(self.cfg, self.step)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         # Near-delta lobes can still spike the gradient (a sharp highlight the decoder is far from):
@@ -302,9 +314,18 @@ class Trainer:
         self.clipped_steps += grad_norm > GRAD_CLIP
         self.opt.step()
         self.step += 1
-        return {"step": self.step, "phase": "finetune" if self.baked else "encoder",
-                "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(cfg, self.step),
-                "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
+        return self.step_record(loss_brdf, loss_kl, grad_norm)
+
+    def finish(self) -> None:
+        """After the last step: bake (if the run never reached it), fill a cut-out's empty texels, and put
+        a block-compressed pyramid through its codec, as it ships."""
+        if not self.baked:
+            self.bake()
+        self.dilate_empty_texels()
+        if self.model.latents.codec is not None:  # what ships: the latents through the codec
+            if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)
+                self.model.latents.codec.fit(list(self.model.latents.levels))
+            self.model.latents.codec_active = True
 
     def fit_environment(self) -> None:
         """Fit the environment head (``cfg.environment_steps`` steps, :mod:`.environment_fit`) once the
@@ -354,13 +375,7 @@ class Trainer:
                 bar.update(1)
                 if self.step % cfg.checkpoint_every == 0:
                     self.save()
-            if not self.baked:
-                self.bake()
-            self.dilate_empty_texels()
-            if self.model.latents.codec is not None:  # what ships: the latents through the codec
-                if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)
-                    self.model.latents.codec.fit(list(self.model.latents.levels))
-                self.model.latents.codec_active = True
+            self.finish()
             self.fit_environment()
         except KeyboardInterrupt:
             self.save()

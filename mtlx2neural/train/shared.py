@@ -1,0 +1,199 @@
+"""Training several materials with one network: a shared BRDF decoder (environment head included) and
+one sampler, each material keeping its own latent pyramid and encoder (``--network scene``).
+
+:class:`SharedTrainer` drives one :class:`~mtlx2neural.train.trainer.Trainer` per material, built as
+for a per-material run, after tying their models' ``decoder`` and ``sampler`` to the first's:
+
+1. **Joint steps** (``cfg.iterations``, the per-material schedule: encoder phase, bake, fine-tune):
+   every step takes :data:`MATERIALS_PER_STEP` of the M materials (all of them when there are fewer),
+   in turn from a seeded shuffle so that each gets the same share of the steps, draws each one's own
+   batch (its trainer's ``cfg.batch`` rows: the caller sizes it, :func:`scene_batch`), sums their
+   losses weighted 1/K, and takes one Adam step over every parameter (the shared networks', each
+   encoder's or latent pyramid's). A joint step so costs about what one material's step costs, whatever
+   the number of materials.
+2. **Latent fine-tune**: the shared networks frozen, each material's latents alone for
+   ``latent_steps`` steps (Adam at ``lr_end``), so a material whose codes the joint phase left rough
+   fits the network that ships.
+3. **Environment head**: fitted once on rows of every material (:func:`.environment_fit.fit_environment_head`).
+
+Each trainer then saves its checkpoint as a per-material run does; every checkpoint holds the same
+decoder and sampler weights. The materials must share the network's shape (latent channels, frames,
+decoder size, heads): :class:`SharedTrainer` raises ``ValueError`` otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import torch
+
+from mtlx2neural.progress import progress_bar
+from mtlx2neural.train.environment_fit import fit_environment_head
+from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr
+
+SCENE_MIN_ROWS = 256
+"""The fewest rows per material in a joint step (a smaller share leaves a material's batch too noisy)."""
+MATERIALS_PER_STEP = 4
+"""Materials in one joint step (K): the joint phase's cost then does not grow with the scene's size."""
+LATENT_FRACTION = 0.2
+"""Latent fine-tune steps per material, as a share of ``cfg.iterations`` (:func:`latent_steps`)."""
+SHAPE_FIELDS = ("latent_dim", "frames", "decoder", "albedo_head", "analytic_cosine", "environment_fraction",
+                "iterations", "encoder_fraction", "lr_start", "lr_end")
+
+
+def scene_batch(batch: int, materials: int) -> int:
+    """Rows per material in a joint step: the preset's batch split between the materials of a step
+    (:data:`MATERIALS_PER_STEP` at most), at least :data:`SCENE_MIN_ROWS`."""
+    return max(SCENE_MIN_ROWS, batch // max(1, min(materials, MATERIALS_PER_STEP)))
+
+
+def latent_steps(iterations: int) -> int:
+    """Steps of each material's latent fine-tune for a ``iterations``-step schedule."""
+    return round(LATENT_FRACTION * iterations)
+
+
+def _unique_parameters(modules) -> list[torch.nn.Parameter]:
+    seen, out = set(), []
+    for m in modules:
+        for p in m.parameters():
+            if id(p) not in seen:
+                seen.add(id(p))
+                out.append(p)
+    return out
+
+
+class SharedTrainer:
+    """Joint training of several materials' trainers with one decoder and one sampler (module docstring)."""
+
+    def __init__(self, trainers: list[Trainer]):
+        if not trainers:
+            raise ValueError("a shared network needs at least one material")
+        lead = trainers[0]
+        for t in trainers[1:]:
+            differ = [f for f in SHAPE_FIELDS if getattr(t.cfg, f) != getattr(lead.cfg, f)]
+            if differ:
+                raise ValueError(f"{t.out_dir.name}: its settings differ from {lead.out_dir.name}'s in {differ}; "
+                                 f"materials sharing a network train with one schedule and one network shape")
+            t.model.decoder = lead.model.decoder
+            t.model.sampler = lead.model.sampler
+        self.trainers = trainers
+        self.cfg = lead.cfg
+        self.params = _unique_parameters(t.model for t in trainers)
+        self.opt = torch.optim.Adam(self.params, lr=self.cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+        for t in trainers:
+            t.opt = self.opt  # a trainer's checkpoint stores the shared optimiser's state
+        self.step = 0
+        self.history: list[dict] = []
+        self.seconds: dict[str, float] = {}
+        self.gen = torch.Generator().manual_seed(self.cfg.seed)  # the order materials take their steps in
+        self._queue: list[int] = []
+
+    def _next_materials(self) -> list[Trainer]:
+        """The K materials of the next joint step: the next ones of a seeded shuffle of all M, reshuffled
+        when it runs out (a material never twice in one step)."""
+        k = min(MATERIALS_PER_STEP, len(self.trainers))
+        if len(self._queue) < k:
+            rest = set(self._queue)
+            fresh = [i for i in torch.randperm(len(self.trainers), generator=self.gen).tolist() if i not in rest]
+            self._queue += fresh
+        picked, self._queue = self._queue[:k], self._queue[k:]
+        return [self.trainers[i] for i in picked]
+
+    @property
+    def model_count(self) -> int:
+        return len(self.trainers)
+
+    def joint_step(self) -> dict:
+        """One Adam step on the sum of the step's materials' losses (weight 1/K). Returns the step's record
+        (their mean losses) and appends each of them its own record to its trainer's history."""
+        picked = self._next_materials()
+        m = len(picked)
+        self.opt.zero_grad(set_to_none=True)
+        parts = []
+        for t in picked:
+            loss, loss_brdf, loss_kl = t.step_loss()
+            (loss / m).backward()
+            parts.append((loss_brdf.detach(), loss_kl.detach()))
+        for group in self.opt.param_groups:
+            group["lr"] = _lr(self.cfg, self.step)
+        grad_norm = float(torch.nn.utils.clip_grad_norm_(self.params, GRAD_CLIP))
+        self.opt.step()
+        self.step += 1
+        for t in self.trainers:
+            t.step = self.step
+        for t, (lb, lk) in zip(picked, parts):
+            t.clipped_steps += grad_norm > GRAD_CLIP
+            t.history.append({**t.step_record(lb, lk, grad_norm), "seconds": round(time.time() - self._t0, 2)})
+        return {"step": self.step, "loss_brdf": float(sum(lb for lb, _ in parts)) / m,
+                "loss_kl": float(sum(lk for _, lk in parts)) / m, "grad_norm": grad_norm}
+
+    def fit_latents(self, trainer: Trainer, steps: int) -> None:
+        """The latent fine-tune of one material: its latents alone, the shared networks frozen."""
+        if steps <= 0:
+            return
+        shared = _unique_parameters([trainer.model.decoder, trainer.model.sampler])
+        for p in shared:
+            p.requires_grad_(False)
+        try:
+            opt = torch.optim.Adam(trainer.model.latents.parameters(), lr=self.cfg.lr_end, betas=(0.9, 0.999),
+                                   eps=1e-7)
+            for _ in range(steps):
+                loss, _, _ = trainer.step_loss()
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                if not math.isfinite(loss.item()):
+                    raise FloatingPointError(f"{trainer.out_dir.name}: non-finite loss in the latent fine-tune")
+        finally:
+            for p in shared:
+                p.requires_grad_(True)
+
+    def run(self, progress: bool = True, listener=None) -> list:
+        """All three phases (module docstring); saves every trainer's checkpoint and returns the models.
+        ``listener(step, total, record)``: called every 25 joint steps. ``seconds`` holds each phase's
+        wall time (``joint``, ``latents``, ``environment``)."""
+        cfg = self.cfg
+        switch = int(cfg.iterations * cfg.encoder_fraction)
+        self._t0 = t0 = time.time()
+        bar = progress_bar(cfg.iterations, self.step, enabled=progress, desc=f"{len(self.trainers)} materials")
+        while self.step < cfg.iterations:
+            if self.step >= switch and not self.trainers[0].baked:
+                for t in self.trainers:
+                    t.bake()
+            rec = self.joint_step()
+            if not all(math.isfinite(rec[k]) for k in ("loss_brdf", "loss_kl", "grad_norm")):
+                raise FloatingPointError(f"non-finite loss at joint step {self.step}: {rec}")
+            if self.step % 25 == 0 or self.step == cfg.iterations:
+                rec["seconds"] = round(time.time() - t0, 2)
+                self.history.append(rec)
+                bar.set_postfix(loss=f"{rec['loss_brdf']:.4f}")
+                if listener is not None:
+                    listener(self.step, cfg.iterations, rec)
+            bar.update(1)
+        bar.close()
+        self.seconds["joint"] = round(time.time() - t0, 2)
+        t1 = time.time()
+        for t in self.trainers:
+            t.finish()
+            self.fit_latents(t, latent_steps(cfg.iterations))
+        self.seconds["latents"] = round(time.time() - t1, 2)
+        t2 = time.time()
+        if cfg.environment_steps > 0:
+            history = fit_environment_head_shared(self.trainers, cfg.environment_steps, cfg.environment_batch)
+            for t in self.trainers:
+                t.environment_history = [dict(r) for r in history]
+        self.seconds["environment"] = round(time.time() - t2, 2)
+        for t in self.trainers:
+            t.model.zero_grad(set_to_none=True)
+            t.save()
+        return [t.model for t in self.trainers]
+
+
+def fit_environment_head_shared(trainers: list[Trainer], steps: int, batch: int) -> list[dict]:
+    """The shared environment head fitted on rows of every material (:mod:`.environment_fit`)."""
+    t = time.time()
+    history = fit_environment_head(trainers, steps, batch)
+    if history:
+        history[-1]["seconds"] = round(time.time() - t, 2)
+    return history

@@ -1,0 +1,103 @@
+"""``--network scene`` through a whole conversion: one network shipped for every material, the group's hash,
+reuse, and the options it cannot be combined with (tiny trainings: 40 joint steps)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from pxr import Sdf
+
+from mtlx2neural.codegen.compile import find_slangc, slangc
+from mtlx2neural.errors import InputError
+from mtlx2neural.pipeline.convert import convert_asset
+from mtlx2neural.pipeline.options import ConvertOptions
+from mtlx2neural.train.config import preset
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda"
+TINY = preset("fast", iterations=40, batch=512)
+KERNEL = """import NeuralMaterial_IDENT;
+StructuredBuffer<float> gIn;
+RWStructuredBuffer<float> gOut;
+[shader("compute")]
+[numthreads(32, 1, 1)]
+void csShade(uint3 t : SV_DispatchThreadID)
+{
+    NMLatent<8> lat;
+    for (int c = 0; c < 8; c++)
+        lat.v[c] = gIn[t.x * 8 + c];
+    NM_IDENT_FP16 net;
+    NeuralMaterial_IDENT_FP16 m = NeuralMaterial_IDENT_FP16(net, lat);
+    float3 wi = normalize(float3(gIn[0], gIn[1], 1.0));
+    gOut[t.x] = m.eval(wi, wi.zyx).x;
+}
+"""
+
+
+def _options(**kw) -> ConvertOptions:
+    return ConvertOptions(train=TINY, device="cpu", progress=False, **kw)
+
+
+def _weights(folder: Path) -> dict[str, str]:
+    return {p.parent.parent.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.glob("*/neural/weights.bin"))}
+
+
+@pytest.fixture(scope="module")
+def asset(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("scene_network")
+    shutil.copy(SAMPLE, folder / SAMPLE.name)
+    return folder / SAMPLE.name
+
+
+def test_one_network_for_the_scene_and_one_per_material_otherwise(asset):
+    scene = convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))
+    names = sorted(r.material for r in scene)
+    assert len(names) == 2
+    # every material ships the same weights; its record names the group and the phases
+    assert len(set(_weights(scene.folder).values())) == 1
+    for r in scene:
+        assert sorted(r.network["materials"]) == names
+        assert r.network["joint_steps"] == 40 and r.network["rows_per_material"] == 256
+        assert r.config["batch"] == 256 and set(r.network["seconds"]) == {"joint", "latents", "environment"}
+        saved = json.loads((scene.folder / Path(r.material.lstrip("/")).as_posix().replace("/", ".")
+                            / "summary.json").read_text())
+        assert saved["network"] == r.network
+    # the one network, written once: its module, weights and each material's latents
+    listing = json.loads((scene.folder / "network" / "network.json").read_text())
+    assert sorted(listing["materials"]) == names
+    assert (scene.folder / "network" / listing["module"]).is_file()
+    assert hashlib.sha256((scene.folder / "network" / "weights.bin").read_bytes()).hexdigest() in \
+        set(_weights(scene.folder).values())
+    for entry in listing["materials"].values():
+        assert all((scene.folder / "network" / f).is_file() for f in entry["latent_textures"])
+    record = Sdf.Layer.OpenAsAnonymous(str(scene.layer)).customLayerData["mtlx2neural"]["sharedNetwork"]
+    assert sorted(record["materials"]) == names and record["module"].endswith(listing["module"])
+    if find_slangc() is not None:  # the shared module compiles, as an engine would use it
+        kernel = scene.folder / "network" / "kernel.slang"
+        kernel.write_text(KERNEL.replace("IDENT", Path(listing["module"]).stem.removeprefix("NeuralMaterial_")))
+        assert slangc(kernel, "spirv", entry="csShade", include=[kernel.parent], extra=["-O0"])
+    per_material = convert_asset(asset, _options(network="material", out=str(asset.parent / "own")))
+    assert len(set(_weights(per_material.folder).values())) == 2 and all(r.network is None for r in per_material)
+    # the group is part of each material's hash: a shared result is never taken for a per-material one
+    assert not {r.source_hash for r in scene} & {r.source_hash for r in per_material}
+    # unchanged: the shared network is reused whole
+    again = convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))
+    assert all(r.cached for r in again) and _weights(again.folder) == _weights(scene.folder)
+
+
+@pytest.mark.parametrize("clash,message", [
+    (dict(max_error=0.1), "--max-error"),
+    (dict(resume=True), "--resume"),
+    (dict(material="/World/Looks/Plastic"), "--material"),
+    (dict(workers="ray"), "--workers ray"),
+    (dict(network="tree"), "--network 'tree'"),
+])
+def test_options_it_cannot_take_are_refused_first(asset, tmp_path, clash, message):
+    options = _options(**{"network": "scene", **clash, "out": str(tmp_path / "out")})
+    with pytest.raises(InputError, match=message.replace("'", ".")):
+        convert_asset(asset, options)
+    assert not (tmp_path / "out").exists()
