@@ -390,7 +390,8 @@ def write_neural_layer(asset, materials: list[ExportedMaterial], out_usda, ancho
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     is_mtlx = asset.suffix.lower() == ".mtlx"
-    measured = asset.suffix.lower() in MEASURED_SUFFIXES  # a MERL table: no original network to offer
+    # a MERL table, or a folder of them: no original network to offer
+    measured = asset.suffix.lower() in MEASURED_SUFFIXES or asset.is_dir()
     standalone = is_mtlx or measured  # no USD input to sublayer: the layer defines its Materials
     kept = {k: v for k, v in (keep.entries if keep else {}).items() if k not in {m.name for m in materials}}
     if standalone:

@@ -26,6 +26,12 @@ def _candidates(path) -> tuple[str, list[Candidate]]:
     if usd_stage.is_stage(path):
         return usd_stage.stage_name(path), usd_stage.candidates(path)
     asset = os.path.abspath(os.fspath(path))
+    if os.path.isdir(asset):  # a folder of measured BRDFs: one material per MERL file
+        tables = sorted(f for f in os.listdir(asset) if f.lower().endswith(MEASURED_EXTENSIONS))
+        if not tables:
+            raise InputError(f"{asset}: a folder, and it holds no measured BRDF ({', '.join(MEASURED_EXTENSIONS)} "
+                             f"files); give a MaterialX or USD file, a MERL file, or a folder of MERL files")
+        return asset, [_measured_candidate(os.path.join(asset, f)) for f in tables]
     ext = os.path.splitext(asset)[1].lower()
     if ext in MTLX_EXTENSIONS:
         return asset, _mtlx_candidates(asset)
@@ -90,7 +96,8 @@ def load_asset(path, keep_going: bool = False) -> SceneMaterials:
     """Find and convert every material that the asset's renderable geometry uses.
 
     ``path`` is a ``.mtlx`` file (every ``surfacematerial`` is a material), a measured BRDF
-    (a MERL ``.binary`` file: one material, named after the file), or a USD file (``.usd``/``.usda``/``.usdc``/``.usdz``), whose Materials are
+    (a MERL ``.binary`` file: one material, named after the file; a folder: one per such file in it),
+    or a USD file (``.usd``/``.usda``/``.usdc``/``.usdz``), whose Materials are
     selected only when bound to visible gprims of purpose ``default`` or
     ``render``; the others are listed in ``skipped`` with the reason. ``path``
     may also be an open ``Usd.Stage`` (in memory or not): its composed scene,

@@ -97,3 +97,27 @@ def test_fast_conversion_is_faithful_to_its_table(tmp_path):
     (record,) = convert_asset(path, ConvertOptions(preset="fast", device="cpu", progress=False, workers=1))
     assert record.flip_mean <= 0.05, record.flip_mean
     assert 0.95 <= record.energy["min_ratio"] and record.energy["max_ratio"] <= 1.05, record.energy
+
+
+def test_a_folder_of_tables_shares_one_network(tmp_path):
+    # The paper's experiment on measured materials: several tables, one decoder, a latent code each.
+    folder = tmp_path / "merl"
+    folder.mkdir()
+    write_sample(folder / "red.binary", ggx_plastic(kd=(0.5, 0.05, 0.05)))
+    write_sample(folder / "blue.binary", ggx_plastic(kd=(0.05, 0.05, 0.5), alpha=0.4))
+    (folder / "notes.txt").write_text("not a table")
+    scene = convert_asset(folder, ConvertOptions(train=preset("fast", iterations=30, batch=256), device="cpu",
+                                                 progress=False, network="scene"))
+    assert sorted(r.material for r in scene) == ["blue", "red"]
+    assert all(sorted(r.network["materials"]) == ["blue", "red"] for r in scene)
+    stage = Usd.Stage.Open(str(tmp_path / "merl_neural.usda"))
+    for name in ("red", "blue"):
+        vset = stage.GetPrimAtPath(f"/Materials/{name}").GetVariantSets().GetVariantSet("neuralMaterial")
+        assert vset.GetVariantNames() == ["neural"]
+    assert (tmp_path / "merl_neural" / "network" / "network.json").is_file()
+
+
+def test_a_folder_without_tables_is_a_clean_error(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    code, out, err = run_cli(capsys, tmp_path / "empty")
+    assert_clean_input_error(code, out, err, "empty", "no measured BRDF")
