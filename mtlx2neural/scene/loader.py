@@ -26,7 +26,8 @@ def _candidates(path) -> tuple[str, list[Candidate]]:
     if usd_stage.is_stage(path):
         return usd_stage.stage_name(path), usd_stage.candidates(path)
     asset = os.path.abspath(os.fspath(path))
-    if os.path.isdir(asset):  # a folder of measured BRDFs: one material per MERL file
+    named_as_file = os.path.splitext(asset)[1].lower() in MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS
+    if os.path.isdir(asset) and not named_as_file:  # a folder of measured BRDFs: one material per MERL file
         tables = sorted(f for f in os.listdir(asset) if f.lower().endswith(MEASURED_EXTENSIONS))
         if not tables:
             raise InputError(f"{asset}: a folder, and it holds no measured BRDF ({', '.join(MEASURED_EXTENSIONS)} "
