@@ -88,11 +88,11 @@ class MeasuredMaterial:
         solid = 2.0 * math.pi * (cos_edges[:-1] - cos_edges[1:])  # each ring's solid angle
         centre_cos = 0.5 * (cos_edges[:-1] + cos_edges[1:])
         mass = ring_mean * centre_cos * solid
-        if not mass.sum() > 0:  # an all-black table: uniform over the rings' solid angle
+        total = float(mass.sum())  # the energy the half-vector rings carry
+        if not total > 0:  # an all-black table: uniform over the rings' solid angle
             mass = solid.copy()
         prob = mass / mass.sum()
         floor = float(lum[edges[:-1] >= math.radians(FLOOR_FROM_DEGREES)].mean()) if n_h > 1 else 0.0
-        total = float((ring_mean * centre_cos * solid).sum())  # the energy the half-vector rings carry
         diffuse = math.pi * floor
         share = diffuse / total if total > 0 else 0.5
         self.diffuse_share = float(min(max(share, DIFFUSE_SHARE_RANGE[0]), DIFFUSE_SHARE_RANGE[1]))
