@@ -158,6 +158,15 @@ def _reuse(folder: Path, digest: str):
     return (model, record) if model.checkpoint_step == record.steps else None
 
 
+def _reusable(plan, folder: Path):
+    """(``_reuse``'s result or None, the folder it came from): the committed ``folder`` first, then its
+    work folder (a result an earlier run trained but could not export, e.g. on a full disk)."""
+    reused = _reuse(folder, plan.digest)
+    if reused is None and (reused := _reuse(work_folder(folder), plan.digest)) is not None:
+        return reused, work_folder(folder)
+    return reused, folder
+
+
 class Summaries(list):
     """The per-material records (:class:`~mtlx2neural.material_record.MaterialRecord`) of
     :func:`convert_asset`, plus ``skipped``: the scene's materials
@@ -461,21 +470,18 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
     in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end.
     ``network="scene"``: the jobs train together with one shared network
     (:mod:`~mtlx2neural.pipeline.scene_network`); unless every material is reused, all of them train."""
-    if network == "scene" and not force and any(_reuse(f, p.digest) is None and _reuse(work_folder(f), p.digest)
-                                                is None for p, f in zip(plans, folders) if not p.shared_with):
-        force = True  # one material to train: the shared network is trained again for all
+    # Reused: a committed result, else one an earlier run trained but could not export (a full disk).
+    found = {} if force else {i: _reusable(p, f) for i, (p, f) in enumerate(zip(plans, folders))
+                              if not p.shared_with}
+    if network == "scene" and any(reused is None for reused, _ in found.values()):
+        found = {}  # one material to train: the shared network is trained again for all
     results: dict[int, tuple] = {}  # plan index -> (model or None, record, cached)
     uncommitted: dict[int, Path] = {}  # plan index -> the work folder of a reused result not yet committed
     jobs, job_plans = [], []
     for i, (plan, folder) in enumerate(zip(plans, folders)):
         if plan.shared_with:
             continue
-        # Reused: a committed result, else one an earlier run trained but could not export (a full disk).
-        reused, where = None, folder
-        if not force:
-            reused, where = _reuse(folder, plan.digest), folder
-            if reused is None:
-                reused, where = _reuse(work_folder(folder), plan.digest), work_folder(folder)
+        reused, where = found.get(i, (None, folder))
         if reused is not None:
             model, record = reused
             if record.source != plan.source.source_file:  # e.g. a stage snapshot, now the saved file
