@@ -10,11 +10,12 @@ import pytest
 import torch
 from conftest import random_dirs
 from merl_samples import ggx_plastic, write_sample
+from sampler_checks import sampler_chi2
 
 from mtlx2neural.contract import Material
 from mtlx2neural.formats.merl import directions_of, node_angles, read_merl
 from mtlx2neural.reference.measured import MeasuredMaterial, load_measured
-from mtlx2neural.verify.chi2 import chi2_test, pdf_integral
+from mtlx2neural.verify.chi2 import pdf_integral
 
 BRDFS = {
     "plastic": ggx_plastic(kd=(0.45, 0.25, 0.08), alpha=0.25),
@@ -82,17 +83,7 @@ def test_reciprocal_and_zero_below_the_horizon(tables):
 @pytest.mark.parametrize("deg", WI_ANGLES)
 @pytest.mark.parametrize("name", list(BRDFS))
 def test_sampler_chi2(tables, name, deg):
-    m = MeasuredMaterial(tables[name])
-    wi = _wi(deg)
-
-    def sample_fn(u):
-        wo, _, pdf = m.sample(wi.expand(u.shape[0], 3), u.float())
-        return wo, pdf > 0
-
-    def pdf_fn(wo):
-        return m.pdf(wi.expand(wo.shape[0], 3), wo.float())
-
-    result = chi2_test(sample_fn, pdf_fn, sample_count=100_000, test_count=N_CHI2, seed=7)
+    result = sampler_chi2(MeasuredMaterial(tables[name]), _wi(deg), N_CHI2)
     assert result.passed, result.message
 
 

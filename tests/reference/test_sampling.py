@@ -18,10 +18,11 @@ import pytest
 import torch
 from closure_docs import closure_material
 from conftest import random_dirs, shared_path
+from sampler_checks import sampler_chi2
 
 from mtlx2neural.graph import compile_material
 from mtlx2neural.reference import ReferenceMaterial
-from mtlx2neural.verify.chi2 import chi2_test, pdf_integral
+from mtlx2neural.verify.chi2 import pdf_integral
 
 CLOSURES = {
     "oren_nayar": ("oren_nayar_diffuse_bsdf", dict(color=(0.8, 0.5, 0.2), roughness=0.5)),
@@ -61,16 +62,7 @@ def _example(folder, name) -> ReferenceMaterial:
 
 
 def _chi2(m: ReferenceMaterial, deg: float):
-    wi = _wi(deg)
-
-    def sample_fn(u):
-        wo, _, pdf = m.sample(wi.expand(u.shape[0], 3), u.float())
-        return wo, pdf > 0
-
-    def pdf_fn(wo):
-        return m.pdf(wi.expand(wo.shape[0], 3), wo.float())
-
-    return chi2_test(sample_fn, pdf_fn, sample_count=100_000, test_count=N_CHI2, seed=7)
+    return sampler_chi2(m, _wi(deg), N_CHI2)
 
 
 @pytest.mark.parametrize("deg", WI_ANGLES)
