@@ -26,14 +26,13 @@ def _candidates(path) -> tuple[str, list[Candidate]]:
     if usd_stage.is_stage(path):
         return usd_stage.stage_name(path), usd_stage.candidates(path)
     asset = os.path.abspath(os.fspath(path))
-    named_as_file = os.path.splitext(asset)[1].lower() in MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS
-    if os.path.isdir(asset) and not named_as_file:  # a folder of measured BRDFs: one material per MERL file
+    ext = os.path.splitext(asset)[1].lower()
+    if os.path.isdir(asset) and ext not in MTLX_EXTENSIONS + usd_stage.USD_EXTENSIONS:  # a folder of measured BRDFs: one material per MERL file
         tables = sorted(f for f in os.listdir(asset) if f.lower().endswith(MEASURED_EXTENSIONS))
         if not tables:
             raise InputError(f"{asset}: a folder, and it holds no measured BRDF ({', '.join(MEASURED_EXTENSIONS)} "
                              f"files); give a MaterialX or USD file, a MERL file, or a folder of MERL files")
         return asset, [_measured_candidate(os.path.join(asset, f)) for f in tables]
-    ext = os.path.splitext(asset)[1].lower()
     if ext in MTLX_EXTENSIONS:
         return asset, _mtlx_candidates(asset)
     if ext in usd_stage.USD_EXTENSIONS:
