@@ -2,6 +2,7 @@
 bytes and the number of distinct networks shipped.
 
 Run:  python benchmarks/bench_scene_network.py ASSET [--preset fast] [--max-texels N] [--out DIR] [--json F]
+      python benchmarks/bench_scene_network.py ASSET --add MATERIAL [--preset fast] ...
 
 Converts ``ASSET`` twice with the project's own command, ``--network material`` (the default worker
 pool: one process per core) and ``--network scene`` (one process, torch's threads), each into its own
@@ -9,6 +10,12 @@ folder with ``--force``, and prints a markdown table: the conversion's wall time
 compiling, training, measuring, exporting), mean and worst ``flip_mean`` (the three sphere views
 against the reference), the shipped weight files' bytes (every material's ``weights.bin``) and how many
 of them differ. Run it on an otherwise idle machine: the ratio of the two wall times is the figure.
+
+``--add MATERIAL`` (a material prim's path) measures a material added to a converted scene instead: a
+layer beside the output sublayers ``ASSET`` and unbinds the prims bound to MATERIAL; it is converted with
+``--network scene``, then the unbinding is removed from the same layer and it is converted again (the
+others reused, MATERIAL fitted into the kept network), then once more with ``--force`` (the whole group
+trained together). The table gives each run's wall time and MATERIAL's HDR FLIP in the last two.
 """
 
 from __future__ import annotations
@@ -23,10 +30,10 @@ import time
 from pathlib import Path
 
 
-def convert(asset: Path, out: Path, network: str, preset: str, max_texels: int | None) -> dict:
+def convert(asset: Path, out: Path, network: str, preset: str, max_texels: int | None, force: bool = True) -> dict:
     """Run one conversion; its wall time and the figures read back from the written records."""
-    cmd = [sys.executable, "-m", "mtlx2neural.cli", str(asset), "-o", str(out), "--preset", preset, "--force",
-           "--network", network, "--quiet"]
+    cmd = [sys.executable, "-m", "mtlx2neural.cli", str(asset), "-o", str(out), "--preset", preset,
+           "--network", network, "--quiet", *(["--force"] if force else [])]
     if max_texels is not None:
         cmd += ["--max-texels", str(max_texels)]
     t = time.time()
@@ -45,6 +52,38 @@ def convert(asset: Path, out: Path, network: str, preset: str, max_texels: int |
             "shared_seconds": next((r["network"]["seconds"] for r in records if r.get("network")), None)}
 
 
+def _unbind(layer: Path, asset: Path, material: str, unbind: bool) -> None:
+    """Write ``layer``: ``asset`` as its sublayer, plus (``unbind``) empty bindings on the prims bound to
+    ``material``."""
+    from pxr import Sdf, Usd, UsdShade
+
+    stage = Usd.Stage.Open(str(asset))
+    bound = [p.GetPath() for p in stage.Traverse()
+             if UsdShade.MaterialBindingAPI(p).GetDirectBinding().GetMaterialPath() == Sdf.Path(material)]
+    if not bound:
+        raise SystemExit(f"{asset}: no prim is bound to {material}")
+    out = Sdf.Layer.FindOrOpen(str(layer)) or Sdf.Layer.CreateNew(str(layer))
+    out.Clear()
+    out.subLayerPaths.append(str(asset))
+    if unbind:
+        over = Usd.Stage.Open(out)
+        for path in bound:
+            over.OverridePrim(path).CreateRelationship("material:binding").SetTargets([])
+    out.Save()
+
+
+def added(asset: Path, material: str, base: Path, preset: str, max_texels: int | None) -> list[dict]:
+    """The three conversions of ``--add`` (module docstring)."""
+    base.mkdir(parents=True, exist_ok=True)
+    layer, out = base / "scene.usda", base / "scene"
+    _unbind(layer, asset, material, True)
+    rows = [{**convert(layer, out, "scene", preset, max_texels), "run": f"without {material}"}]
+    _unbind(layer, asset, material, False)
+    rows.append({**convert(layer, out, "scene", preset, max_texels, force=False), "run": f"{material} added"})
+    rows.append({**convert(layer, out, "scene", preset, max_texels), "run": "the whole group trained again"})
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("asset", type=Path)
@@ -52,8 +91,20 @@ def main() -> int:
     ap.add_argument("--max-texels", type=int, default=None, help="latent grid cap for both runs (default: the preset's)")
     ap.add_argument("--out", type=Path, default=None, help="folder for the two conversions (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON here")
+    ap.add_argument("--add", default=None, metavar="MATERIAL", help="measure adding this material to a converted scene")
     args = ap.parse_args()
     base = args.out or Path(tempfile.mkdtemp(prefix="bench_scene_network_"))
+    if args.add:
+        rows = added(args.asset.resolve(), args.add, base, args.preset, args.max_texels)
+        print(f"{args.asset.name}, --network scene, --preset {args.preset}, adding {args.add}")
+        print("| run | materials | wall s | HDR FLIP of the added material | mean HDR FLIP |")
+        print("|---|---|---|---|---|")
+        for r in rows:
+            print(f"| {r['run']} | {r['materials']} | {r['seconds']} | {r['flip_by_material'].get(args.add, '-')} | "
+                  f"{r['flip_mean']} |")
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return 0
     rows = [convert(args.asset.resolve(), base / network, network, args.preset, args.max_texels)
             for network in ("material", "scene")]
     print(f"{args.asset.name}, --preset {args.preset}" + (f", --max-texels {args.max_texels}" if args.max_texels else ""))

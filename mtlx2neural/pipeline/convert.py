@@ -101,7 +101,11 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     plan_materials,
 )
 from mtlx2neural.pipeline.quality import judge, verdict
-from mtlx2neural.pipeline.scene_network import apply_scene_digests, run_scene_jobs
+from mtlx2neural.pipeline.scene_network import (
+    apply_scene_digests,
+    run_scene_jobs,
+    trained_network,
+)
 from mtlx2neural.pipeline.source_hash import cached_record, input_hash
 from mtlx2neural.pipeline.workers import check_workers, run_jobs
 from mtlx2neural.scene import find_material, load_asset
@@ -469,12 +473,18 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
     ``options``: the conversion's options record (:func:`options_record`). A plan whose training raised (and one sharing its result) is left out and listed
     in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end.
     ``network="scene"``: the jobs train together with one shared network
-    (:mod:`~mtlx2neural.pipeline.scene_network`); unless every material is reused, all of them train."""
+    (:mod:`~mtlx2neural.pipeline.scene_network`), or, when the reused materials' network can be kept
+    (:func:`~mtlx2neural.pipeline.scene_network.trained_network`), each fits its latents into it."""
     # Reused: a committed result, else one an earlier run trained but could not export (a full disk).
     found = {} if force else {i: _reusable(p, f) for i, (p, f) in enumerate(zip(plans, folders))
                               if not p.shared_with}
+    kept_network = None  # scene mode: the earlier run's network the materials to train are fitted into
     if network == "scene" and any(reused is None for reused, _ in found.values()):
-        found = {}  # one material to train: the shared network is trained again for all
+        hits = [(r, where) for r, where in found.values() if r is not None]
+        kept_network = trained_network([r for r, _ in hits], [where for _, where in hits],
+                                       [plans[i].cfg for i, (r, _) in found.items() if r is None])
+        if kept_network is None:
+            found = {}  # nothing to keep: the shared network is trained again for all
     results: dict[int, tuple] = {}  # plan index -> (model or None, record, cached)
     uncommitted: dict[int, Path] = {}  # plan index -> the work folder of a reused result not yet committed
     jobs, job_plans = [], []
@@ -516,7 +526,8 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
         if progress:
             print(f"{plans[i].name}: {errors[i].reason}", flush=True)
 
-    ran = run_scene_jobs(jobs, report, failed) if network == "scene" else run_jobs(jobs, workers, report, failed)
+    ran = (run_scene_jobs(jobs, report, failed, kept_network) if network == "scene"
+           else run_jobs(jobs, workers, report, failed))
     for k, s in enumerate(ran):
         i = job_plans[k]
         if s is not None:

@@ -8,37 +8,90 @@ stack, surface maps, trainer), the trainers are trained together
 a per-material run records it (:func:`~mtlx2neural.pipeline.material_training.finish_material`), its
 record's ``network`` naming the group.
 
-The group's hash: each material's source hash also covers every other material of the group
-(:func:`apply_scene_digests`), so a change to any material trains the whole group again, and a
-per-material result is never reused as part of a shared network (or the other way round).
+Reuse: each material's source hash is marked as a scene-mode hash (:func:`apply_scene_digests`), so a
+per-material result is never reused as part of a shared network (or the other way round). The network's
+``id`` (its record's ``network``) names the joint training that made it. When some materials of the run
+are unchanged since that training (their hash matches, :func:`trained_network`) and the others are new
+or changed, the network is kept: each of the others fits its encoder and latents alone against it, frozen
+(:func:`~mtlx2neural.train.shared.fit_into_network`), and the weights that ship do not change. Otherwise
+(nothing reusable, or results of two different trainings) every material trains together again;
+``--force`` always does.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import time
 from pathlib import Path
 
+from mtlx2neural.errors import InputError
+from mtlx2neural.model.checkpoint import checkpoint_file, read_checkpoint
 from mtlx2neural.pipeline.devices import resolve_device
 from mtlx2neural.pipeline.material_training import finish_material, prepare_material
-from mtlx2neural.train.shared import SharedTrainer, latent_steps, scene_batch
+from mtlx2neural.train.shared import (
+    ADDED_FRACTION,
+    SharedTrainer,
+    fit_into_network,
+    latent_steps,
+    scene_batch,
+    shape_differences,
+)
 from mtlx2neural.train.trainer import TrainingInterrupted
 
 
 def apply_scene_digests(plans) -> None:
-    """Make each plan's ``digest`` (its source hash) depend on the whole group's (module docstring)."""
-    group = "\0".join(sorted(p.digest for p in plans))
+    """Mark each plan's ``digest`` (its source hash) as a scene-mode hash (module docstring)."""
     for p in plans:
-        p.digest = hashlib.sha256(f"{p.digest}\0network=scene\0{group}".encode()).hexdigest()
+        p.digest = hashlib.sha256(f"{p.digest}\0network=scene".encode()).hexdigest()
 
 
-def run_scene_jobs(jobs, report=None, failed=None) -> list:
+@dataclasses.dataclass
+class TrainedNetwork:
+    """The shared network of an earlier ``--network scene`` run, kept for the materials added to it."""
+
+    model: object
+    """A :class:`~mtlx2neural.model.neural_material.NeuralMaterial` of the group (its decoder and sampler)."""
+    info: dict
+    """The group's record (a :class:`~mtlx2neural.material_record.MaterialRecord`'s ``network``)."""
+    config: dict
+    """The group's training config (``TrainConfig`` as a dict)."""
+    environment_history: list
+    """The group's environment-head fit, as its checkpoints record it."""
+
+
+def trained_network(reused: list[tuple], folders: list, configs: list) -> TrainedNetwork | None:
+    """The network that every reused result of a scene-mode run (``reused``: (model, record) pairs, one
+    per entry of ``folders``, where their checkpoints are) shares, if the materials still to train
+    (``configs``: their ``TrainConfig``) can be fitted into it; None when there is nothing reused, when
+    the reused results come from different trainings (or predate the network's ``id``), or when a
+    config differs from the group's in the network's shape or schedule."""
+    if not reused:
+        return None
+    ids = {(r.network or {}).get("id") for _, r in reused}
+    if len(ids) != 1 or None in ids:
+        return None
+    model, record = reused[0]
+    if any(shape_differences(c, record.config) for c in configs):
+        return None
+    try:
+        history = read_checkpoint(checkpoint_file(folders[0])).get("environment_history") or []
+    except InputError:
+        return None
+    info = {k: v for k, v in record.network.items() if k != "added"}
+    return TrainedNetwork(model, info, dict(record.config), list(history))
+
+
+def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | None = None) -> list:
     """Train ``jobs`` (:class:`~mtlx2neural.pipeline.jobs.MaterialJob`) with one shared network; their
     records in job order. A material that cannot be prepared (its graph or textures fail) is passed to
     ``failed(k, exc)`` (None: raised) and left out of the group; a failure of the joint training fails
-    every material. ``report(k, record)`` is called as each record is written."""
+    every material. ``report(k, record)`` is called as each record is written. ``network``: an earlier
+    run's network, kept: each job fits its latents alone against it (:func:`add_to_network`)."""
     if not jobs:
         return []
+    if network is not None:
+        return add_to_network(jobs, network, report, failed)
     device = resolve_device(jobs[0].device)
     progress = jobs[0].progress
     setups, kept = [], []
@@ -72,20 +125,59 @@ def run_scene_jobs(jobs, report=None, failed=None) -> list:
         for k in kept:
             failed(k, exc)
         return out
-    info = {"materials": [jobs[k].name for k in kept], "joint_steps": cfg.iterations,
+    group = "\0".join(sorted(jobs[k].digest for k in kept))
+    info = {"id": hashlib.sha256(group.encode()).hexdigest()[:16],
+            "materials": [jobs[k].name for k in kept], "joint_steps": cfg.iterations,
             "rows_per_material": cfg.batch, "latent_steps": latent_steps(cfg.iterations),
             "seconds": dict(shared.seconds)}
     for k, setup, model in zip(kept, setups, models):
-        job = jobs[k]
-        extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings),
-                 "input_hash": job.input_hash, "latent": job.latent, "options": job.options, "network": info}
+        _finish(jobs, k, setup, model, info, out, report, failed)
+    return out
+
+
+def _finish(jobs, k: int, setup, model, info: dict, out: list, report, failed) -> None:
+    """Measure and record job ``k`` (``out[k]``: its record), or pass its failure to ``failed``."""
+    job = jobs[k]
+    extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings),
+             "input_hash": job.input_hash, "latent": job.latent, "options": job.options, "network": info}
+    try:
+        out[k] = finish_material(setup, model, job.digest, extra)
+    except Exception as exc:  # noqa: BLE001 - measuring one material failed; the others are kept
+        if failed is None:
+            raise
+        failed(k, exc)
+        return
+    if report:
+        report(k, out[k])
+
+
+def add_to_network(jobs, network: TrainedNetwork, report=None, failed=None) -> list:
+    """Each job's material fitted into ``network`` (its encoder and latents alone, the network frozen:
+    :func:`~mtlx2neural.train.shared.fit_into_network`), then measured and recorded; records in job order.
+    Each record's ``network`` is the group's, with ``added``: the fit's steps and seconds."""
+    device = resolve_device(jobs[0].device)
+    progress = jobs[0].progress
+    shared = network.model.to(device)
+    out: list = [None] * len(jobs)
+    if progress:
+        print(f"--network scene: {len(jobs)} material(s) fitted into the network of "
+              f"{len(network.info.get('materials', []))} trained earlier (id {network.info['id']}): their latents "
+              f"alone, {ADDED_FRACTION:.0%} of the schedule, the network unchanged (--force trains it again)",
+              flush=True)
+    for k, job in enumerate(jobs):
+        t0 = time.time()
         try:
-            out[k] = finish_material(setup, model, job.digest, extra)
-        except Exception as exc:  # noqa: BLE001 - measuring one material failed; the others are kept
+            setup = prepare_material(job.source(), job.cfg, Path(job.folder), device, job.allow_missing_textures,
+                                     job.resolution, application=job.application)
+            model = fit_into_network(setup.trainer, shared, network.environment_history, progress=progress)
+        except KeyboardInterrupt:
+            raise TrainingInterrupted(f"interrupted while fitting {job.name} into the scene's network; "
+                                      f"run the conversion again") from None
+        except Exception as exc:  # noqa: BLE001 - that material's failure; the others are still fitted
             if failed is None:
                 raise
             failed(k, exc)
             continue
-        if report:
-            report(k, out[k])
+        info = {**network.info, "added": {"steps": setup.trainer.step, "seconds": round(time.time() - t0, 2)}}
+        _finish(jobs, k, setup, model, info, out, report, failed)
     return out

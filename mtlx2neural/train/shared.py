@@ -19,10 +19,16 @@ for a per-material run, after tying their models' ``decoder`` and ``sampler`` to
 Each trainer then saves its checkpoint as a per-material run does; every checkpoint holds the same
 decoder and sampler weights. The materials must share the network's shape (latent channels, frames,
 decoder size, heads): :class:`SharedTrainer` raises ``ValueError`` otherwise.
+
+A material added to a group that is already trained (:func:`fit_into_network`) trains its encoder and
+latents alone against the group's networks, frozen: the per-material schedule (encoder phase, bake,
+latent fine-tune) shortened to :data:`ADDED_FRACTION` of ``cfg.iterations``, no environment fit. Its
+checkpoint then holds the group's weights byte for byte, so the network that ships is unchanged.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -40,6 +46,16 @@ LATENT_FRACTION = 0.2
 """Latent fine-tune steps per material, as a share of ``cfg.iterations`` (:func:`latent_steps`)."""
 SHAPE_FIELDS = ("latent_dim", "frames", "decoder", "albedo_head", "analytic_cosine", "environment_fraction",
                 "iterations", "encoder_fraction", "lr_start", "lr_end")
+
+
+ADDED_FRACTION = 0.5
+"""Steps of an added material's fit (:func:`fit_into_network`), as a share of ``cfg.iterations``."""
+
+
+def shape_differences(cfg, other) -> list[str]:
+    """The :data:`SHAPE_FIELDS` in which two configs (``TrainConfig`` or its dict) differ."""
+    get = (lambda c, f: c[f]) if isinstance(other, dict) else getattr
+    return [f for f in SHAPE_FIELDS if getattr(cfg, f) != get(other, f)]
 
 
 def scene_batch(batch: int, materials: int) -> int:
@@ -71,7 +87,7 @@ class SharedTrainer:
             raise ValueError("a shared network needs at least one material")
         lead = trainers[0]
         for t in trainers[1:]:
-            differ = [f for f in SHAPE_FIELDS if getattr(t.cfg, f) != getattr(lead.cfg, f)]
+            differ = shape_differences(t.cfg, lead.cfg)
             if differ:
                 raise ValueError(f"{t.out_dir.name}: its settings differ from {lead.out_dir.name}'s in {differ}; "
                                  f"materials sharing a network train with one schedule and one network shape")
@@ -197,3 +213,20 @@ def fit_environment_head_shared(trainers: list[Trainer], steps: int, batch: int)
     if history:
         history[-1]["seconds"] = round(time.time() - t, 2)
     return history
+
+
+def fit_into_network(trainer: Trainer, network, environment_history: list[dict], progress: bool = True):
+    """Train a material added to an already-trained group (module docstring): ``trainer``'s model takes
+    ``network``'s (a :class:`~mtlx2neural.model.neural_material.NeuralMaterial` of the group) decoder,
+    environment head and sampler, frozen, and its encoder and latents train for ``ADDED_FRACTION`` of its
+    schedule. ``environment_history``: the group's environment fit, recorded in the checkpoint (the head
+    is not fitted again). Saves the checkpoint and returns the model."""
+    cfg = trainer.cfg
+    trainer.cfg = dataclasses.replace(cfg, iterations=max(1, round(ADDED_FRACTION * cfg.iterations)))
+    trainer.model.decoder, trainer.model.sampler = network.decoder, network.sampler
+    for p in _unique_parameters([network.decoder, network.sampler]):
+        p.requires_grad_(False)
+    own = [p for p in trainer.model.parameters() if p.requires_grad]  # the encoder, the latents
+    trainer.opt = torch.optim.Adam(own, lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+    trainer.environment_history = [dict(r) for r in environment_history] or [{"step": 0, "frozen": True}]
+    return trainer.run(progress=progress)

@@ -55,7 +55,9 @@ def test_converts_into_a_neural_only_layer_and_reuses_it(tmp_path):
     prim = stage.GetPrimAtPath("/Materials/gloss")
     vset = prim.GetVariantSets().GetVariantSet("neuralMaterial")
     assert vset.GetVariantNames() == ["neural"] and vset.GetVariantSelection() == "neural"
-    assert "NeuralMaterialAPI" in prim.GetAppliedSchemas()
+    # the authored listOp: GetAppliedSchemas() only lists schemas USD's registry knew when this process first
+    # built it, which depends on which tests ran before in this worker (tests/test_usd_schema.py covers it)
+    assert "NeuralMaterialAPI" in prim.GetMetadata("apiSchemas").GetAddedOrExplicitItems()
     assert "'neural' only" in stage.GetRootLayer().documentation
     errors = json.loads(subprocess.run([sys.executable, "-c", VALIDATE, str(layer)], check=True,
                                        capture_output=True, text=True).stdout)

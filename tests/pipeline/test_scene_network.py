@@ -3,13 +3,14 @@ reuse, and the options it cannot be combined with (tiny trainings: 40 joint step
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import shutil
 from pathlib import Path
 
 import pytest
-from pxr import Sdf
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from mtlx2neural.codegen.compile import find_slangc, slangc
 from mtlx2neural.errors import InputError
@@ -87,6 +88,28 @@ def test_one_network_for_the_scene_and_one_per_material_otherwise(asset):
     # unchanged: the shared network is reused whole
     again = convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))
     assert all(r.cached for r in again) and _weights(again.folder) == _weights(scene.folder)
+    _grow_scene(asset)
+    grown = {r.material: r for r in convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))}
+    assert set(grown) == {*names, "/World/Looks/Unused"}
+    # the unchanged material is reused; the changed and the added one fit their latents into the same network,
+    # frozen: one network id, one set of weights, the group's, and half the schedule's steps
+    assert grown["/World/Looks/CarPaint"].cached
+    for name in ("/World/Looks/Plastic", "/World/Looks/Unused"):
+        r = grown[name]
+        assert not r.cached and r.network["added"]["steps"] == r.steps == 20
+        assert r.network["id"] == scene[0].network["id"] and sorted(r.network["materials"]) == names
+    assert set(_weights(scene.folder).values()) == set(_weights(asset.parent / "scene").values())
+    listing = json.loads((asset.parent / "scene" / "network" / "network.json").read_text())
+    assert set(listing["materials"]) == set(grown)
+
+
+def _grow_scene(asset: Path) -> None:
+    """Change the Plastic's colour and bind the unused material to a new sphere, in place."""
+    stage = Usd.Stage.Open(str(asset))
+    UsdShade.Shader.Get(stage, "/World/Looks/Plastic/Preview").GetInput("diffuseColor").Set(Gf.Vec3f(0.6, 0.3, 0.1))
+    sphere = UsdGeom.Sphere.Define(stage, "/World/Geo/Added")
+    UsdShade.MaterialBindingAPI.Apply(sphere.GetPrim()).Bind(UsdShade.Material.Get(stage, "/World/Looks/Unused"))
+    stage.Save()
 
 
 @pytest.mark.parametrize("clash,message", [
@@ -101,3 +124,20 @@ def test_options_it_cannot_take_are_refused_first(asset, tmp_path, clash, messag
     with pytest.raises(InputError, match=message.replace("'", ".")):
         convert_asset(asset, options)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_network_is_kept_only_when_every_reused_result_comes_from_it():
+    from types import SimpleNamespace
+
+    from mtlx2neural.pipeline.scene_network import trained_network
+
+    config = dataclasses.asdict(TINY)
+
+    def reused(network):
+        return (None, SimpleNamespace(network=network, config=config))
+
+    one, other = {"id": "a", "materials": ["/A"]}, {"id": "b", "materials": ["/B"]}
+    assert trained_network([], [], [TINY]) is None  # nothing reused: the group trains
+    assert trained_network([reused(one), reused(other)], ["x", "y"], [TINY]) is None  # two trainings
+    assert trained_network([reused({"materials": ["/A"]})], ["x"], [TINY]) is None  # a record without an id
+    assert trained_network([reused(one)], ["x"], [dataclasses.replace(TINY, decoder="2x32")]) is None  # shape
