@@ -75,7 +75,7 @@ def _unbind(layer: Path, asset: Path, material: str, unbind: bool) -> None:
 def added(asset: Path, material: str, base: Path, preset: str, max_texels: int | None) -> list[dict]:
     """The three conversions of ``--add`` (module docstring)."""
     base.mkdir(parents=True, exist_ok=True)
-    layer, out = base / "scene.usda", base / "scene"
+    layer, out = base / "asset.usda", base / "scene"
     _unbind(layer, asset, material, True)
     rows = [{**convert(layer, out, "scene", preset, max_texels), "run": f"without {material}"}]
     _unbind(layer, asset, material, False)

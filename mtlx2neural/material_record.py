@@ -96,9 +96,12 @@ class MaterialRecord:
 
     # --- quality: the neural model against the reference BRDF
     flip_mean: float = float("nan")
-    """Mean HDR FLIP over the analytic views (sphere renders)."""
+    """Mean HDR FLIP over the analytic views (sphere renders: three directional, one under the sky;
+    :mod:`mtlx2neural.render.summary_views`)."""
     flip_per_view: list[float] = field(default_factory=list)
-    """HDR FLIP of each analytic view."""
+    """HDR FLIP of each analytic view (tile by tile for a UDIM material)."""
+    flip_views: list[str] = field(default_factory=list)
+    """How each analytic view was made, in the order of ``flip_per_view`` (per tile)."""
     relmse_mean: float = float("nan")
     """Mean relative MSE over the analytic views."""
     flip_per_tile: dict[str, float] | None = None

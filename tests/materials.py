@@ -52,6 +52,20 @@ def document(*fragments: str) -> str:
     return HEADER + "".join(fragments) + FOOTER
 
 
+def reference_of(*fragments: str, material: str = "M"):
+    """The compiled reference BRDF (:class:`~mtlx2neural.reference.ReferenceMaterial`) of ``material`` in
+    the document of ``fragments`` (read in memory, MaterialX's libraries beside it)."""
+    import MaterialX as mx
+
+    from mtlx2neural.graph import compile_material
+    from mtlx2neural.graph.library import with_libraries
+    from mtlx2neural.reference import ReferenceMaterial
+
+    doc = mx.createDocument()
+    mx.readFromXmlString(doc, document(*fragments))
+    return ReferenceMaterial(compile_material(with_libraries(doc), material))
+
+
 # A minimal valid material (a red standard_surface named Red); needs nothing from ../shared.
 SIMPLE_MTLX = document(standard_surface("Red", "SR_red", base_color=(0.8, 0.1, 0.1)))
 

@@ -100,7 +100,7 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     latent_resolution,
     plan_materials,
 )
-from mtlx2neural.pipeline.quality import judge, verdict
+from mtlx2neural.pipeline.quality import flag_reasons, judge, verdict
 from mtlx2neural.pipeline.scene_network import (
     apply_scene_digests,
     run_scene_jobs,
@@ -474,7 +474,9 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
     in ``summaries.failed`` (:class:`MaterialFailure`); the others train to the end.
     ``network="scene"``: the jobs train together with one shared network
     (:mod:`~mtlx2neural.pipeline.scene_network`), or, when the reused materials' network can be kept
-    (:func:`~mtlx2neural.pipeline.scene_network.trained_network`), each fits its latents into it."""
+    (:func:`~mtlx2neural.pipeline.scene_network.trained_network`), each fits its latents into it; when one of
+    those would then fail the quality gate on its own terms (:func:`~.quality.flag_reasons`), the whole
+    group trains again (as with ``force``), and that material's record says why."""
     # Reused: a committed result, else one an earlier run trained but could not export (a full disk).
     found = {} if force else {i: _reusable(p, f) for i, (p, f) in enumerate(zip(plans, folders))
                               if not p.shared_with}
@@ -528,6 +530,19 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
 
     ran = (run_scene_jobs(jobs, report, failed, kept_network) if network == "scene"
            else run_jobs(jobs, workers, report, failed))
+    poor = {jobs[k].name: flag_reasons(s, None) for k, s in enumerate(ran) if s is not None} if kept_network else {}
+    poor = {name: reasons for name, reasons in poor.items() if reasons}
+    if poor:  # the kept network cannot model an added material: the group trains again, with it
+        why = "; ".join(f"{name}: {', '.join(reasons)}" for name, reasons in poor.items())
+        if progress:
+            print(f"--network scene: fitted into the kept network, {why}; training the whole group again", flush=True)
+        summaries, trained = _train_and_share(plans, folders, cfg, device, resume, progress, allow_missing_textures,
+                                              True, workers, max_error, options, application, network)
+        for _, record, _, _ in trained:
+            if record.material in poor:
+                record.notes.append(f"fitted into the scene's kept network it would fail the quality gate "
+                                    f"({', '.join(poor[record.material])}), so the whole group was trained again")
+        return summaries, trained
     for k, s in enumerate(ran):
         i = job_plans[k]
         if s is not None:

@@ -8,7 +8,8 @@ writes the material's folder: ``checkpoint.pt``, ``training_curves.csv``, PNGs o
 (``summary.json``).
 
 Fidelity is measured twice for a USD source whose material is bound to meshes: on the analytic
-views (``flip_mean``: the unit sphere, three views, :func:`~mtlx2neural.render.renderer.compare`)
+views (``flip_mean``: the unit sphere, three directional views and one under the sky,
+:mod:`~mtlx2neural.render.summary_views`)
 and in the scene (``flip_in_scene``, :mod:`.in_scene_measure`).
 
 A UDIM material (its graph reads a ``<UDIM>`` texture set) trains only its tiles
@@ -51,8 +52,9 @@ from mtlx2neural.pipeline.plan import latent_resolution, scaled_grid
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.reference.measured import MeasuredMaterial, load_measured
 from mtlx2neural.render.flip_probe import FlipProbe
-from mtlx2neural.render.renderer import compare_many, save_png
-from mtlx2neural.render.udim_view import compare_tiles
+from mtlx2neural.render.renderer import save_png
+from mtlx2neural.render.summary_views import describe as describe_views
+from mtlx2neural.render.summary_views import summary_views, views_per_tile
 from mtlx2neural.textures.footprint import footprint_targets
 from mtlx2neural.textures.parameter_stack import (
     ParameterStack,
@@ -207,15 +209,14 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
         analytic.surface = surface
         models["analytic"] = analytic
-    if tiles:  # the sphere's uv shifted into each trained tile: the views once per tile
-        renders = compare_tiles(ref, models, tuple(stack.resolution), tiles)
-    else:  # without the baseline, the same renders as compare(..., label="neural")
-        renders = compare_many(ref, models, texels=tuple(stack.resolution))
+    # three directional views and one under the sky (render.summary_views); a UDIM material's once per
+    # trained tile, the sphere's uv shifted into it
+    renders = summary_views(ref, models, tuple(stack.resolution), tiles)
     errors, preview_errors = renders["neural"], renders.get("analytic")
     in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
                                 tuple(stack.resolution), src, folder)
     for i, e in enumerate(errors):
-        name = f"tile{e['tile']}_view{i % (len(errors) // len(tiles))}" if tiles else f"view{i}"
+        name = f"tile{e['tile']}_view{i % views_per_tile()}" if tiles else f"view{i}"
         save_png(folder / f"{name}_reference.png", e["reference"])
         save_png(folder / f"{name}_neural.png", e["neural"])
         save_png(folder / f"{name}_flip.png", e["flip_map"], linear=False)
@@ -228,7 +229,7 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         final_loss_brdf=trainer.history[-1]["loss_brdf"] if trainer.history else math.nan,
         held_out_log_l1=held_out_error(ref, model, stack, surface=surface), device=device, device_name=device_name(device),
         threads=torch.get_num_threads(), worker=f"{platform.node()}:{os.getpid()}",
-        flip_per_view=[round(e["flip"], 4) for e in errors],
+        flip_per_view=[round(e["flip"], 4) for e in errors], flip_views=describe_views(),
         flip_mean=round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
         surface={**surface.describe(), "refused": list(compiled.surface.refused) if compiled else []},
         relmse_mean=round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
@@ -361,10 +362,8 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
                                         resolution=tuple(resolution))
     analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
     analytic.surface = load_surface_maps(folder / SURFACE_FILE)  # the emission and opacity it is shown with
-    if is_udim_stack(stack):
-        errors = compare_tiles(ref, {"analytic": analytic}, tuple(stack.resolution), list(stack.tiles))["analytic"]
-    else:
-        errors = compare_many(ref, {"analytic": analytic}, texels=tuple(stack.resolution))["analytic"]
+    tiles = list(stack.tiles) if is_udim_stack(stack) else None
+    errors = summary_views(ref, {"analytic": analytic}, tuple(stack.resolution), tiles)["analytic"]
     scene = measure_in_scene(ref, {"analytic": analytic}, tuple(stack.resolution), src)
     return dataclasses.replace(record, **preview_record(errors, seconds, iterations),
                                preview_flip_in_scene=scene.get("preview_flip_in_scene"))

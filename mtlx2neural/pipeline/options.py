@@ -57,8 +57,9 @@ class ConvertOptions:
     this run shares one decoder and one sampler (each keeps its own latent pyramid), trained jointly
     in this process, then each material's latents fine-tuned alone; the materials then differ only
     in their latent textures. When the output folder holds such a network and only some materials are
-    new or changed, those fit their latents alone into it, unchanged (--force trains it again). Not
-    with --max-error, --resume or --material."""
+    new or changed, those fit their latents alone into it, unchanged; the whole group trains again
+    when one of them would fail the quality gate, or with --force. Not with --max-error, --resume or
+    --material."""
     max_error: float | None = field(default=None, metadata={"metavar": "F"})
     """HDR FLIP budget: per material, the smallest decoder of 2x16, 2x32, 3x64 that meets it (the
     preset's decoder is then ignored; conflicts with ``--decoder``); when even 3x64 misses, the best

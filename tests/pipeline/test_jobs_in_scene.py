@@ -69,8 +69,8 @@ def Xform "World"
 def small_renders(monkeypatch) -> None:
     """Both measures at 32 px and 4 samples: these tests check what is recorded and decided, not the
     figures' precision (the defaults take ~10x longer on 2 shared cores)."""
-    many, in_scene = material_training.compare_many, in_scene_measure.compare_in_scene
-    monkeypatch.setattr(material_training, "compare_many", lambda *a, **k: many(*a, **k, res=32, spp=4))
+    views, in_scene = material_training.summary_views, in_scene_measure.compare_in_scene
+    monkeypatch.setattr(material_training, "summary_views", lambda *a, **k: views(*a, **k, res=32, spp=4))
     monkeypatch.setattr(in_scene_measure, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
 
 

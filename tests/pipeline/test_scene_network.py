@@ -14,6 +14,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from mtlx2neural.codegen.compile import find_slangc, slangc
 from mtlx2neural.errors import InputError
+from mtlx2neural.pipeline import quality
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
@@ -54,8 +55,9 @@ def asset(tmp_path_factory) -> Path:
     return folder / SAMPLE.name
 
 
-def test_one_network_for_the_scene_and_one_per_material_otherwise(asset):
+def test_one_network_for_the_scene_and_one_per_material_otherwise(asset, monkeypatch):
     scene = convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))
+    shipped = set(_weights(scene.folder).values())
     names = sorted(r.material for r in scene)
     assert len(names) == 2
     # every material ships the same weights; its record names the group and the phases
@@ -88,7 +90,11 @@ def test_one_network_for_the_scene_and_one_per_material_otherwise(asset):
     # unchanged: the shared network is reused whole
     again = convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))
     assert all(r.cached for r in again) and _weights(again.folder) == _weights(scene.folder)
-    _grow_scene(asset)
+    # 40-step models are far from the quality gate's figures: gate off, then on, for the two branches below
+    monkeypatch.setattr(quality, "FLIP_HIGH", 10.0)
+    monkeypatch.setattr(quality, "ENERGY_LOW", 0.0)
+    monkeypatch.setattr(quality, "ENERGY_HIGH", 100.0)
+    _grow_scene(asset, (0.6, 0.3, 0.1))
     grown = {r.material: r for r in convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))}
     assert set(grown) == {*names, "/World/Looks/Unused"}
     # the unchanged material is reused; the changed and the added one fit their latents into the same network,
@@ -98,15 +104,22 @@ def test_one_network_for_the_scene_and_one_per_material_otherwise(asset):
         r = grown[name]
         assert not r.cached and r.network["added"]["steps"] == r.steps == 20
         assert r.network["id"] == scene[0].network["id"] and sorted(r.network["materials"]) == names
-    assert set(_weights(scene.folder).values()) == set(_weights(asset.parent / "scene").values())
-    listing = json.loads((asset.parent / "scene" / "network" / "network.json").read_text())
+    assert set(_weights(scene.folder).values()) == shipped
+    listing = json.loads((scene.folder / "network" / "network.json").read_text())
     assert set(listing["materials"]) == set(grown)
+    # an added material the kept network would model badly (here: any FLIP) makes the whole group train again
+    monkeypatch.setattr(quality, "FLIP_HIGH", 0.0)
+    _grow_scene(asset, (0.1, 0.6, 0.3))
+    again = {r.material: r for r in convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))}
+    assert not any(r.cached for r in again.values()) and all(r.steps == 40 for r in again.values())
+    assert all("added" not in r.network and len(r.network["materials"]) == 3 for r in again.values())
+    assert any("whole group was trained again" in n for n in again["/World/Looks/Plastic"].notes)
+    assert len(set(_weights(scene.folder).values())) == 1 and set(_weights(scene.folder).values()) != shipped
 
-
-def _grow_scene(asset: Path) -> None:
-    """Change the Plastic's colour and bind the unused material to a new sphere, in place."""
+def _grow_scene(asset: Path, colour) -> None:
+    """Set the Plastic's colour and bind the unused material to a new sphere (once), in place."""
     stage = Usd.Stage.Open(str(asset))
-    UsdShade.Shader.Get(stage, "/World/Looks/Plastic/Preview").GetInput("diffuseColor").Set(Gf.Vec3f(0.6, 0.3, 0.1))
+    UsdShade.Shader.Get(stage, "/World/Looks/Plastic/Preview").GetInput("diffuseColor").Set(Gf.Vec3f(*colour))
     sphere = UsdGeom.Sphere.Define(stage, "/World/Geo/Added")
     UsdShade.MaterialBindingAPI.Apply(sphere.GetPrim()).Bind(UsdShade.Material.Get(stage, "/World/Looks/Unused"))
     stage.Save()

@@ -92,7 +92,7 @@ def test_udim_sample_converts_tile_by_tile_and_each_region_shows_its_tile(conver
     # Only the tiles the mesh overlaps trained; 1012 is on disk but untouched.
     assert (asset_dir / f"base.{UNTOUCHED}.png").is_file()
     assert s.udim_tiles == TRAINED and f"UDIM tiles trained: {TRAINED}" in s.notes
-    assert sorted(map(int, s.flip_per_tile)) == TRAINED and len(s.flip_per_view) == 3 * len(TRAINED)
+    assert sorted(map(int, s.flip_per_tile)) == TRAINED and len(s.flip_per_view) == 4 * len(TRAINED)
     assert math.isfinite(s.held_out_log_l1) and s.in_scene["measured"] and 0 < s.flip_in_scene < 1
     folder = asset_dir / "udim_tiles_neural" / "World.Looks.UdimTiles"
     assert json.loads((folder / "summary.json").read_text())["udim_tiles"] == TRAINED

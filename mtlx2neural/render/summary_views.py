@@ -1,0 +1,78 @@
+"""The views behind a material's summary figure (``flip_mean``, ``flip_per_view``): what a viewer shows.
+
+Four renders of the unit sphere, each compared with the reference's render of the same view (HDR FLIP):
+
+1. Three directional views (:data:`~mtlx2neural.render.renderer.VIEWS`): an orthographic camera and one
+   directional light each. In the first, the mirror direction of the light lies on the visible surface
+   (the half vector of light and camera faces the camera), so a sharp highlight the model loses shows.
+2. One environment view (:data:`ENVIRONMENT_VIEW`): a perspective camera under the procedural sky
+   (:meth:`~mtlx2neural.render.lighting.EnvironmentMap.sky`), every render estimated with one light
+   sample and one sample of the reference's BSDF per pass (multiple importance sampling), so a coat's
+   reflection of the sky converges in the reference and is missed by a model that lost it.
+
+The mean over the four is the figure: a lost highlight and a lost reflection both raise it.
+:func:`describe` says how it was made, in the material's record (``flip_views``).
+"""
+
+from __future__ import annotations
+
+from mtlx2neural.render.lighting import EnvironmentMap
+from mtlx2neural.render.renderer import VIEWS, View, compare_many
+from mtlx2neural.render.udim_view import compare_tiles
+
+ENVIRONMENT_VIEW = View(30.0, 20.0)
+"""Camera of the environment view (azimuth, elevation in degrees): the sky's sun (azimuth 30, elevation
+45) reflects on the sphere's upper half."""
+DIRECTIONAL_SPP = 32
+"""Jittered passes of each directional view (the pixel's filter: :func:`~.renderer.compare`)."""
+ENVIRONMENT_SPP = 32
+"""Passes of the environment view (each a light sample and a BSDF sample, MIS-combined)."""
+RES = 96
+"""Pixels along each side of every view."""
+
+
+def _environment_light() -> EnvironmentMap:
+    return EnvironmentMap.sky()
+
+
+def summary_views(reference, models: dict, texels: tuple[int, int], tiles=None, res: int = RES,
+                  spp: int | None = None) -> dict:
+    """``{label: [per-view dict]}`` (:func:`~mtlx2neural.render.renderer.compare_many`'s rows, each also
+    holding ``"lighting"``: ``directional`` or ``environment``): the three directional views, then the
+    environment view, for every model of ``models`` against ``reference``. ``tiles`` (UDIM numbers):
+    the views once per tile, tile by tile (:func:`~mtlx2neural.render.udim_view.compare_tiles`). ``res``,
+    ``spp``: every view's size and passes (None: :data:`DIRECTIONAL_SPP` and :data:`ENVIRONMENT_SPP`;
+    smaller ones for tests of what is recorded, not of the figure)."""
+
+    def views(**kw):
+        return compare_tiles(reference, models, texels, tiles, **kw) if tiles else \
+            compare_many(reference, models, texels, **kw)
+
+    lit = views(views=VIEWS, res=res, spp=spp or DIRECTIONAL_SPP)
+    env = views(views=(ENVIRONMENT_VIEW,), res=res, spp=spp or ENVIRONMENT_SPP, lights=[_environment_light()])
+    out = {}
+    for label in models:
+        rows = [{**r, "lighting": "directional"} for r in lit[label]]
+        env_rows = [{**r, "lighting": "environment"} for r in env[label]]
+        if tiles:  # tile by tile: each tile's directional views, then its environment view
+            per = len(VIEWS)
+            rows = [r for k in range(len(tiles)) for r in (*rows[k * per:(k + 1) * per], env_rows[k])]
+        else:
+            rows += env_rows
+        out[label] = rows
+    return out
+
+
+def views_per_tile() -> int:
+    """Rows :func:`summary_views` gives per tile (or for a material without tiles)."""
+    return len(VIEWS) + 1
+
+
+def describe() -> list[str]:
+    """One line per view of :func:`summary_views`, in its order: how the figure was made."""
+    lines = [f"directional: orthographic sphere, azimuth {v.azimuth:g}, elevation {v.elevation:g}, light "
+             f"towards {tuple(v.light)} x {v.intensity:g}, {RES}^2 px, {DIRECTIONAL_SPP} spp" for v in VIEWS]
+    v = ENVIRONMENT_VIEW
+    lines.append(f"environment: perspective sphere, azimuth {v.azimuth:g}, elevation {v.elevation:g}, procedural "
+                 f"sky, {RES}^2 px, {ENVIRONMENT_SPP} spp, light and reference-BSDF samples (MIS)")
+    return lines
