@@ -7,7 +7,7 @@ run's other materials:
   albedo is below ``ENERGY_LOW`` (half) of the reference's is a material trained to black or nearly
   so; above ``ENERGY_HIGH`` (twice), one that glows. (The record's softer warnings start at 0.9 and
   1.2: visibly darker or brighter, but a usable model.)
-- **FLIP**: mean HDR FLIP of the sphere views (``record.flip_mean``) above ``FLIP_HIGH`` (0.3: the samples
+- **FLIP**: mean HDR FLIP of the sphere views (``record.flip_mean``: three lit, one under the sky) above ``FLIP_HIGH`` (0.3: the samples
   that convert well sit at 0.01-0.17, a black or wrong-lobed model at 0.5-1), or above ``FLIP_RELATIVE``
   times the run's median while above ``FLIP_FLOOR`` (0.2; a material far worse than its scene's others).
 
