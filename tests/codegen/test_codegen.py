@@ -39,6 +39,7 @@ import struct
 import numpy as np
 import pytest
 import torch
+from slang_kernels import shade_kernel
 
 from mtlx2neural.codegen import as_spec, emulate, generate_slang, write_material_shader
 from mtlx2neural.codegen.compile import (
@@ -534,26 +535,9 @@ def optimised_and_valid(spv: bytes) -> bytes:
     assert status == "ok", msg
     return out
 
-KERNEL = """
-import NeuralMaterial_Example;
-StructuredBuffer<float> gIn;
-RWStructuredBuffer<float> gOut;
-ByteAddressBuffer gWeights;
-[shader("compute")]
-[numthreads(32, 1, 1)]
-void csShade(uint3 t : SV_DispatchThreadID)
-{
-    NMLatent<8> lat;
-    for (int c = 0; c < 8; c++)
-        lat.v[c] = gIn[t.x * 8 + c];
-    NET_SETUP
-    MATERIAL m = MATERIAL(net, lat);
-    float3 wi = normalize(float3(gIn[0], gIn[1], 1.0));
-    NMSample s = m.sample(wi, float2(gIn[2], gIn[3]));
+SHADE = """    NMSample s = m.sample(wi, float2(gIn[2], gIn[3]));
     float3 f = m.eval(wi, s.wo) + s.weight + m.albedo(wi);
-    gOut[t.x] = f.x + f.y + f.z + m.evalPdf(wi, s.wo);
-}
-"""
+    gOut[t.x] = f.x + f.y + f.z + m.evalPdf(wi, s.wo);"""
 SETUPS = {
     "auto": ("NM_Example net; net.weights = gWeights; net.base = 0; net.materialId = t.x / 64;",
              "NeuralMaterial_Example"),
@@ -571,7 +555,7 @@ def example_dirs(tmp_path_factory):
         d = tmp_path_factory.mktemp(kind)
         write_material_shader(m, d, "Example", coherent=coherent)
         for name, (setup, mat) in SETUPS.items():
-            (d / f"kernel_{name}.slang").write_text(KERNEL.replace("NET_SETUP", setup).replace("MATERIAL", mat))
+            (d / f"kernel_{name}.slang").write_text(shade_kernel("NeuralMaterial_Example", setup, mat, SHADE))
         out[kind] = d
     return out
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+from slang_kernels import shade_kernel
 
 from mtlx2neural.codegen.compile import find_slangc, slangc
 from mtlx2neural.errors import InputError
@@ -21,22 +22,7 @@ from mtlx2neural.train.config import preset
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layered_spheres.usda"
 TINY = preset("fast", iterations=40, batch=512)
-KERNEL = """import NeuralMaterial_IDENT;
-StructuredBuffer<float> gIn;
-RWStructuredBuffer<float> gOut;
-[shader("compute")]
-[numthreads(32, 1, 1)]
-void csShade(uint3 t : SV_DispatchThreadID)
-{
-    NMLatent<8> lat;
-    for (int c = 0; c < 8; c++)
-        lat.v[c] = gIn[t.x * 8 + c];
-    NM_IDENT_FP16 net;
-    NeuralMaterial_IDENT_FP16 m = NeuralMaterial_IDENT_FP16(net, lat);
-    float3 wi = normalize(float3(gIn[0], gIn[1], 1.0));
-    gOut[t.x] = m.eval(wi, wi.zyx).x;
-}
-"""
+SHADE = "    gOut[t.x] = m.eval(wi, wi.zyx).x;"
 
 
 def _options(**kw) -> ConvertOptions:
@@ -81,7 +67,9 @@ def test_one_network_for_the_scene_and_one_per_material_otherwise(asset, monkeyp
     assert sorted(record["materials"]) == names and record["module"].endswith(listing["module"])
     if find_slangc() is not None:  # the shared module compiles, as an engine would use it
         kernel = scene.folder / "network" / "kernel.slang"
-        kernel.write_text(KERNEL.replace("IDENT", Path(listing["module"]).stem.removeprefix("NeuralMaterial_")))
+        ident = Path(listing["module"]).stem.removeprefix("NeuralMaterial_")
+        kernel.write_text(shade_kernel(f"NeuralMaterial_{ident}", f"NM_{ident}_FP16 net;", f"NeuralMaterial_{ident}_FP16",
+                                       SHADE))
         assert slangc(kernel, "spirv", entry="csShade", include=[kernel.parent], extra=["-O0"])
     per_material = convert_asset(asset, _options(network="material", out=str(asset.parent / "own")))
     assert len(set(_weights(per_material.folder).values())) == 2 and all(r.network is None for r in per_material)
