@@ -100,9 +100,10 @@ from mtlx2neural.pipeline.plan import (  # noqa: F401 (latent_resolution: API)
     latent_resolution,
     plan_materials,
 )
-from mtlx2neural.pipeline.quality import flag_reasons, judge, verdict
+from mtlx2neural.pipeline.quality import judge, verdict
 from mtlx2neural.pipeline.scene_network import (
     apply_scene_digests,
+    poorly_fitted,
     run_scene_jobs,
     trained_network,
 )
@@ -475,7 +476,7 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
     ``network="scene"``: the jobs train together with one shared network
     (:mod:`~mtlx2neural.pipeline.scene_network`), or, when the reused materials' network can be kept
     (:func:`~mtlx2neural.pipeline.scene_network.trained_network`), each fits its latents into it; when one of
-    those would then fail the quality gate on its own terms (:func:`~.quality.flag_reasons`), the whole
+    those would then fail the quality gate (:func:`~.scene_network.poorly_fitted`), the whole
     group trains again (as with ``force``), and that material's record says why."""
     # Reused: a committed result, else one an earlier run trained but could not export (a full disk).
     found = {} if force else {i: _reusable(p, f) for i, (p, f) in enumerate(zip(plans, folders))
@@ -530,8 +531,7 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
 
     ran = (run_scene_jobs(jobs, report, failed, kept_network) if network == "scene"
            else run_jobs(jobs, workers, report, failed))
-    poor = {jobs[k].name: flag_reasons(s, None) for k, s in enumerate(ran) if s is not None} if kept_network else {}
-    poor = {name: reasons for name, reasons in poor.items() if reasons}
+    poor = poorly_fitted(ran, [r for _, r, cached in results.values() if cached]) if kept_network else {}
     if poor:  # the kept network cannot model an added material: the group trains again, with it
         why = "; ".join(f"{name}: {', '.join(reasons)}" for name, reasons in poor.items())
         if progress:

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
+import statistics
 import time
 from pathlib import Path
 
@@ -31,6 +33,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.model.checkpoint import checkpoint_file, read_checkpoint
 from mtlx2neural.pipeline.devices import resolve_device
 from mtlx2neural.pipeline.material_training import finish_material, prepare_material
+from mtlx2neural.pipeline.quality import flag_reasons
 from mtlx2neural.train.shared import (
     ADDED_FRACTION,
     SharedTrainer,
@@ -82,6 +85,16 @@ def trained_network(reused: list[tuple], folders: list, configs: list) -> Traine
         return None
     info = {k: v for k, v in record.network.items() if k != "added"}
     return TrainedNetwork(model, info, dict(record.config), list(history))
+
+
+def poorly_fitted(added: list, kept: list) -> dict[str, list[str]]:
+    """``{material: reasons}`` for the records of ``added`` (materials fitted into a kept network; None
+    entries skipped) that the quality gate would flag (:func:`~.quality.flag_reasons`), judged against
+    the median HDR FLIP of ``kept`` (the reused materials' records) as the scene's."""
+    flips = [r.flip_mean for r in kept if math.isfinite(r.flip_mean)]
+    median = statistics.median(flips) if flips else None
+    out = {r.material: flag_reasons(r, median) for r in added if r is not None}
+    return {name: reasons for name, reasons in out.items() if reasons}
 
 
 def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | None = None) -> list:

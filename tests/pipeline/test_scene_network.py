@@ -142,3 +142,18 @@ def test_a_network_is_kept_only_when_every_reused_result_comes_from_it():
     assert trained_network([reused(one), reused(other)], ["x", "y"], [TINY]) is None  # two trainings
     assert trained_network([reused({"materials": ["/A"]})], ["x"], [TINY]) is None  # a record without an id
     assert trained_network([reused(one)], ["x"], [dataclasses.replace(TINY, decoder="2x32")]) is None  # shape
+
+
+def test_an_added_material_far_worse_than_the_kept_ones_is_poorly_fitted():
+    from types import SimpleNamespace
+
+    from mtlx2neural.pipeline.scene_network import poorly_fitted
+
+    def record(name, flip):
+        return SimpleNamespace(material=name, flip_mean=flip, energy=None)
+
+    kept = [record("/A", 0.05), record("/B", 0.06)]
+    # 0.25: over the gate's floor (0.2) and 3x the kept median (0.055); 0.15 is under the floor; 0.35 is over 0.3
+    poor = poorly_fitted([record("/C", 0.25), record("/D", 0.15), None], kept)
+    assert list(poor) == ["/C"] and "median" in poor["/C"][0]
+    assert list(poorly_fitted([record("/E", 0.35)], [])) == ["/E"]  # nothing kept: the absolute limit alone
