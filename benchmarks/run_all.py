@@ -32,6 +32,8 @@ BENCHMARKS = {
     "shaders": ("bench_shaders.py", [], {"OMP_NUM_THREADS": "1"}),
     "viewer": ("bench_viewer.py", [], {}),
     "mitsuba": ("bench_mitsuba.py", [], {}),  # needs the mitsuba extra and libLLVM >= 16
+    "coat_peak": ("bench_coat_peak.py", [], {}),  # reads MaterialX's car paint from ../shared
+    "scene_network": ("bench_scene_network.py", ["samples/scene/glow_and_leaves.usda"], {}),
 }
 
 
