@@ -284,13 +284,15 @@ def compare(reference: Material, model: Material, texels: tuple[int, int], views
 
 
 def compare_many(reference: Material, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96,
-                 spp: int = 32, geometry=None, lights=None, distance: float = 4.0, mis: bool = True) -> dict:
+                 spp: int = 32, geometry=None, lights=None, distance: float = 4.0, mis: bool = True,
+                 sampler: Material | None = None) -> dict:
     """:func:`compare` for several materials (``{label: material}``) against one reference render per
     view: ``{label: [per-view dict with "view", "reference" (the reference's render), label (that
     material's render) and its errors]}``. Labels name the materials (``"neural"``, ``"analytic"``,
     ``"neural 2x16"``...) and cannot be one of :data:`RESERVED`. Under environment maps every render,
     the reference's included, also samples the reference's BSDF (``mis``; :func:`render_scene`'s
-    ``sampler``), so the materials see the same directions."""
+    ``sampler``), so the materials see the same directions; ``sampler`` replaces the reference as that
+    sampler (e.g. a :class:`.mixture_sampler.MixtureSampler` of the reference and the model)."""
     clash = [label for label in models if label in RESERVED]
     if clash:
         raise ValueError(f"material labels {clash} clash with compare's keys {RESERVED}")
@@ -303,7 +305,7 @@ def compare_many(reference: Material, models: dict, texels: tuple[int, int], vie
             scene = (geometry if geometry is not None else Sphere(), Camera(view.azimuth, view.elevation, distance),
                      lights if lights is not None else [DirectionalLight(view.light, view.intensity)])
 
-            def draw(material, scene=scene, i=i, sampler=reference if mis else None):
+            def draw(material, scene=scene, i=i, sampler=(sampler or reference) if mis else None):
                 return render_scene(material, *scene, res, spp, texels, seed=i, sampler=sampler)
         ref = draw(reference)
         for label, model in models.items():

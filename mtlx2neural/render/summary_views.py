@@ -7,8 +7,10 @@ Four renders of the unit sphere, each compared with the reference's render of th
    (the half vector of light and camera faces the camera), so a sharp highlight the model loses shows.
 2. One environment view (:data:`ENVIRONMENT_VIEW`): a perspective camera under the procedural sky
    (:meth:`~mtlx2neural.render.lighting.EnvironmentMap.sky`), every render estimated with one light
-   sample and one sample of the reference's BSDF per pass (multiple importance sampling), so a coat's
-   reflection of the sky converges in the reference and is missed by a model that lost it.
+   sample and one BSDF sample per pass (multiple importance sampling), drawn from the reference's and the
+   model's samplers mixed (:class:`~.mixture_sampler.MixtureSampler`; the reference's alone for a UDIM
+   material's tiles). A coat's reflection of the sky so converges in the reference, and a model's own
+   sharp lobe converges too: a lost reflection shows, not the estimator's noise.
 
 The mean over the four is the figure: a lost highlight and a lost reflection both raise it.
 :func:`describe` says how it was made, in the material's record (``flip_views``).
@@ -17,6 +19,7 @@ The mean over the four is the figure: a lost highlight and a lost reflection bot
 from __future__ import annotations
 
 from mtlx2neural.render.lighting import EnvironmentMap
+from mtlx2neural.render.mixture_sampler import MixtureSampler
 from mtlx2neural.render.renderer import VIEWS, View, compare_many
 from mtlx2neural.render.udim_view import compare_tiles
 
@@ -49,7 +52,12 @@ def summary_views(reference, models: dict, texels: tuple[int, int], tiles=None, 
             compare_many(reference, models, texels, **kw)
 
     lit = views(views=VIEWS, res=res, spp=spp or DIRECTIONAL_SPP)
-    env = views(views=(ENVIRONMENT_VIEW,), res=res, spp=spp or ENVIRONMENT_SPP, lights=[_environment_light()])
+    sky = dict(views=(ENVIRONMENT_VIEW,), res=res, spp=spp or ENVIRONMENT_SPP, lights=[_environment_light()])
+    if tiles:  # the tiles' views wrap every material per tile: the reference's sampler alone
+        env = views(**sky)
+    else:  # per model, the reference's and the model's samplers mixed (the same directions for both renders)
+        env = {label: compare_many(reference, {label: model}, texels, sampler=MixtureSampler(reference, model),
+                                   **sky)[label] for label, model in models.items()}
     out = {}
     for label in models:
         rows = [{**r, "lighting": "directional"} for r in lit[label]]
@@ -74,5 +82,5 @@ def describe() -> list[str]:
              f"towards {tuple(v.light)} x {v.intensity:g}, {RES}^2 px, {DIRECTIONAL_SPP} spp" for v in VIEWS]
     v = ENVIRONMENT_VIEW
     lines.append(f"environment: perspective sphere, azimuth {v.azimuth:g}, elevation {v.elevation:g}, procedural "
-                 f"sky, {RES}^2 px, {ENVIRONMENT_SPP} spp, light and reference-BSDF samples (MIS)")
+                 f"sky, {RES}^2 px, {ENVIRONMENT_SPP} spp, light and BSDF samples (MIS; reference's and model's samplers)")
     return lines
