@@ -60,9 +60,9 @@ def converted(tmp_path_factory):
     asset_dir = tmp_path_factory.mktemp("udim_pipeline") / "udim"
     shutil.copytree(SAMPLE, asset_dir)
     asset = asset_dir / "udim_tiles.usda"
-    tiles, in_scene = material_training.compare_tiles, in_scene_measure.compare_in_scene
+    views, in_scene = material_training.summary_views, in_scene_measure.compare_in_scene
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(material_training, "compare_tiles", lambda *a, **k: tiles(*a, **k, res=32, spp=4))
+        mp.setattr(material_training, "summary_views", lambda *a, **k: views(*a, **k, res=32, spp=4))
         mp.setattr(in_scene_measure, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
         (s,) = convert_asset(asset, ConvertOptions(train=CFG, progress=False, device="cpu", workers=1))
     return s, asset, asset_dir / "udim_tiles_neural.usda"
