@@ -15,7 +15,7 @@ from slang_kernels import shade_kernel
 
 from mtlx2neural.codegen.compile import find_slangc, slangc
 from mtlx2neural.errors import InputError
-from mtlx2neural.pipeline import quality
+from mtlx2neural.pipeline import in_scene_measure, material_training, quality
 from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
@@ -42,6 +42,11 @@ def asset(tmp_path_factory) -> Path:
 
 
 def test_one_network_for_the_scene_and_one_per_material_otherwise(asset, monkeypatch):
+    # six conversions: the summary's views and the in-scene render at 32 px and 4 samples (the records and the
+    # reuse are what this checks, not the figures' precision)
+    views, in_scene = material_training.summary_views, in_scene_measure.compare_in_scene
+    monkeypatch.setattr(material_training, "summary_views", lambda *a, **k: views(*a, **k, res=32, spp=4))
+    monkeypatch.setattr(in_scene_measure, "compare_in_scene", lambda *a, **k: in_scene(*a, **k, res=32, spp=4))
     scene = convert_asset(asset, _options(network="scene", out=str(asset.parent / "scene")))
     shipped = set(_weights(scene.folder).values())
     names = sorted(r.material for r in scene)
