@@ -483,8 +483,7 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
                               if not p.shared_with}
     kept_network = None  # scene mode: the earlier run's network the materials to train are fitted into
     if network == "scene" and any(reused is None for reused, _ in found.values()):
-        hits = [(r, where) for r, where in found.values() if r is not None]
-        kept_network = trained_network([r for r, _ in hits], [where for _, where in hits],
+        kept_network = trained_network([hit for hit in found.values() if hit[0] is not None],
                                        [plans[i].cfg for i, (r, _) in found.items() if r is None])
         if kept_network is None:
             found = {}  # nothing to keep: the shared network is trained again for all

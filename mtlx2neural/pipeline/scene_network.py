@@ -59,32 +59,30 @@ class TrainedNetwork:
     """A :class:`~mtlx2neural.model.neural_material.NeuralMaterial` of the group (its decoder and sampler)."""
     info: dict
     """The group's record (a :class:`~mtlx2neural.material_record.MaterialRecord`'s ``network``)."""
-    config: dict
-    """The group's training config (``TrainConfig`` as a dict)."""
     environment_history: list
     """The group's environment-head fit, as its checkpoints record it."""
 
 
-def trained_network(reused: list[tuple], folders: list, configs: list) -> TrainedNetwork | None:
-    """The network that every reused result of a scene-mode run (``reused``: (model, record) pairs, one
-    per entry of ``folders``, where their checkpoints are) shares, if the materials still to train
-    (``configs``: their ``TrainConfig``) can be fitted into it; None when there is nothing reused, when
-    the reused results come from different trainings (or predate the network's ``id``), or when a
-    config differs from the group's in the network's shape or schedule."""
+def trained_network(reused: list[tuple], configs: list) -> TrainedNetwork | None:
+    """The network that every reused result of a scene-mode run (``reused``: ((model, record), the folder
+    of its checkpoint) pairs) shares, if the materials still to train (``configs``: their ``TrainConfig``)
+    can be fitted into it; None when there is nothing reused, when the reused results come from
+    different trainings (or predate the network's ``id``), or when a config differs from the group's in
+    the network's shape or schedule."""
     if not reused:
         return None
-    ids = {(r.network or {}).get("id") for _, r in reused}
+    ids = {(r.network or {}).get("id") for (_, r), _ in reused}
     if len(ids) != 1 or None in ids:
         return None
-    model, record = reused[0]
+    (model, record), folder = reused[0]
     if any(shape_differences(c, record.config) for c in configs):
         return None
     try:
-        history = read_checkpoint(checkpoint_file(folders[0])).get("environment_history") or []
+        history = read_checkpoint(checkpoint_file(folder)).get("environment_history") or []
     except InputError:
         return None
     info = {k: v for k, v in record.network.items() if k != "added"}
-    return TrainedNetwork(model, info, dict(record.config), list(history))
+    return TrainedNetwork(model, info, list(history))
 
 
 def poorly_fitted(added: list, kept: list) -> dict[str, list[str]]:

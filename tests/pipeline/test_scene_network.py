@@ -139,14 +139,14 @@ def test_a_network_is_kept_only_when_every_reused_result_comes_from_it():
 
     config = dataclasses.asdict(TINY)
 
-    def reused(network):
-        return (None, SimpleNamespace(network=network, config=config))
+    def reused(network, folder="x"):
+        return (None, SimpleNamespace(network=network, config=config)), folder
 
     one, other = {"id": "a", "materials": ["/A"]}, {"id": "b", "materials": ["/B"]}
-    assert trained_network([], [], [TINY]) is None  # nothing reused: the group trains
-    assert trained_network([reused(one), reused(other)], ["x", "y"], [TINY]) is None  # two trainings
-    assert trained_network([reused({"materials": ["/A"]})], ["x"], [TINY]) is None  # a record without an id
-    assert trained_network([reused(one)], ["x"], [dataclasses.replace(TINY, decoder="2x32")]) is None  # shape
+    assert trained_network([], [TINY]) is None  # nothing reused: the group trains
+    assert trained_network([reused(one), reused(other, "y")], [TINY]) is None  # two trainings
+    assert trained_network([reused({"materials": ["/A"]})], [TINY]) is None  # a record without an id
+    assert trained_network([reused(one)], [dataclasses.replace(TINY, decoder="2x32")]) is None  # shape
 
 
 def test_an_added_material_far_worse_than_the_kept_ones_is_poorly_fitted():
