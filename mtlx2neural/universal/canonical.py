@@ -1,0 +1,141 @@
+"""A shading model's canonical form: every input a universal encoder reads, present and varying.
+
+A universal encoder (:mod:`mtlx2neural.universal`) is trained once over a shading model's parameter
+space and reads the parameter stack of any material of that model. The stack's channels are the
+compiled BSDF program's leaf parameters, and the compiler folds what is constant: a material with
+``metallic`` 0 loses its metal lobe, one without a coat its coat lobe, so two materials of one model
+can compile to different leaves. :func:`canonical_document` removes that difference. It rewrites the
+material's shader so each of the model's :attr:`ShadingModel.varying` inputs is spatial: a connected
+input keeps its connection, and an authored or default value ``c`` becomes ``c + 0 * texcoord.x``,
+which the evaluator cannot fold (it classifies by dependence, not by value). Every material of the
+model then compiles to one program, whose BRDF equals the original's: the rewrite adds zero.
+
+:func:`canonical_names` strips the shader's own name from the parameter names (``SR_brass1<ND_...>/
+metalness_metal_bsdf.roughness`` -> ``metalness_metal_bsdf.roughness``), so stacks of two materials of
+the model compare channel by channel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import MaterialX as mx
+
+PREFIX = "m2n_canonical_"
+
+
+@dataclass(frozen=True)
+class ShadingModel:
+    """A shading model that a universal encoder covers."""
+
+    category: str
+    """The shader node's MaterialX category (``UsdPreviewSurface``)."""
+    nodedef: str
+    """Its surfaceshader nodedef, whose defaults fill unauthored inputs."""
+    varying: tuple[str, ...]
+    """The inputs the encoder reads, made varying in the canonical form; the others stay as authored
+    (emission and opacity live beside the latents; displacement and occlusion are not reflectance)."""
+    fixed: dict
+    """Inputs that must keep these constant values (a switch between two programs), else the material
+    is not of this model's canonical form."""
+
+
+SHADING_MODELS = {
+    "UsdPreviewSurface": ShadingModel(
+        "UsdPreviewSurface", "ND_UsdPreviewSurface_surfaceshader",
+        ("diffuseColor", "metallic", "roughness", "clearcoat", "clearcoatRoughness", "ior", "normal"),
+        {"useSpecularWorkflow": 0}),
+}
+
+
+@dataclass
+class Eligibility:
+    """Whether a material can take a universal encoder: its model's name, or why not (``reason``)."""
+
+    model: str | None
+    shader: str | None = None
+    reason: str = ""
+
+
+def _surface_shader(document: mx.Document, material: str | None):
+    mats = [m for m in document.getMaterialNodes() if material in (None, m.getName())]
+    if not mats:
+        return None
+    inp = mats[0].getInput("surfaceshader")
+    name = inp.getNodeName() if inp is not None else ""
+    return document.getNode(name) if name else None
+
+
+def _connected(inp: mx.Input) -> bool:
+    return bool(inp.getNodeName() or inp.getNodeGraphString() or inp.getOutputString() or inp.getInterfaceName())
+
+
+def eligibility(document: mx.Document, material: str | None = None) -> Eligibility:
+    """The shading model of ``material``'s surface shader when a universal encoder covers it (its
+    category is a :data:`SHADING_MODELS` key and its :attr:`~ShadingModel.fixed` inputs hold their
+    values); else ``model`` None and the reason."""
+    shader = _surface_shader(document, material)
+    if shader is None:
+        return Eligibility(None, reason="no surface shader node at the document's top level")
+    model = SHADING_MODELS.get(shader.getCategory())
+    if model is None:
+        return Eligibility(None, shader.getName(), f"shader '{shader.getName()}' is a {shader.getCategory()}, "
+                                                   f"not one of {', '.join(SHADING_MODELS)}")
+    for name, value in model.fixed.items():
+        inp = shader.getInput(name)
+        if inp is not None and (_connected(inp) or inp.getValue() != value):
+            return Eligibility(None, shader.getName(), f"shader '{shader.getName()}': {name} is not {value} "
+                                                       f"(the universal encoder covers that program only)")
+    return Eligibility(model.category, shader.getName())
+
+
+def _zero_node(doc: mx.Document) -> str:
+    """A float node worth 0 everywhere that the evaluator treats as spatial: texcoord.x * 0."""
+    name = f"{PREFIX}zero"
+    if doc.getNode(name) is None:
+        uv = doc.addNode("texcoord", f"{PREFIX}uv", "vector2")
+        x = doc.addNode("extract", f"{PREFIX}u", "float")
+        x.setConnectedNode("in", uv)
+        x.setInputValue("index", 0)
+        zero = doc.addNode("multiply", name, "float")
+        zero.setConnectedNode("in1", x)
+        zero.setInputValue("in2", 0.0)
+    return name
+
+
+def canonical_document(document: mx.Document, material: str | None = None) -> mx.Document:
+    """A copy of ``document`` whose ``material``'s shader has every varying input of its model spatial
+    (module docstring); ``ValueError`` when the material is not eligible (:func:`eligibility`)."""
+    elig = eligibility(document, material)
+    if elig.model is None:
+        raise ValueError(elig.reason)
+    model = SHADING_MODELS[elig.model]
+    from mtlx2neural.scene import mxlib  # the nodedef's defaults
+
+    nodedef = mxlib.nodedef(model.nodedef)
+    doc = mx.createDocument()
+    doc.copyContentFrom(document)
+    shader = doc.getNode(elig.shader)
+    for name in model.varying:
+        inp = shader.getInput(name)
+        if inp is not None and _connected(inp):
+            continue
+        decl = nodedef.getInput(name)
+        value_string = inp.getValueString() if inp is not None and inp.getValueString() else decl.getValueString()
+        mx_type = decl.getType()
+        if inp is not None:
+            shader.removeInput(name)
+        add = doc.addNode("add", f"{PREFIX}{name}", mx_type)
+        add.addInput("in1", mx_type).setValueString(value_string)
+        add.addInput("in2", "float").setNodeName(_zero_node(doc))
+        shader.addInput(name, mx_type).setNodeName(add.getName())
+    return doc
+
+
+def canonical_name(parameter: str) -> str:
+    """A compiled parameter's name without its shader's path (the part after the last ``>/``)."""
+    return parameter.rsplit(">/", 1)[-1]
+
+
+def canonical_names(names) -> list[str]:
+    return [canonical_name(n) for n in names]
