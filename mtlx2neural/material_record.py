@@ -26,7 +26,7 @@ from mtlx2neural.errors import InputError
 
 RECORD_FILE = "summary.json"
 """File name of the record in a material's folder."""
-RECORD_VERSION = 4
+RECORD_VERSION = 5
 """Version of the record's layout; bumped whenever a field is added, removed or changes meaning."""
 
 
@@ -146,6 +146,10 @@ class MaterialRecord:
     ``joint_steps``, ``rows_per_material`` per joint step, the ``latent_steps`` of each material's own
     fine-tune, and the phases' wall ``seconds`` (``joint``, ``latents``, ``environment``); None for a
     network of its own."""
+    encoder: dict | None = None
+    """With ``--encoder universal``, the material's path (:meth:`~mtlx2neural.universal.choice.EncoderChoice.record`:
+    ``path`` universal, the shading ``model``, the latent fine-tune's ``steps``, the shipped weights'
+    ``weights_sha256``); None when it trained its own network."""
     shared_with: str | None = None
     """The material whose training this one reuses, being identical to it; None when trained itself."""
     cached: bool = False

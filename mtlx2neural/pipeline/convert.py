@@ -353,7 +353,8 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
     plans = plan_materials(sources, cfg, options.allow_missing_textures, options.max_error,
                            options.texel_density, stage if stage is not None else scene.asset,
                            failures=None if options.strict else failures, strict=options.strict,
-                           application=application_of(options))
+                           application=application_of(options), encoder=options.encoder,
+                           universal_steps=options.universal_steps)
     if failures:  # the others convert; a failed material keeps its original network only
         if not plans:
             raise _nothing_convertible(scene.asset, failures)

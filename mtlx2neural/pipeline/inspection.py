@@ -24,7 +24,8 @@ from mtlx2neural.train.udim import training_tiles
 
 
 def inspect_asset(path, material: str | InspectOptions | None = None, allow_missing_textures: bool = False,
-                  cfg=None, texel_density: float | None = None) -> dict:
+                  cfg=None, texel_density: float | None = None, encoder: str = "material",
+                  universal_steps: int = 200) -> dict:
     """JSON-friendly report of ``path`` (a .mtlx file or USD stage).
 
     ``inspect_asset(path, options)`` takes an :class:`~mtlx2neural.pipeline.options.InspectOptions`
@@ -38,14 +39,16 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
     [H, W], ``kind`` uniform/native/density/capped, ``texture_grid`` [H, W] or None,
     ``max_texels``, ``text``, ``texel_density``, ``metres_per_uv``, ``density_texels``,
     ``density_meshes``, ``density_skipped``, ``notes``), ``source_hash``, ``content_hash``,
-    ``identical_to`` (None, or the earlier material whose result it would share) and
-    ``warnings``.
+    ``identical_to`` (None, or the earlier material whose result it would share),
+    ``encoder`` (the path it takes, :meth:`~mtlx2neural.universal.choice.EncoderChoice.record`, for
+    ``encoder``, ``--encoder``) and ``warnings``.
     """
 
     if isinstance(material, InspectOptions):
         options = material
         material, allow_missing_textures = options.material, options.allow_missing_textures
         cfg, texel_density = options.train_config(), options.texel_density
+        encoder, universal_steps = options.encoder, options.universal_steps
     cfg = cfg or preset("fast")
     scene = load_asset(path)
     report = {"asset": str(scene.asset), "materials": [], "skipped": [
@@ -53,7 +56,7 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
     sources = [src for src in scene.materials
                if not material or material in (src.name, src.name.rsplit("/", 1)[-1], src.material)]
     for plan in plan_materials(sources, cfg, allow_missing_textures, texel_density=texel_density,
-                               asset=scene.asset):
+                               asset=scene.asset, encoder=encoder, universal_steps=universal_steps):
         src = plan.source
         info = _measured_info(src) if plan.compiled is None else plan.compiled.describe()
         info["material"] = src.name
@@ -62,6 +65,7 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
         info["latent"] = plan.latent_info()
         info["source_hash"], info["content_hash"] = plan.digest, plan.content
         info["identical_to"] = plan.shared_with
+        info["encoder"] = plan.encoder.record()
         info["warnings"] = list(plan.warnings)
         # the UDIM tiles a conversion trains (None: no UDIM set), with why, as train.udim decides them
         info["udim_tiles"], info["udim_notes"] = (None, []) if plan.compiled is None else training_tiles(
@@ -136,6 +140,8 @@ def format_report(report: dict) -> str:
                              f"the bound meshes' tiles, else every tile on disk)")
                 lines += [f"    note: {n}" for n in m.get("udim_notes", [])]
             lines += _density_lines(m["latent"])
+            if m.get("encoder"):
+                lines.append(f"  network: {m['encoder']['text']}")
             lines.append(f"  source hash: {m['source_hash'][:12]}  (content {m['content_hash'][:12]})")
             if m["identical_to"]:
                 lines.append(f"  identical to {m['identical_to']}: trained once (same compiled graph, textures "

@@ -93,6 +93,8 @@ class MaterialJob:
     """The USD stage whose bound meshes provide the geometry the graph reads (``MaterialSource.stage_file``)."""
     application: Application | None = None
     """The instant ``time``/``frame`` nodes fold to (``--frame``/``--fps``; None: frame 1 at 24 fps)."""
+    encoder: dict | None = None
+    """The universal path's choice (:meth:`~mtlx2neural.universal.choice.EncoderChoice.record`), None: its own training."""
     measured: bool = False
     """A measured BRDF: ``source_file`` is its MERL table and ``document_xml`` is empty."""
 
@@ -114,7 +116,7 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
                        "" if measured else mx.writeToXmlString(src.document), str(folder), cfg, plan.digest,
                        plan.content, tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
                        stage_file=getattr(src, "stage_file", None), input_hash=input_hash(src), measured=measured,
-                       **options)
+                       encoder=plan.encoder.record() if plan.encoder.universal else None, **options)
 
 
 def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
@@ -140,7 +142,7 @@ def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
             if job.max_error is None:
                 _, record = train_material(src, job.cfg, folder, device, job.resume, job.progress,
                                            job.allow_missing_textures, job.digest, job.resolution, extra,
-                                           application=job.application, listener=listener)
+                                           application=job.application, listener=listener, encoder=job.encoder)
             else:
                 record = train_within_budget(src, job.cfg, folder, device, job.resume, job.progress,
                                              job.allow_missing_textures, job.digest, job.max_error,

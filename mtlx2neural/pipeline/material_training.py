@@ -104,7 +104,7 @@ def measured_reference(src, device: str) -> tuple[MeasuredMaterial, ParameterSta
 def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: bool, progress: bool,
                    allow_missing_textures: bool, digest: str, resolution: tuple[int, int] | None = None,
                    extra: dict | None = None, preview: bool = True, application: Application | None = None,
-                   listener=None) -> tuple:
+                   listener=None, encoder: dict | None = None) -> tuple:
     """Train one material into ``folder``; returns (model, :class:`MaterialRecord`) and writes the record
     (``summary.json``). ``listener(step, total, log record)``: called at every logged step (a pool
     worker's progress bar).
@@ -119,8 +119,17 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     (:func:`fit_preview`, ``cfg.preview_iterations`` steps, saved beside the checkpoint) and record its
     HDR FLIP (``preview_flip``, measured on the same renders as the neural model's ``flip_mean``);
     with ``cfg.preview_iterations = 0`` there is none (and no baseline file is left in ``folder``).
-    """
 
+    ``encoder``: the universal path's choice (:mod:`mtlx2neural.universal.choice`): the material is compiled
+    in its model's canonical form and its latents fit into the shipped network (:func:`mtlx2neural.universal.
+    fit.fit_universal`); should its stack's layout not be the network's, it trains its own, with a note.
+    """
+    if encoder is not None:
+        done = _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, resolution, extra, preview,
+                              application, progress, encoder)
+        if done is not None:
+            return done
+        extra = {**(extra or {}), "notes": [*(extra or {}).get("notes", []), encoder["fallback"]]}
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application)
     if resume:
         setup.trainer.resume()
@@ -165,11 +174,33 @@ class MaterialSetup:
                 f"{cfg.iterations} steps x {cfg.batch}")
 
 
+def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, resolution, extra, preview,
+                   application, progress, encoder: dict):
+    """The universal path of :func:`train_material`: (model, record), or None (with ``encoder["fallback"]``
+    set to the note) when the material's canonical stack is not the shipped network's layout."""
+    from mtlx2neural.universal.fit import LayoutMismatch, fit_universal
+    from mtlx2neural.universal.weights import load_weights
+
+    setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application,
+                             canonical=True)
+    if progress:
+        print(f"{src.name}: universal {encoder['model']} network, {encoder['steps']} latent steps", flush=True)
+    try:
+        model = fit_universal(setup.trainer, load_weights(encoder["model"]), encoder["steps"], progress)
+    except LayoutMismatch as exc:
+        encoder["fallback"] = f"universal {encoder['model']} network not used ({exc}): trained its own"
+        return None
+    record_extra = {**(extra or {}), "encoder": {k: v for k, v in encoder.items() if k != "fallback"}}
+    return model, finish_material(setup, model, digest, record_extra)
+
+
 def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,
                      resolution: tuple[int, int] | None = None, preview: bool = True,
-                     application: Application | None = None) -> MaterialSetup:
+                     application: Application | None = None, canonical: bool = False) -> MaterialSetup:
     """Compile ``src`` (or read its MERL table), build its training stack and surface maps in ``folder``,
-    and make its :class:`Trainer` (:func:`train_material` has the arguments)."""
+    and make its :class:`Trainer` (:func:`train_material` has the arguments). ``canonical``: compile the
+    document's canonical form (:func:`mtlx2neural.universal.canonical.canonical_document`: the same BRDF,
+    every input its shading model's universal encoder reads kept varying)."""
     t0 = time.time()
     folder.mkdir(parents=True, exist_ok=True)
     # An interrupted run must not leave an old record (and its hash) beside a new checkpoint.
@@ -183,7 +214,12 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
         stack_notes, surface = [], SurfaceMaps()
         (folder / SURFACE_FILE).unlink(missing_ok=True)
     else:
-        compiled = compile_material(src.document, src.material, device=device,
+        document = src.document
+        if canonical:
+            from mtlx2neural.universal.canonical import canonical_document
+
+            document = canonical_document(document, src.material)
+        compiled = compile_material(document, src.material, device=device,
                                     allow_missing_textures=allow_missing_textures, application=application)
         geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
         ref = ReferenceMaterial(compiled)

@@ -21,6 +21,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
 
 NETWORKS = ("material", "scene")
+ENCODERS = ("material", "universal")  # mtlx2neural.universal.choice.ENCODERS (not imported: --help stays light)
 
 
 def _preset_config(preset: str, train: TrainConfig | None) -> TrainConfig:
@@ -60,6 +61,14 @@ class ConvertOptions:
     new or changed, those fit their latents alone into it, unchanged; the whole group trains again
     when one of them would fail the quality gate, or with --force. Not with --max-error, --resume or
     --material."""
+    encoder: str = field(default="material", metadata={"choices": ENCODERS})
+    """material: each material trains its own encoder and networks. universal: a material whose surface
+    shader is a UsdPreviewSurface (metallic workflow) with texture-driven inputs encodes its parameter
+    pyramid with the network shipped for that model and fine-tunes its latents alone
+    (--universal-steps), in seconds; the others train their own, and ``inspect`` says which path each
+    material takes and why. Not with --network scene or --max-error."""
+    universal_steps: int = field(default=200, metadata={"metavar": "N"})
+    """Latent fine-tune steps of a material on the universal path (--encoder universal)."""
     max_error: float | None = field(default=None, metadata={"metavar": "F"})
     """HDR FLIP budget: per material, the smallest decoder of 2x16, 2x32, 3x64 that meets it (the
     preset's decoder is then ignored; conflicts with ``--decoder``); when even 3x64 misses, the best
@@ -126,6 +135,11 @@ class InspectOptions:
     texel_density: float | None = field(default=None, metadata={"metavar": "D"})
     """Latent texels per metre of surface (512 = 5.12 texels/cm): each material's grid is scaled down
     to what its bound meshes' UVs need (never up; USD input only)."""
+    encoder: str = field(default="material", metadata={"choices": ENCODERS})
+    """The path each material is shown to take (``mtlx2neural ASSET --encoder``): its own network, or
+    the universal network of its shading model when it qualifies (and why not when it does not)."""
+    universal_steps: int = field(default=200, metadata={"metavar": "N"})
+    """Latent fine-tune steps shown for (and hashed with) the universal path."""
     train: TrainConfig | None = None
     """Training settings; None (the default): the preset's. On the command line each of its fields
     is a flag that overrides the preset's value."""
@@ -172,7 +186,23 @@ def check_options(options: ConvertOptions) -> TrainConfig:
         if v is not None and not (isinstance(v, (int, float)) and 0 < v < float("inf")):
             raise InputError(f"--{name.replace('_', '-')} {v!r}: must be a positive number")
     _check_network(options)
+    _check_encoder(options)
     return cfg
+
+
+def _check_encoder(options) -> None:
+    """``--encoder``: a known choice, and ``universal`` with neither --network scene nor --max-error."""
+    if options.encoder not in ENCODERS:
+        raise InputError(f"--encoder {options.encoder!r}: choose one of {', '.join(ENCODERS)}")
+    steps = options.universal_steps
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise InputError(f"--universal-steps {steps!r}: must be a whole number of at least 1")
+    if options.encoder == "universal":
+        clash = [flag for flag, given in (("--network scene", getattr(options, "network", "") == "scene"),
+                                          ("--max-error", getattr(options, "max_error", None) is not None)) if given]
+        if clash:
+            raise InputError(f"--encoder universal fits latents into a shipped network, so {', '.join(clash)} "
+                             f"(which train networks) cannot be used with it")
 
 
 def _check_network(options: ConvertOptions) -> None:

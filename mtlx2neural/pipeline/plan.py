@@ -53,6 +53,7 @@ from mtlx2neural.scene.texel_density import (
 from mtlx2neural.textures.parameter_stack import texture_resolution
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.udim import training_tiles
+from mtlx2neural.universal.choice import EncoderChoice, choose_encoder
 
 DECODERS = ("2x16", "2x32", "3x64")
 """Decoder sizes an error budget escalates through, smallest first."""
@@ -163,6 +164,8 @@ class MaterialPlan:
     """Texels per UV unit the density needs: ceil(texel_density x metres per UV unit); None: no measure."""
     notes: list[str] = field(default_factory=list)
     """Decisions worth knowing that lose nothing (a density with no effect, and why)."""
+    encoder: EncoderChoice = field(default_factory=lambda: EncoderChoice("material"))
+    """Its own network, or its shading model's universal one (``--encoder``; :mod:`mtlx2neural.universal.choice`)."""
 
     @property
     def name(self) -> str:
@@ -243,7 +246,8 @@ def _named_node(message: str) -> str | None:
 def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = False,
                    max_error: float | None = None, texel_density: float | None = None,
                    asset=None, failures: list[MaterialFailure] | None = None,
-                   strict: bool = False, application: Application | None = None) -> list[MaterialPlan]:
+                   strict: bool = False, application: Application | None = None, encoder: str = "material",
+                   universal_steps: int = 200) -> list[MaterialPlan]:
     """Compile each of ``sources`` and decide its grid, settings, cache key and sharing (module docstring).
 
     ``texel_density``: latent texels per metre of surface (``--texel-density``); the
@@ -257,6 +261,8 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
     (:func:`mtlx2neural.graph.compile.compile_material`).
     ``application``: the instant ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps); a
     material that reads them gets a note, and the instant joins its hashes.
+    ``encoder`` / ``universal_steps``: ``--encoder`` and ``--universal-steps``; a material on the universal
+    path has its choice (weights and steps) in its hashes.
     """
     plans, first = [], {}
     stage, no_stage = _density_stage(texel_density, asset)
@@ -291,6 +297,8 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
                     implied = texels_per_uv(texel_density, surface.metres_per_uv)
         grid, native, kind = grid_decision(compiled, cfg, implied)
         eff = dataclasses.replace(cfg, max_resolution=implied) if kind == "density" else cfg
+        choice = choose_encoder(encoder, src.document, src.material, compiled, eff, universal_steps)
+        geo += choice.tag
         content = content_hash(compiled, eff, allow_missing_textures,
                                f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}{geo}")
         key = cache_key(src, eff, allow_missing_textures, max_error)
@@ -299,7 +307,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         plan = MaterialPlan(src, compiled, key, content,
                             grid, native, kind, shared_with=first.get(content), cfg=eff,
                             max_texels=cfg.max_resolution, texel_density=texel_density, surface=surface,
-                            density_texels=implied, notes=notes)
+                            density_texels=implied, notes=notes, encoder=choice)
         plan.warnings += list(compiled.case_fixes)
         plan.warnings += [f"{src.name}: {r}" for r in compiled.surface.refused]  # emission left out, said aloud
         _explain(plan, cfg)

@@ -38,13 +38,18 @@ class ShadingModel:
     fixed: dict
     """Inputs that must keep these constant values (a switch between two programs), else the material
     is not of this model's canonical form."""
+    neutral: dict
+    """Parameters a material's canonical form may add that the atlas's folds away, with the value at which
+    they change nothing: ``transmission_mix.mix`` 1 (the opaque lobes alone) appears when ``opacity`` is
+    connected, since the graph's cut-out switch depends on it without changing the BRDF. A material holding
+    another value there is not covered."""
 
 
 SHADING_MODELS = {
     "UsdPreviewSurface": ShadingModel(
         "UsdPreviewSurface", "ND_UsdPreviewSurface_surfaceshader",
         ("diffuseColor", "metallic", "roughness", "clearcoat", "clearcoatRoughness", "ior", "normal"),
-        {"useSpecularWorkflow": 0}),
+        {"useSpecularWorkflow": 0}, {"transmission_mix.mix": (1.0,)}),
 }
 
 
@@ -86,7 +91,19 @@ def eligibility(document: mx.Document, material: str | None = None) -> Eligibili
         if inp is not None and (_connected(inp) or inp.getValue() != value):
             return Eligibility(None, shader.getName(), f"shader '{shader.getName()}': {name} is not {value} "
                                                        f"(the universal encoder covers that program only)")
+    if model.category == "UsdPreviewSurface" and _transparent(shader):
+        return Eligibility(None, shader.getName(), f"shader '{shader.getName()}' is transparent (opacity below 1 "
+                                                   f"without a cut-out threshold): its transmission is not covered")
     return Eligibility(model.category, shader.getName())
+
+
+def _transparent(shader) -> bool:
+    """A UsdPreviewSurface whose opacity mixes in transmission: an opacity below 1 (or connected) with
+    ``opacityThreshold`` 0, its default (a threshold above 0 makes opacity a cut-out beside the BRDF)."""
+    threshold, opacity = shader.getInput("opacityThreshold"), shader.getInput("opacity")
+    if threshold is not None and (_connected(threshold) or (threshold.getValue() or 0.0) > 0.0):
+        return False
+    return opacity is not None and (_connected(opacity) or opacity.getValue() < 1.0)
 
 
 def _zero_node(doc: mx.Document) -> str:

@@ -1,0 +1,102 @@
+"""The parameter atlas: one synthetic material that spans a shading model's parameter space.
+
+A universal encoder and its decoder are trained as one material is (:class:`~mtlx2neural.train.trainer.
+Trainer`), on a material whose textures draw the model's inputs at random, so its texels cover the
+space the paper suggests sampling uniformly, and its MIP levels cover the filtered mixtures a real
+material's coarse levels hold.
+
+Layout of each input's texture (``size`` x ``size`` texels, EXR, linear): four quadrants, each made
+of square cells of one value, the cell sizes 1, 2, 8 and 32 texels spread over the quadrants by a
+per-input permutation. Inputs so vary at different rates in one region: a smooth colour over
+per-texel bumps, a per-texel roughness over a flat normal, and so on. At a cell size of 2^k the
+levels below k hold pure parameter vectors, the levels above it LEAN/box mixtures of neighbours.
+
+Values per cell (:data:`DISTRIBUTIONS`): uniform over each input's range, except the inputs that
+production maps hold mostly at their ends (``metallic``: 0 or 1 four times in five; ``clearcoat``: 0
+half the time) and the normal, flat half the time and else tilted uniformly in angle up to
+:data:`MAX_TILT_DEGREES`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from mtlx2neural.universal.canonical import SHADING_MODELS
+
+CELL_SIZES = (1, 2, 8, 32)
+MAX_TILT_DEGREES = 45.0
+ATLAS_MATERIAL = "M_atlas"
+
+
+def _ends(rng, n, p0, p1):
+    """Values in [0, 1]: 0 with probability p0, 1 with p1, else uniform."""
+    u = rng.random(n)
+    v = rng.random(n)
+    return np.where(u < p0, 0.0, np.where(u < p0 + p1, 1.0, v))
+
+
+def _normal(rng, n):
+    tilt = np.radians(MAX_TILT_DEGREES) * rng.random(n) * (rng.random(n) < 0.5)
+    phi = 2 * math.pi * rng.random(n)
+    return np.stack([np.sin(tilt) * np.cos(phi), np.sin(tilt) * np.sin(phi), np.cos(tilt)], -1)
+
+
+DISTRIBUTIONS = {
+    "diffuseColor": lambda rng, n: rng.random((n, 3)),
+    "metallic": lambda rng, n: _ends(rng, n, 0.4, 0.4),
+    "roughness": lambda rng, n: rng.random(n),
+    "clearcoat": lambda rng, n: _ends(rng, n, 0.5, 0.0),
+    "clearcoatRoughness": lambda rng, n: rng.random(n),
+    "ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+    "normal": _normal,
+}
+"""Per input of the model: ``(generator, n) -> [n] or [n, 3]`` values of n cells."""
+
+
+def input_texture(name: str, size: int, rng: np.random.Generator) -> np.ndarray:
+    """[size, size, 3] float32 texture of input ``name`` (module docstring; a scalar in every channel)."""
+    half = size // 2
+    out = np.zeros((size, size, 3), np.float32)
+    sizes = rng.permutation(CELL_SIZES)
+    for q, cell in enumerate(sizes):
+        cell = int(min(cell, half))
+        cells = math.ceil(half / cell)
+        values = np.asarray(DISTRIBUTIONS[name](rng, cells * cells), np.float32).reshape(cells, cells, -1)
+        block = np.repeat(np.repeat(values, cell, 0), cell, 1)[:half, :half]
+        r, c = divmod(q, 2)
+        out[r * half:(r + 1) * half, c * half:(c + 1) * half] = block  # a scalar broadcasts to RGB
+    return out
+
+
+def write_atlas(folder, model: str = "UsdPreviewSurface", size: int = 512, seed: int = 0) -> Path:
+    """Write the atlas of ``model`` into ``folder`` (one EXR per varying input and ``atlas.mtlx``, whose
+    material is :data:`ATLAS_MATERIAL`); returns the document's path. Seeded: the same arguments write
+    the same files."""
+    from mtlx2neural.report.views import (
+        write_exr,  # OpenImageIO only where the atlas is written
+    )
+
+    spec = SHADING_MODELS[model]
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    nodes = []
+    for name in spec.varying:
+        write_exr(folder / f"{name}.exr", input_texture(name, size, rng))
+        mx_type = "vector3" if name == "normal" else "color3" if name.endswith("Color") else "float"
+        nodes.append((name, mx_type))
+    images = "\n".join(
+        f'  <image name="img_{n}" type="{t}">\n    <input name="file" type="filename" value="{(folder / n).resolve()}.exr" />\n'
+        f'  </image>' for n, t in nodes)
+    inputs = "\n".join(f'    <input name="{n}" type="{t}" nodename="img_{n}" />' for n, t in nodes)
+    text = (f'<?xml version="1.0"?>\n<materialx version="1.39" colorspace="lin_rec709">\n{images}\n'
+            f'  <{spec.category} name="SR_atlas" type="surfaceshader">\n{inputs}\n  </{spec.category}>\n'
+            f'  <surfacematerial name="{ATLAS_MATERIAL}" type="material">\n'
+            f'    <input name="surfaceshader" type="surfaceshader" nodename="SR_atlas" />\n'
+            f'  </surfacematerial>\n</materialx>\n')
+    path = folder / "atlas.mtlx"
+    path.write_text(text)
+    return path

@@ -1,0 +1,102 @@
+"""Convert a material with its shading model's universal network: encode, then fine-tune the latents.
+
+:func:`fit_universal` takes a :class:`~mtlx2neural.train.trainer.Trainer` built for the material's
+canonical form (:mod:`.canonical`: its stack then has the layout the shipped encoder reads) and:
+
+1. loads the shipped encoder, decoder (with its environment head) and sampler (:mod:`.weights`);
+2. bakes: the encoder runs over every texel of every level of the material's parameter pyramid;
+3. fine-tunes the latents alone for ``steps`` steps (the networks frozen) on the material's own
+   training rows, Adam with a cosine decay from :data:`LR_START` to the settings' ``lr_end``; a
+   block-compressed ``latent_format`` reads them through its codec in the last ``block_fraction``;
+4. finishes as a training run does (a cut-out's empty texels, the codec), without an environment fit:
+   the shipped head serves every material.
+
+The model that results has the shipped networks byte for byte, so every material converted this way
+shares one decoder and one sampler (what ``--network scene`` trains per scene).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import torch
+
+from mtlx2neural.model.networks import Encoder
+from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
+
+LR_START = 5e-3
+"""The latents' learning rate at the fine-tune's first step (the codes start close: a large first step
+moves them to the material's own targets within the few steps the fine-tune has)."""
+DEFAULT_STEPS = 200
+"""Steps of the latent fine-tune (``fast``: a fifth of its 1000 steps, at a few tens of ms each)."""
+
+
+class LayoutMismatch(ValueError):
+    """The material's stack does not have the layout the shipped encoder reads."""
+
+
+def encoder_columns(stack, weights: dict) -> torch.Tensor:
+    """The stack's raw columns, in the order the shipped encoder reads them: its channels matched by
+    canonical name and width. A channel of the stack that the network lacks is skipped when it holds the
+    model's neutral value (:attr:`~.canonical.ShadingModel.neutral`) over the finest level. Raises
+    :class:`LayoutMismatch` otherwise, naming the channels."""
+    neutral = SHADING_MODELS[weights["model"]].neutral
+    offsets, o = {}, 0
+    for c in stack.channels:
+        offsets[canonical_name(c.name)] = (o, c.width)
+        o += c.width
+    want = {n: w for n, w in weights["channels"]}
+    missing = [n for n, w in want.items() if offsets.get(n, (0, w))[1] != w or n not in offsets]
+    extra = []
+    for n, (start, width) in offsets.items():
+        if n in want:
+            continue
+        level0 = stack.levels[0][start:start + width].float().reshape(width, -1)
+        value = torch.tensor(neutral.get(n, [math.nan] * width), dtype=torch.float32)[:, None]
+        if not torch.allclose(level0, value.expand_as(level0), atol=1e-5):
+            extra.append(n)
+    if missing or extra:
+        raise LayoutMismatch(f"the parameter stack's channels differ from the universal {weights['model']} "
+                             f"network's (missing {missing or 'none'}, not neutral {extra or 'none'})")
+    return torch.cat([torch.arange(offsets[n][0], offsets[n][0] + w) for n, w in weights["channels"]])
+
+
+class Columns:
+    """The encoder's input on the universal path: the stack's raw channels [N, C] -> the shipped layout's
+    columns [N, dim] (an :class:`~mtlx2neural.train.encoder_input.EncoderInput` in the ``raw`` mode the
+    network was trained with)."""
+
+    def __init__(self, index: torch.Tensor):
+        self.index, self.dim = index, int(index.numel())
+
+    def __call__(self, raw: torch.Tensor) -> torch.Tensor:
+        return raw[:, self.index.to(raw.device)]
+
+
+def fit_universal(trainer, weights: dict, steps: int = DEFAULT_STEPS, progress: bool = True):
+    """Steps 1-4 of the module docstring on ``trainer`` (its ``cfg`` is replaced by the fine-tune's: ``steps``
+    iterations, no encoder phase, the mollification at its floor throughout, as the shipped decoder
+    ended its training). Saves the checkpoint and returns the model."""
+    columns = Columns(encoder_columns(trainer.stack, weights))
+    model = trainer.model
+    if trainer.cfg.encoder_input != "raw":
+        raise LayoutMismatch(f"the universal network reads raw channels, not --encoder-input {trainer.cfg.encoder_input}")
+    trainer.encoder_input = columns
+    model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)
+    model.encoder.load_state_dict(weights["encoder"])
+    model.decoder.load_state_dict(weights["decoder"])
+    model.sampler.load_state_dict(weights["sampler"])
+    cfg = trainer.cfg
+    trainer.cfg = dataclasses.replace(cfg, iterations=max(1, steps), encoder_fraction=0.0, lr_start=LR_START,
+                                      probe_every=0, mollify_degrees=cfg.mollify_min_degrees)
+    trainer.bake()
+    for p in (*model.decoder.parameters(), *model.sampler.parameters()):
+        p.requires_grad_(False)
+    trainer.opt = torch.optim.Adam(model.latents.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
+    trainer.environment_history = [{"step": 0, "universal": weights["model"], "frozen": True}]
+    try:
+        return trainer.run(progress=progress)
+    finally:
+        for p in (*model.decoder.parameters(), *model.sampler.parameters()):
+            p.requires_grad_(True)

@@ -1,0 +1,62 @@
+"""The shipped universal networks: one file per shading model in ``mtlx2neural/universal/weights/``.
+
+A file (``<model>.pt``, torch's format, a few hundred kilobytes) holds a dict:
+
+- ``model``: the shading model (:data:`~mtlx2neural.universal.canonical.SHADING_MODELS` key);
+- ``channels``: ``[[canonical name, width], ...]``, the parameter stack's layout the encoder reads
+  (:func:`~mtlx2neural.universal.canonical.canonical_names`);
+- ``shape``: the :data:`~mtlx2neural.train.shared.SHAPE_FIELDS` of the network's own settings that a
+  material's settings must share to use it (latent channels, frames, decoder, heads);
+- ``encoder``, ``decoder``, ``sampler``: the networks' state dicts (the decoder's holds the
+  environment head);
+- ``provenance``: how it was trained (command, steps, atlas size and seed, seconds, torch version,
+  final losses), so ``python -m mtlx2neural.universal.train`` can reproduce it.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import torch
+
+from mtlx2neural.atomic import atomic_path
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+NETWORK_FIELDS = ("latent_dim", "frames", "decoder", "albedo_head", "analytic_cosine")
+"""Settings that decide the shipped networks' shape (the environment head is also needed: a material's
+settings must fit one, ``environment_fraction`` > 0)."""
+
+
+def weights_path(model: str, folder: Path | None = None) -> Path:
+    return Path(folder or WEIGHTS_DIR) / f"{model}.pt"
+
+
+def save_weights(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        torch.save(data, tmp)
+
+
+@functools.lru_cache(maxsize=8)
+def _load(path: str, mtime: float) -> dict:
+    return torch.load(path, map_location="cpu", weights_only=False)
+
+
+def load_weights(model: str, folder: Path | None = None) -> dict | None:
+    """The shipped network of ``model`` (module docstring), or None when there is none."""
+    path = weights_path(model, folder)
+    if not path.is_file():
+        return None
+    return _load(str(path), path.stat().st_mtime)
+
+
+def shape_mismatch(weights: dict, cfg) -> list[str]:
+    """The settings of ``cfg`` (a TrainConfig) that the shipped network cannot serve: its
+    :data:`NETWORK_FIELDS` that differ, ``encoder_input`` unless raw, and ``environment_fraction`` when the settings fit no head."""
+    out = [f for f in NETWORK_FIELDS if getattr(cfg, f) != weights["shape"][f]]
+    if cfg.encoder_input != "raw":  # the shipped encoder reads the stack's raw channels
+        out.append("encoder_input")
+    if cfg.environment_steps <= 0:
+        out.append("environment_fraction")
+    return out

@@ -1,0 +1,67 @@
+"""A shading model's canonical form (mtlx2neural.universal.canonical): the same BRDF, one program for every
+material of the model, and a clear reason for a material it does not cover."""
+
+from __future__ import annotations
+
+import MaterialX as mx
+import pytest
+import torch
+from conftest import random_dirs, shared_path
+
+from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.graph.compile import compile_material
+from mtlx2neural.reference.material import ReferenceMaterial
+from mtlx2neural.universal.canonical import canonical_document, canonical_names, eligibility
+
+EXAMPLES = ("default", "gold", "carpaint", "plastic")
+
+
+def _read(path) -> mx.Document:
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(path))
+    return doc
+
+
+def _example(name):
+    return _read(shared_path("materialx", "resources", "Materials", "Examples", "UsdPreviewSurface",
+                             f"usd_preview_surface_{name}.mtlx"))
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_the_canonical_form_keeps_the_brdf(name):
+    doc = _example(name)
+    material = doc.getMaterialNodes()[0].getName()
+    original = ReferenceMaterial(compile_material(doc, material))
+    canonical = ReferenceMaterial(compile_material(canonical_document(doc, material), material))
+    wi, wo = random_dirs(512, 1), random_dirs(512, 2)
+    uv = torch.rand(512, 2, generator=torch.Generator().manual_seed(3))
+    a, b = original.eval(wi, wo, ShadingPoint(uv=uv)), canonical.eval(wi, wo, ShadingPoint(uv=uv))
+    # the rewrite adds 0 to each input: the same arithmetic up to float32 rounding of the unfolded program
+    assert torch.allclose(a, b, rtol=1e-5, atol=1e-7)
+
+
+def test_every_material_of_the_model_compiles_to_one_layout():
+    layouts = set()
+    for name in EXAMPLES:
+        doc = _example(name)
+        material = doc.getMaterialNodes()[0].getName()
+        plain = compile_material(doc, material)
+        compiled = compile_material(canonical_document(doc, material), material)
+        layouts.add(tuple(canonical_names(k for k, _, _ in compiled.varying_parameters())))
+        # the originals differ: metal-only gold and coated car paint fold to other leaves
+        assert len(plain.program.leaves()) <= len(compiled.program.leaves())
+    assert len(layouts) == 1
+    assert {"coat_dielectric_bsdf.roughness", "metalness_workflow_bsdf.mix", "diffuse_bsdf.color"} <= set(*layouts)
+
+
+def test_a_material_it_does_not_cover_is_named_with_the_reason():
+    ss = _read(shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
+                           "standard_surface_default.mtlx"))
+    elig = eligibility(ss)
+    assert elig.model is None and "standard_surface" in elig.reason and "UsdPreviewSurface" in elig.reason
+    with pytest.raises(ValueError, match="standard_surface"):
+        canonical_document(ss)
+    assert "transparent" in eligibility(_example("glass")).reason  # transmission: another program
+    doc = _example("plastic")
+    doc.getNodes("UsdPreviewSurface")[0].setInputValue("useSpecularWorkflow", 1)
+    assert "useSpecularWorkflow" in eligibility(doc).reason
