@@ -37,6 +37,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("textures",),
     ("model",),
     ("train",),
+    ("universal",),  # shading models' universal networks: trained like a material, fitted into by the pipeline
     ("render", "oracle", "verify"),
     ("codegen",),
     ("baseline",),

@@ -354,7 +354,7 @@ def _convert(asset, options: ConvertOptions) -> Summaries:
                            options.texel_density, stage if stage is not None else scene.asset,
                            failures=None if options.strict else failures, strict=options.strict,
                            application=application_of(options), encoder=options.encoder,
-                           universal_steps=options.universal_steps)
+                           universal_steps=options.universal_steps, universal_tune=options.universal_tune)
     if failures:  # the others convert; a failed material keeps its original network only
         if not plans:
             raise _nothing_convertible(scene.asset, failures)

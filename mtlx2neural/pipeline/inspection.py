@@ -25,7 +25,7 @@ from mtlx2neural.train.udim import training_tiles
 
 def inspect_asset(path, material: str | InspectOptions | None = None, allow_missing_textures: bool = False,
                   cfg=None, texel_density: float | None = None, encoder: str = "material",
-                  universal_steps: int = 200) -> dict:
+                  universal_steps: int = 200, universal_tune: str = "networks") -> dict:
     """JSON-friendly report of ``path`` (a .mtlx file or USD stage).
 
     ``inspect_asset(path, options)`` takes an :class:`~mtlx2neural.pipeline.options.InspectOptions`
@@ -48,7 +48,7 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
         options = material
         material, allow_missing_textures = options.material, options.allow_missing_textures
         cfg, texel_density = options.train_config(), options.texel_density
-        encoder, universal_steps = options.encoder, options.universal_steps
+        encoder, universal_steps, universal_tune = options.encoder, options.universal_steps, options.universal_tune
     cfg = cfg or preset("fast")
     scene = load_asset(path)
     report = {"asset": str(scene.asset), "materials": [], "skipped": [
@@ -56,7 +56,8 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
     sources = [src for src in scene.materials
                if not material or material in (src.name, src.name.rsplit("/", 1)[-1], src.material)]
     for plan in plan_materials(sources, cfg, allow_missing_textures, texel_density=texel_density,
-                               asset=scene.asset, encoder=encoder, universal_steps=universal_steps):
+                               asset=scene.asset, encoder=encoder, universal_steps=universal_steps,
+                               universal_tune=universal_tune):
         src = plan.source
         info = _measured_info(src) if plan.compiled is None else plan.compiled.describe()
         info["material"] = src.name

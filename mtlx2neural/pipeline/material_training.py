@@ -178,15 +178,17 @@ def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, res
                    application, progress, encoder: dict):
     """The universal path of :func:`train_material`: (model, record), or None (with ``encoder["fallback"]``
     set to the note) when the material's canonical stack is not the shipped network's layout."""
-    from mtlx2neural.universal.fit import LayoutMismatch, fit_universal
-    from mtlx2neural.universal.weights import load_weights
+    from mtlx2neural.universal.fit import LayoutMismatch, fit_universal  # Local: the universal path only
+    from mtlx2neural.universal.weights import load_weights  # Local: the universal path only
 
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application,
                              canonical=True)
     if progress:
-        print(f"{src.name}: universal {encoder['model']} network, {encoder['steps']} latent steps", flush=True)
+        print(f"{src.name}: universal {encoder['model']} network, {encoder['steps']} fine-tune steps "
+              f"({encoder['tune']})", flush=True)
     try:
-        model = fit_universal(setup.trainer, load_weights(encoder["model"]), encoder["steps"], progress)
+        model = fit_universal(setup.trainer, load_weights(encoder["model"]), encoder["steps"], progress,
+                              encoder["tune"])
     except LayoutMismatch as exc:
         encoder["fallback"] = f"universal {encoder['model']} network not used ({exc}): trained its own"
         return None
@@ -216,7 +218,7 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
     else:
         document = src.document
         if canonical:
-            from mtlx2neural.universal.canonical import canonical_document
+            from mtlx2neural.universal.canonical import canonical_document  # Local: the universal path only
 
             document = canonical_document(document, src.material)
         compiled = compile_material(document, src.material, device=device,

@@ -22,6 +22,7 @@ from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
 
 NETWORKS = ("material", "scene")
 ENCODERS = ("material", "universal")  # mtlx2neural.universal.choice.ENCODERS (not imported: --help stays light)
+TUNES = ("networks", "latents")  # mtlx2neural.universal.fit.TUNES
 
 
 def _preset_config(preset: str, train: TrainConfig | None) -> TrainConfig:
@@ -64,11 +65,15 @@ class ConvertOptions:
     encoder: str = field(default="material", metadata={"choices": ENCODERS})
     """material: each material trains its own encoder and networks. universal: a material whose surface
     shader is a UsdPreviewSurface (metallic workflow) with texture-driven inputs encodes its parameter
-    pyramid with the network shipped for that model and fine-tunes its latents alone
-    (--universal-steps), in seconds; the others train their own, and ``inspect`` says which path each
+    pyramid with the network shipped for that model, then fine-tunes for --universal-steps (about 5x
+    less time than its own training); the others train their own, and ``inspect`` says which path each
     material takes and why. Not with --network scene or --max-error."""
     universal_steps: int = field(default=200, metadata={"metavar": "N"})
-    """Latent fine-tune steps of a material on the universal path (--encoder universal)."""
+    """Fine-tune steps of a material on the universal path (--encoder universal)."""
+    universal_tune: str = field(default="networks", metadata={"choices": TUNES})
+    """What the universal path's fine-tune trains: networks (the latents, decoder and sampler: the material
+    ships its own copy, fitted to it) or latents (the latents alone: every such material shares the
+    shipped decoder and sampler byte for byte, at a higher error)."""
     max_error: float | None = field(default=None, metadata={"metavar": "F"})
     """HDR FLIP budget: per material, the smallest decoder of 2x16, 2x32, 3x64 that meets it (the
     preset's decoder is then ignored; conflicts with ``--decoder``); when even 3x64 misses, the best
@@ -139,7 +144,9 @@ class InspectOptions:
     """The path each material is shown to take (``mtlx2neural ASSET --encoder``): its own network, or
     the universal network of its shading model when it qualifies (and why not when it does not)."""
     universal_steps: int = field(default=200, metadata={"metavar": "N"})
-    """Latent fine-tune steps shown for (and hashed with) the universal path."""
+    """Fine-tune steps shown for (and hashed with) the universal path."""
+    universal_tune: str = field(default="networks", metadata={"choices": TUNES})
+    """The universal path's fine-tune shown for (and hashed with) it: networks or latents."""
     train: TrainConfig | None = None
     """Training settings; None (the default): the preset's. On the command line each of its fields
     is a flag that overrides the preset's value."""
@@ -197,6 +204,8 @@ def _check_encoder(options) -> None:
     steps = options.universal_steps
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise InputError(f"--universal-steps {steps!r}: must be a whole number of at least 1")
+    if options.universal_tune not in TUNES:
+        raise InputError(f"--universal-tune {options.universal_tune!r}: choose one of {', '.join(TUNES)}")
     if options.encoder == "universal":
         clash = [flag for flag, given in (("--network scene", getattr(options, "network", "") == "scene"),
                                           ("--max-error", getattr(options, "max_error", None) is not None)) if given]

@@ -247,7 +247,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
                    max_error: float | None = None, texel_density: float | None = None,
                    asset=None, failures: list[MaterialFailure] | None = None,
                    strict: bool = False, application: Application | None = None, encoder: str = "material",
-                   universal_steps: int = 200) -> list[MaterialPlan]:
+                   universal_steps: int = 200, universal_tune: str = "networks") -> list[MaterialPlan]:
     """Compile each of ``sources`` and decide its grid, settings, cache key and sharing (module docstring).
 
     ``texel_density``: latent texels per metre of surface (``--texel-density``); the
@@ -261,8 +261,8 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
     (:func:`mtlx2neural.graph.compile.compile_material`).
     ``application``: the instant ``time``/``frame`` nodes fold to (None: frame 1 at 24 fps); a
     material that reads them gets a note, and the instant joins its hashes.
-    ``encoder`` / ``universal_steps``: ``--encoder`` and ``--universal-steps``; a material on the universal
-    path has its choice (weights and steps) in its hashes.
+    ``encoder`` / ``universal_steps`` / ``universal_tune``: ``--encoder``, ``--universal-steps`` and
+    ``--universal-tune``; a material on the universal path has its choice (weights, steps, tune) in its hashes.
     """
     plans, first = [], {}
     stage, no_stage = _density_stage(texel_density, asset)
@@ -297,7 +297,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
                     implied = texels_per_uv(texel_density, surface.metres_per_uv)
         grid, native, kind = grid_decision(compiled, cfg, implied)
         eff = dataclasses.replace(cfg, max_resolution=implied) if kind == "density" else cfg
-        choice = choose_encoder(encoder, src.document, src.material, compiled, eff, universal_steps)
+        choice = choose_encoder(encoder, src.document, src.material, compiled, eff, universal_steps, universal_tune)
         geo += choice.tag
         content = content_hash(compiled, eff, allow_missing_textures,
                                f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}{geo}")

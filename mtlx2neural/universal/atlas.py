@@ -71,21 +71,29 @@ def input_texture(name: str, size: int, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
+def _write_exr(path: Path, img: np.ndarray) -> None:
+    import OpenImageIO as oiio  # Local: OpenImageIO only where the atlas is written
+
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], "float")):
+        raise OSError(f"{path}: cannot write ({oiio.geterror()})")
+    try:
+        out.write_image(np.ascontiguousarray(img, np.float32))
+    finally:
+        out.close()
+
+
 def write_atlas(folder, model: str = "UsdPreviewSurface", size: int = 512, seed: int = 0) -> Path:
     """Write the atlas of ``model`` into ``folder`` (one EXR per varying input and ``atlas.mtlx``, whose
     material is :data:`ATLAS_MATERIAL`); returns the document's path. Seeded: the same arguments write
     the same files."""
-    from mtlx2neural.report.views import (
-        write_exr,  # OpenImageIO only where the atlas is written
-    )
-
     spec = SHADING_MODELS[model]
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     nodes = []
     for name in spec.varying:
-        write_exr(folder / f"{name}.exr", input_texture(name, size, rng))
+        _write_exr(folder / f"{name}.exr", input_texture(name, size, rng))
         mx_type = "vector3" if name == "normal" else "color3" if name.endswith("Color") else "float"
         nodes.append((name, mx_type))
     images = "\n".join(

@@ -27,6 +27,8 @@ class EncoderChoice:
     path: str
     model: str | None = None
     steps: int = 0
+    tune: str = "networks"
+    """What the fine-tune trains besides the latents (:data:`~mtlx2neural.universal.fit.TUNES`)."""
     weights_sha: str | None = None
     reason: str = ""
 
@@ -38,16 +40,18 @@ class EncoderChoice:
     def text(self) -> str:
         if self.universal:
             return (f"universal {self.model} network (weights {self.weights_sha[:12]}): encode the parameter "
-                    f"pyramid, fine-tune the latents for {self.steps} steps")
+                    f"pyramid, fine-tune {'the latents and networks' if self.tune == 'networks' else 'the latents alone'} "
+                    f"for {self.steps} steps")
         return "own network (per-material training)" + (f": {self.reason}" if self.reason else "")
 
     @property
     def tag(self) -> str:
         """What joins the material's cache key: the path, and for a universal one the weights and steps."""
-        return f"\0encoder={self.path}|{self.model}|{self.weights_sha}|{self.steps}" if self.universal else ""
+        return f"\0encoder={self.path}|{self.model}|{self.weights_sha}|{self.steps}|{self.tune}" if self.universal else ""
 
     def record(self) -> dict:
-        return {"path": self.path, "model": self.model, "steps": self.steps, "weights_sha256": self.weights_sha,
+        return {"path": self.path, "model": self.model, "steps": self.steps, "tune": self.tune,
+                "weights_sha256": self.weights_sha,
                 "text": self.text}
 
 
@@ -60,15 +64,16 @@ def _digest(weights: dict) -> str:
     return h.hexdigest()
 
 
-def choose_encoder(asked: str, document, material: str | None, compiled, cfg, steps: int) -> EncoderChoice:
+def choose_encoder(asked: str, document, material: str | None, compiled, cfg, steps: int,
+                   tune: str = "networks") -> EncoderChoice:
     """The path of one material (module docstring); ``compiled`` its CompiledMaterial (None for a measured
-    table), ``cfg`` its TrainConfig, ``steps`` the universal path's latent steps."""
+    table), ``cfg`` its TrainConfig, ``steps`` and ``tune`` the universal path's fine-tune."""
     if asked != "universal":
         return EncoderChoice("material")
     if compiled is None:
         return EncoderChoice("material", reason="a measured BRDF has no shading model")
-    from mtlx2neural.universal.canonical import eligibility
-    from mtlx2neural.universal.weights import load_weights, shape_mismatch
+    from mtlx2neural.universal.canonical import eligibility  # Local: plans without --encoder universal skip it
+    from mtlx2neural.universal.weights import load_weights, shape_mismatch  # Local: torch.load of the weights
 
     elig = eligibility(document, material)
     if elig.model is None:
@@ -82,4 +87,4 @@ def choose_encoder(asked: str, document, material: str | None, compiled, cfg, st
     if differ:
         return EncoderChoice("material", reason=f"the settings' network differs from the shipped universal "
                                                 f"{elig.model} network's in {', '.join(differ)}")
-    return EncoderChoice("universal", elig.model, steps, _digest(weights))
+    return EncoderChoice("universal", elig.model, steps, tune, _digest(weights))

@@ -1,18 +1,23 @@
-"""Convert a material with its shading model's universal network: encode, then fine-tune the latents.
+"""Convert a material with its shading model's universal network: encode, then fine-tune briefly.
 
 :func:`fit_universal` takes a :class:`~mtlx2neural.train.trainer.Trainer` built for the material's
 canonical form (:mod:`.canonical`: its stack then has the layout the shipped encoder reads) and:
 
 1. loads the shipped encoder, decoder (with its environment head) and sampler (:mod:`.weights`);
 2. bakes: the encoder runs over every texel of every level of the material's parameter pyramid;
-3. fine-tunes the latents alone for ``steps`` steps (the networks frozen) on the material's own
-   training rows, Adam with a cosine decay from :data:`LR_START` to the settings' ``lr_end``; a
-   block-compressed ``latent_format`` reads them through its codec in the last ``block_fraction``;
-4. finishes as a training run does (a cut-out's empty texels, the codec), without an environment fit:
-   the shipped head serves every material.
+3. fine-tunes for ``steps`` steps on the material's own training rows, Adam with a cosine decay from
+   :data:`LR_START` to the settings' ``lr_end`` (a block-compressed ``latent_format`` reads the latents
+   through its codec in the last ``block_fraction``), with ``tune`` (:data:`TUNES`):
 
-The model that results has the shipped networks byte for byte, so every material converted this way
-shares one decoder and one sampler (what ``--network scene`` trains per scene).
+   - ``networks``: the latents, the decoder and the sampler. The material gets its own copy of the
+     networks, fitted to it: measured on the scene sample's leaf (``fast``, 200 steps), HDR FLIP 0.040
+     where its own 1000-step training reaches 0.071 (BENCHMARKS.md, "Whole scenes");
+   - ``latents``: the latents alone, the networks frozen, so the shipped decoder and sampler stay byte
+     for byte and every material converted so shares them; the same leaf then scores 0.168 (the
+     universal decoder alone does not resolve it);
+4. finishes as a training run does (a cut-out's empty texels, the codec). With ``networks`` the
+   environment head is fitted again (``environment_fraction`` of the fine-tune's steps: the sampler's
+   lobes moved); with ``latents`` the shipped head serves.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
 LR_START = 5e-3
 """The latents' learning rate at the fine-tune's first step (the codes start close: a large first step
 moves them to the material's own targets within the few steps the fine-tune has)."""
+TUNES = ("networks", "latents")
 DEFAULT_STEPS = 200
 """Steps of the latent fine-tune (``fast``: a fifth of its 1000 steps, at a few tens of ms each)."""
 
@@ -74,10 +80,12 @@ class Columns:
         return raw[:, self.index.to(raw.device)]
 
 
-def fit_universal(trainer, weights: dict, steps: int = DEFAULT_STEPS, progress: bool = True):
+def fit_universal(trainer, weights: dict, steps: int = DEFAULT_STEPS, progress: bool = True, tune: str = "networks"):
     """Steps 1-4 of the module docstring on ``trainer`` (its ``cfg`` is replaced by the fine-tune's: ``steps``
     iterations, no encoder phase, the mollification at its floor throughout, as the shipped decoder
     ended its training). Saves the checkpoint and returns the model."""
+    if tune not in TUNES:
+        raise ValueError(f"tune {tune!r}: choose one of {TUNES}")
     columns = Columns(encoder_columns(trainer.stack, weights))
     model = trainer.model
     if trainer.cfg.encoder_input != "raw":
@@ -93,8 +101,14 @@ def fit_universal(trainer, weights: dict, steps: int = DEFAULT_STEPS, progress: 
     trainer.bake()
     for p in (*model.decoder.parameters(), *model.sampler.parameters()):
         p.requires_grad_(False)
-    trainer.opt = torch.optim.Adam(model.latents.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
-    trainer.environment_history = [{"step": 0, "universal": weights["model"], "frozen": True}]
+    if tune == "networks":
+        for p in (*model.decoder.parameters(), *model.sampler.parameters()):
+            p.requires_grad_(True)
+    tuned = [p for p in model.parameters() if p.requires_grad]
+    trainer.opt = torch.optim.Adam(tuned, lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
+    # The shipped environment head serves frozen networks; a tuned sampler has other lobes: fit it again.
+    trainer.environment_history = [] if tune == "networks" else [
+        {"step": 0, "universal": weights["model"], "frozen": True}]
     try:
         return trainer.run(progress=progress)
     finally:

@@ -11,7 +11,11 @@ from conftest import random_dirs, shared_path
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.graph.compile import compile_material
 from mtlx2neural.reference.material import ReferenceMaterial
-from mtlx2neural.universal.canonical import canonical_document, canonical_names, eligibility
+from mtlx2neural.universal.canonical import (
+    canonical_document,
+    canonical_names,
+    eligibility,
+)
 
 EXAMPLES = ("default", "gold", "carpaint", "plastic")
 
