@@ -178,8 +178,11 @@ def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, res
                    application, progress, encoder: dict):
     """The universal path of :func:`train_material`: (model, record), or None (with ``encoder["fallback"]``
     set to the note) when the material's canonical stack is not the shipped network's layout."""
-    from mtlx2neural.universal.fit import LayoutMismatch, fit_universal  # Local: the universal path only
-    from mtlx2neural.universal.weights import load_weights  # Local: the universal path only
+    from mtlx2neural.universal.fit import (  # Local: universal path
+        LayoutMismatch,
+        fit_universal,
+    )
+    from mtlx2neural.universal.weights import load_weights  # Local: universal path
 
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application,
                              canonical=True)
@@ -218,7 +221,9 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
     else:
         document = src.document
         if canonical:
-            from mtlx2neural.universal.canonical import canonical_document  # Local: the universal path only
+            from mtlx2neural.universal.canonical import (
+                canonical_document,  # Local: universal path
+            )
 
             document = canonical_document(document, src.material)
         compiled = compile_material(document, src.material, device=device,

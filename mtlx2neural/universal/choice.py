@@ -72,8 +72,11 @@ def choose_encoder(asked: str, document, material: str | None, compiled, cfg, st
         return EncoderChoice("material")
     if compiled is None:
         return EncoderChoice("material", reason="a measured BRDF has no shading model")
-    from mtlx2neural.universal.canonical import eligibility  # Local: plans without --encoder universal skip it
-    from mtlx2neural.universal.weights import load_weights, shape_mismatch  # Local: torch.load of the weights
+    from mtlx2neural.universal.canonical import eligibility  # Local: only when asked
+    from mtlx2neural.universal.weights import (  # Local: only when asked
+        load_weights,
+        shape_mismatch,
+    )
 
     elig = eligibility(document, material)
     if elig.model is None:

@@ -46,9 +46,11 @@ ENVIRONMENT_FRACTION = 0.1  # of the steps: the environment head fitted last (fa
 
 def atlas_material(folder: Path, model: str, size: int, seed: int):
     """(compiled canonical atlas, its reference, its parameter stack), the atlas written into ``folder``."""
-    from mtlx2neural.graph.compile import compile_material  # Local: --help answers without torch
-    from mtlx2neural.reference.material import ReferenceMaterial  # Local: as above
-    from mtlx2neural.textures.parameter_stack import build_parameter_stack  # Local: as above
+    from mtlx2neural.graph.compile import compile_material  # Local: fast --help
+    from mtlx2neural.reference.material import ReferenceMaterial  # Local: fast --help
+    from mtlx2neural.textures.parameter_stack import (
+        build_parameter_stack,  # Local: fast --help
+    )
 
     doc = mx.createDocument()
     mx.readFromXmlFile(doc, str(write_atlas(folder, model, size, seed)))
@@ -69,8 +71,8 @@ def folded_constants(stack) -> dict:
 def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS, size: int = DEFAULT_SIZE,
                     seed: int = 0, lr: float = DEFAULT_LR, workdir: Path | None = None, progress: bool = True) -> dict:
     """Steps 1-3 of the module docstring; returns the weights' dict (:mod:`.weights`)."""
-    from mtlx2neural.train.config import PRESETS  # Local: --help answers without torch
-    from mtlx2neural.train.trainer import Trainer  # Local: as above
+    from mtlx2neural.train.config import PRESETS  # Local: fast --help
+    from mtlx2neural.train.trainer import Trainer  # Local: fast --help
 
     t0 = time.time()
     with tempfile.TemporaryDirectory(prefix="m2n_atlas_") as tmp:
