@@ -72,6 +72,9 @@ from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.trainer import Trainer
 from mtlx2neural.train.udim import build_training_stack, draw_uv, is_udim_stack
+from mtlx2neural.universal.canonical import canonical_document
+from mtlx2neural.universal.fit import LayoutMismatch, fit_universal
+from mtlx2neural.universal.weights import load_weights
 from mtlx2neural.verify.energy import energy_check
 
 
@@ -178,12 +181,6 @@ def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, res
                    application, progress, encoder: dict):
     """The universal path of :func:`train_material`: (model, record), or None (with ``encoder["fallback"]``
     set to the note) when the material's canonical stack is not the shipped network's layout."""
-    from mtlx2neural.universal.fit import (  # Local: universal path
-        LayoutMismatch,
-        fit_universal,
-    )
-    from mtlx2neural.universal.weights import load_weights  # Local: universal path
-
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application,
                              canonical=True)
     if progress:
@@ -221,10 +218,6 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
     else:
         document = src.document
         if canonical:
-            from mtlx2neural.universal.canonical import (
-                canonical_document,  # Local: universal path
-            )
-
             document = canonical_document(document, src.material)
         compiled = compile_material(document, src.material, device=device,
                                     allow_missing_textures=allow_missing_textures, application=application)
