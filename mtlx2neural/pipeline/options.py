@@ -65,8 +65,8 @@ class ConvertOptions:
     encoder: str = field(default="material", metadata={"choices": ENCODERS})
     """material: each material trains its own encoder and networks. universal: a material whose surface
     shader is a UsdPreviewSurface (metallic workflow) with texture-driven inputs encodes its parameter
-    pyramid with the network shipped for that model, then fine-tunes for --universal-steps (about 5x
-    less time than its own training); the others train their own, and ``inspect`` says which path each
+    pyramid with the network shipped for that model, then fine-tunes for --universal-steps (measured:
+    2.2-2.4x less training time than its own); the others train their own, and ``inspect`` says which path each
     material takes and why. Not with --network scene or --max-error."""
     universal_steps: int = field(default=200, metadata={"metavar": "N"})
     """Fine-tune steps of a material on the universal path (--encoder universal)."""

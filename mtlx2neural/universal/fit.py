@@ -10,11 +10,12 @@ canonical form (:mod:`.canonical`: its stack then has the layout the shipped enc
    through its codec in the last ``block_fraction``), with ``tune`` (:data:`TUNES`):
 
    - ``networks``: the latents, the decoder and the sampler. The material gets its own copy of the
-     networks, fitted to it: measured on the scene sample's leaf (``fast``, 200 steps), HDR FLIP 0.040
-     where its own 1000-step training reaches 0.071 (BENCHMARKS.md, "Whole scenes");
+     networks, fitted to it: measured on the scene sample (``fast``, 200 steps), HDR FLIP 0.040 on the
+     leaf where its own 1000-step training reaches 0.071, 0.028 on the lava against 0.020 (BENCHMARKS.md,
+     "Whole scenes");
    - ``latents``: the latents alone, the networks frozen, so the shipped decoder and sampler stay byte
-     for byte and every material converted so shares them; the same leaf then scores 0.168 (the
-     universal decoder alone does not resolve it);
+     for byte and every material converted so shares them; the leaf then scores 0.168, the lava 0.110
+     (the universal decoder alone does not resolve them);
 4. finishes as a training run does (a cut-out's empty texels, the codec). With ``networks`` the
    environment head is fitted again (``environment_fraction`` of the fine-tune's steps: the sampler's
    lobes moved); with ``latents`` the shipped head serves.
@@ -35,7 +36,8 @@ LR_START = 5e-3
 moves them to the material's own targets within the few steps the fine-tune has)."""
 TUNES = ("networks", "latents")
 DEFAULT_STEPS = 200
-"""Steps of the latent fine-tune (``fast``: a fifth of its 1000 steps, at a few tens of ms each)."""
+"""Steps of the fine-tune (``fast`` trains 1000; a fine-tune step costs about 2x one of them, the canonical
+program evaluating every lobe: 20 s against 45-48 s of training on 2 cores, BENCHMARKS.md)."""
 
 
 class LayoutMismatch(ValueError):
