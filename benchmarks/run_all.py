@@ -34,6 +34,7 @@ BENCHMARKS = {
     "mitsuba": ("bench_mitsuba.py", [], {}),  # needs the mitsuba extra and libLLVM >= 16
     "coat_peak": ("bench_coat_peak.py", [], {}),  # reads MaterialX's car paint from ../shared
     "scene_network": ("bench_scene_network.py", ["samples/scene/glow_and_leaves.usda"], {}),
+    "universal": ("bench_universal.py", ["samples/scene/glow_and_leaves.usda"], {}),
 }
 
 
