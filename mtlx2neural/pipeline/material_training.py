@@ -163,6 +163,9 @@ class MaterialSetup:
     trainer: Trainer
     preview: bool
     t0: float
+    view_ref: object = None
+    """The reference the views and the in-scene render draw (None: ``ref``): on the universal path the original
+    program's, the same BRDF as the canonical ``ref`` without its zero-weight lobes (about half the render time)."""
 
     @property
     def tiles(self) -> list[int] | None:
@@ -183,6 +186,13 @@ def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, res
     set to the note) when the material's canonical stack is not the shipped network's layout."""
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application,
                              canonical=True)
+    original = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures, application=application)
+    bind_geometry(original, getattr(src, "stage_file", None), src.bound_prims)
+    geometry = (original.evaluator.geometry, setup.compiled.evaluator.geometry)
+    if None not in geometry:  # the meshes drawn at the stack's grid, as the canonical program reads them
+        geometry[0].resolution = geometry[1].resolution
+    setup.view_ref = ReferenceMaterial(original)
     if progress:
         print(f"{src.name}: universal {encoder['model']} network, {encoder['steps']} fine-tune steps "
               f"({encoder['tune']})", flush=True)
@@ -247,9 +257,10 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         models["analytic"] = analytic
     # three directional views and one under the sky (render.summary_views); a UDIM material's once per
     # trained tile, the sphere's uv shifted into it
-    renders = summary_views(ref, models, tuple(stack.resolution), tiles)
+    view_ref = setup.view_ref or ref
+    renders = summary_views(view_ref, models, tuple(stack.resolution), tiles)
     errors, preview_errors = renders["neural"], renders.get("analytic")
-    in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
+    in_scene = measure_in_scene(view_ref, {"neural": model, **({"analytic": analytic} if preview else {})},
                                 tuple(stack.resolution), src, folder)
     for i, e in enumerate(errors):
         name = f"tile{e['tile']}_view{i % views_per_tile()}" if tiles else f"view{i}"
