@@ -130,9 +130,9 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     if encoder is not None:
         done = _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, resolution, extra, preview,
                               application, progress, encoder)
-        if done is not None:
+        if not isinstance(done, str):
             return done
-        extra = {**(extra or {}), "notes": [*(extra or {}).get("notes", []), encoder["fallback"]]}
+        extra = {**(extra or {}), "notes": [*(extra or {}).get("notes", []), done]}
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application)
     if resume:
         setup.trainer.resume()
@@ -182,17 +182,10 @@ class MaterialSetup:
 
 def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, resolution, extra, preview,
                    application, progress, encoder: dict):
-    """The universal path of :func:`train_material`: (model, record), or None (with ``encoder["fallback"]``
-    set to the note) when the material's canonical stack is not the shipped network's layout."""
+    """The universal path of :func:`train_material`: (model, record), or the note saying why not when the
+    material's canonical stack is not the shipped network's layout."""
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution, preview, application,
                              canonical=True)
-    original = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures, application=application)
-    bind_geometry(original, getattr(src, "stage_file", None), src.bound_prims)
-    geometry = (original.evaluator.geometry, setup.compiled.evaluator.geometry)
-    if None not in geometry:  # the meshes drawn at the stack's grid, as the canonical program reads them
-        geometry[0].resolution = geometry[1].resolution
-    setup.view_ref = ReferenceMaterial(original)
     if progress:
         print(f"{src.name}: universal {encoder['model']} network, {encoder['steps']} fine-tune steps "
               f"({encoder['tune']})", flush=True)
@@ -200,10 +193,17 @@ def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, res
         model = fit_universal(setup.trainer, load_weights(encoder["model"]), encoder["steps"], progress,
                               encoder["tune"])
     except LayoutMismatch as exc:
-        encoder["fallback"] = f"universal {encoder['model']} network not used ({exc}): trained its own"
-        return None
-    record_extra = {**(extra or {}), "encoder": {k: v for k, v in encoder.items() if k != "fallback"}}
-    return model, finish_material(setup, model, digest, record_extra)
+        return f"universal {encoder['model']} network not used ({exc}): trained its own"
+    # The views and the in-scene render draw the original program: the same BRDF without the canonical
+    # form's zero-weight lobes, about half the render time.
+    original = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures, application=application)
+    bind_geometry(original, getattr(src, "stage_file", None), src.bound_prims)
+    geometry = (original.evaluator.geometry, setup.compiled.evaluator.geometry)
+    if None not in geometry:  # the meshes drawn at the stack's grid, as the canonical program reads them
+        geometry[0].resolution = geometry[1].resolution
+    setup.view_ref = ReferenceMaterial(original)
+    return model, finish_material(setup, model, digest, {**(extra or {}), "encoder": encoder})
 
 
 def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,

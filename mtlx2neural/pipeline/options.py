@@ -19,10 +19,9 @@ from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
+from mtlx2neural.universal.choice import ENCODERS, TUNES
 
 NETWORKS = ("material", "scene")
-ENCODERS = ("material", "universal")  # mtlx2neural.universal.choice.ENCODERS (not imported: --help stays light)
-TUNES = ("networks", "latents")  # mtlx2neural.universal.fit.TUNES
 
 
 def _preset_config(preset: str, train: TrainConfig | None) -> TrainConfig:

@@ -282,7 +282,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
             continue
         surface = implied = None
         notes = []
-        geo = geometry_tag(compiled) + application_tag(compiled) + udim_tag(compiled, src)
+        tags = geometry_tag(compiled) + application_tag(compiled) + udim_tag(compiled, src)
         if compiled.reads_application:
             notes.append(application_note(src.name, compiled.reads_application, compiled.application))
         if texel_density and compiled.varying_parameters():
@@ -298,12 +298,12 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         grid, native, kind = grid_decision(compiled, cfg, implied)
         eff = dataclasses.replace(cfg, max_resolution=implied) if kind == "density" else cfg
         choice = choose_encoder(encoder, src.document, src.material, compiled, eff, universal_steps, universal_tune)
-        geo += choice.tag
+        tags += choice.tag
         content = content_hash(compiled, eff, allow_missing_textures,
-                               f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}{geo}")
+                               f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}{tags}")
         key = cache_key(src, eff, allow_missing_textures, max_error)
-        if geo:
-            key = hashlib.sha256(f"{key}{geo}".encode()).hexdigest()
+        if tags:
+            key = hashlib.sha256(f"{key}{tags}".encode()).hexdigest()
         plan = MaterialPlan(src, compiled, key, content,
                             grid, native, kind, shared_with=first.get(content), cfg=eff,
                             max_texels=cfg.max_resolution, texel_density=texel_density, surface=surface,

@@ -13,10 +13,11 @@
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 
 ENCODERS = ("material", "universal")
+TUNES = ("networks", "latents")
+"""What the universal path's fine-tune trains besides the latents (:mod:`mtlx2neural.universal.fit`)."""
 
 
 @dataclass
@@ -28,7 +29,7 @@ class EncoderChoice:
     model: str | None = None
     steps: int = 0
     tune: str = "networks"
-    """What the fine-tune trains besides the latents (:data:`~mtlx2neural.universal.fit.TUNES`)."""
+    """What the fine-tune trains besides the latents (:data:`TUNES`)."""
     weights_sha: str | None = None
     reason: str = ""
 
@@ -53,15 +54,6 @@ class EncoderChoice:
         return {"path": self.path, "model": self.model, "steps": self.steps, "tune": self.tune,
                 "weights_sha256": self.weights_sha,
                 "text": self.text}
-
-
-def _digest(weights: dict) -> str:
-    h = hashlib.sha256(repr(weights["channels"]).encode())
-    for part in ("encoder", "decoder", "sampler"):
-        for k, v in sorted(weights[part].items()):
-            h.update(k.encode())
-            h.update(v.detach().cpu().numpy().tobytes())
-    return h.hexdigest()
 
 
 def choose_encoder(asked: str, document, material: str | None, compiled, cfg, steps: int,
@@ -90,4 +82,4 @@ def choose_encoder(asked: str, document, material: str | None, compiled, cfg, st
     if differ:
         return EncoderChoice("material", reason=f"the settings' network differs from the shipped universal "
                                                 f"{elig.model} network's in {', '.join(differ)}")
-    return EncoderChoice("universal", elig.model, steps, tune, _digest(weights))
+    return EncoderChoice("universal", elig.model, steps, tune, weights["sha256"])

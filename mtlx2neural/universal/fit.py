@@ -30,11 +30,11 @@ import torch
 
 from mtlx2neural.model.networks import Encoder
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
+from mtlx2neural.universal.choice import TUNES
 
 LR_START = 5e-3
 """The latents' learning rate at the fine-tune's first step (the codes start close: a large first step
 moves them to the material's own targets within the few steps the fine-tune has)."""
-TUNES = ("networks", "latents")
 DEFAULT_STEPS = 200
 """Steps of the fine-tune (``fast`` trains 1000; a fine-tune step costs about 2x one of them, the canonical
 program evaluating every lobe: 20 s against 45-48 s of training on 2 cores, BENCHMARKS.md)."""
@@ -88,10 +88,10 @@ def fit_universal(trainer, weights: dict, steps: int = DEFAULT_STEPS, progress: 
     ended its training). Saves the checkpoint and returns the model."""
     if tune not in TUNES:
         raise ValueError(f"tune {tune!r}: choose one of {TUNES}")
-    columns = Columns(encoder_columns(trainer.stack, weights))
-    model = trainer.model
     if trainer.cfg.encoder_input != "raw":
         raise LayoutMismatch(f"the universal network reads raw channels, not --encoder-input {trainer.cfg.encoder_input}")
+    columns = Columns(encoder_columns(trainer.stack, weights))
+    model = trainer.model
     trainer.encoder_input = columns
     model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)
     model.encoder.load_state_dict(weights["encoder"])
@@ -102,10 +102,7 @@ def fit_universal(trainer, weights: dict, steps: int = DEFAULT_STEPS, progress: 
                                       probe_every=0, mollify_degrees=cfg.mollify_min_degrees)
     trainer.bake()
     for p in (*model.decoder.parameters(), *model.sampler.parameters()):
-        p.requires_grad_(False)
-    if tune == "networks":
-        for p in (*model.decoder.parameters(), *model.sampler.parameters()):
-            p.requires_grad_(True)
+        p.requires_grad_(tune == "networks")
     tuned = [p for p in model.parameters() if p.requires_grad]
     trainer.opt = torch.optim.Adam(tuned, lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     # The shipped environment head serves frozen networks; a tuned sampler has other lobes: fit it again.

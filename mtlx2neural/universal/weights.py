@@ -16,6 +16,7 @@ A file (``<model>.pt``, torch's format, a few hundred kilobytes) holds a dict:
 from __future__ import annotations
 
 import functools
+import hashlib
 from pathlib import Path
 
 import torch
@@ -38,13 +39,25 @@ def save_weights(path: Path, data: dict) -> None:
         torch.save(data, tmp)
 
 
+def weights_digest(weights: dict) -> str:
+    """SHA-256 of a network's layout and every tensor of its encoder, decoder and sampler."""
+    h = hashlib.sha256(repr(weights["channels"]).encode())
+    for part in ("encoder", "decoder", "sampler"):
+        for k, v in sorted(weights[part].items()):
+            h.update(k.encode())
+            h.update(v.detach().cpu().numpy().tobytes())
+    return h.hexdigest()
+
+
 @functools.lru_cache(maxsize=8)
 def _load(path: str, mtime: float) -> dict:
-    return torch.load(path, map_location="cpu", weights_only=False)
+    data = torch.load(path, map_location="cpu", weights_only=False)
+    return {**data, "sha256": weights_digest(data)}  # hashed once per file and process
 
 
 def load_weights(model: str, folder: Path | None = None) -> dict | None:
-    """The shipped network of ``model`` (module docstring), or None when there is none."""
+    """The shipped network of ``model`` (module docstring, plus its ``sha256``: :func:`weights_digest`), or
+    None when there is none."""
     path = weights_path(model, folder)
     if not path.is_file():
         return None
