@@ -119,6 +119,9 @@ def export_material(model, record: MaterialRecord, staged: Path, final: Path, pr
             raise Mtlx2NeuralError(f"material {name}: cannot bake its UsdPreviewSurface fallback: {exc}") from exc
         preview = {"textures": {k: final / PREVIEW_FOLDER / p.name for k, p in baked["textures"].items()},
                    "ior": baked["ior"]}
+    elif (record.preview or {}).get("own"):
+        pnotes.append(f"{name}: the input's own UsdPreviewSurface stays its fallback "
+                      f"(the universal surface output as authored)")
     elif record.config.get("preview_iterations") == 0:
         pnotes.append(f"{name}: preview_iterations = 0: the layer has no UsdPreviewSurface fallback for it")
     else:

@@ -97,6 +97,8 @@ class MaterialJob:
     """The universal path's choice (:meth:`~mtlx2neural.universal.choice.EncoderChoice.record`), None: its own training."""
     measured: bool = False
     """A measured BRDF: ``source_file`` is its MERL table and ``document_xml`` is empty."""
+    preview_surface: bool = False
+    """The input's own UsdPreviewSurface is the material's fallback (``MaterialSource.preview_surface``)."""
 
     def source(self):
         """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML (or the MERL file's path)."""
@@ -105,7 +107,7 @@ class MaterialJob:
         doc = mx.createDocument()
         mx.readFromXmlString(doc, self.document_xml)
         return MaterialSource(self.name, doc, self.material, self.source_file, list(self.bound_prims),
-                              stage_file=self.stage_file)
+                              stage_file=self.stage_file, preview_surface=self.preview_surface)
 
 
 def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
@@ -116,6 +118,7 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
                        "" if measured else mx.writeToXmlString(src.document), str(folder), cfg, plan.digest,
                        plan.content, tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
                        stage_file=getattr(src, "stage_file", None), input_hash=input_hash(src), measured=measured,
+                       preview_surface=getattr(src, "preview_surface", False),
                        encoder=plan.encoder.record() if plan.encoder.universal else None, **options)
 
 

@@ -123,10 +123,16 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     HDR FLIP (``preview_flip``, measured on the same renders as the neural model's ``flip_mean``);
     with ``cfg.preview_iterations = 0`` there is none (and no baseline file is left in ``folder``).
 
+    A USD Material whose converted surface is its universal ``outputs:surface`` UsdPreviewSurface
+    (:attr:`~mtlx2neural.scene.materials.MaterialSource.preview_surface`) keeps that shader as its fallback:
+    nothing is fitted, and the record says so (:data:`OWN_PREVIEW`).
+
     ``encoder``: the universal path's choice (:mod:`mtlx2neural.universal.choice`): the material is compiled
     in its model's canonical form and its latents fit into the shipped network (:func:`mtlx2neural.universal.
     fit.fit_universal`); should its stack's layout not be the network's, it trains its own, with a note.
     """
+    if preview and getattr(src, "preview_surface", False):  # the input's own shader is an exact fallback
+        preview, extra = False, {**(extra or {}), **OWN_PREVIEW}
     if encoder is not None:
         done = _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, resolution, extra, preview,
                               application, progress, encoder)
@@ -163,9 +169,6 @@ class MaterialSetup:
     trainer: Trainer
     preview: bool
     t0: float
-    view_ref: object = None
-    """The reference the views and the in-scene render draw (None: ``ref``): on the universal path the original
-    program's, the same BRDF as the canonical ``ref`` without its zero-weight lobes (about half the render time)."""
 
     @property
     def tiles(self) -> list[int] | None:
@@ -194,15 +197,6 @@ def _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, res
                               encoder["tune"])
     except LayoutMismatch as exc:
         return f"universal {encoder['model']} network not used ({exc}): trained its own"
-    # The views and the in-scene render draw the original program: the same BRDF without the canonical
-    # form's zero-weight lobes, about half the render time.
-    original = compile_material(src.document, src.material, device=device,
-                                allow_missing_textures=allow_missing_textures, application=application)
-    bind_geometry(original, getattr(src, "stage_file", None), src.bound_prims)
-    geometry = (original.evaluator.geometry, setup.compiled.evaluator.geometry)
-    if None not in geometry:  # the meshes drawn at the stack's grid, as the canonical program reads them
-        geometry[0].resolution = geometry[1].resolution
-    setup.view_ref = ReferenceMaterial(original)
     return model, finish_material(setup, model, digest, {**(extra or {}), "encoder": encoder})
 
 
@@ -212,7 +206,8 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
     """Compile ``src`` (or read its MERL table), build its training stack and surface maps in ``folder``,
     and make its :class:`Trainer` (:func:`train_material` has the arguments). ``canonical``: compile the
     document's canonical form (:func:`mtlx2neural.universal.canonical.canonical_document`: the same BRDF,
-    every input its shading model's universal encoder reads kept varying)."""
+    every input its shading model's universal encoder reads kept varying) for the stack and the surface maps;
+    the reference is then the original program's (:func:`original_program`)."""
     t0 = time.time()
     folder.mkdir(parents=True, exist_ok=True)
     # An interrupted run must not leave an old record (and its hash) beside a new checkpoint.
@@ -232,13 +227,28 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
         compiled = compile_material(document, src.material, device=device,
                                     allow_missing_textures=allow_missing_textures, application=application)
         geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
-        ref = ReferenceMaterial(compiled)
         stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
                                                   resolution=resolution or latent_resolution(compiled, cfg))
+        ref = ReferenceMaterial(compiled if not canonical else original_program(src, compiled, device,
+                                                                                  allow_missing_textures, application))
         surface = surface_maps(compiled, stack, cfg, src.name, folder)
     trainer = Trainer(ref, stack, cfg, folder, device=device, surface=surface)
     return MaterialSetup(src, cfg, folder, device, compiled, ref, stack, list(stack_notes), geometry_note, surface,
                          trainer, preview, t0)
+
+
+def original_program(src, canonical, device: str, allow_missing_textures: bool, application):
+    """The original document's program, for a material compiled in its canonical form (``canonical``): the
+    same BRDF without the canonical form's zero-weight lobes, so its reference is the one the trainer's
+    targets, the views and the measures evaluate (about half the time per evaluation). Its meshes are drawn
+    at the canonical program's grid, the stack's."""
+    original = compile_material(src.document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures, application=application)
+    bind_geometry(original, getattr(src, "stage_file", None), src.bound_prims)
+    geometry = (original.evaluator.geometry, canonical.evaluator.geometry)
+    if None not in geometry:
+        geometry[0].resolution = geometry[1].resolution
+    return original
 
 
 def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None = None) -> MaterialRecord:
@@ -257,10 +267,9 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         models["analytic"] = analytic
     # three directional views and one under the sky (render.summary_views); a UDIM material's once per
     # trained tile, the sphere's uv shifted into it
-    view_ref = setup.view_ref or ref
-    renders = summary_views(view_ref, models, tuple(stack.resolution), tiles)
+    renders = summary_views(ref, models, tuple(stack.resolution), tiles)
     errors, preview_errors = renders["neural"], renders.get("analytic")
-    in_scene = measure_in_scene(view_ref, {"neural": model, **({"analytic": analytic} if preview else {})},
+    in_scene = measure_in_scene(ref, {"neural": model, **({"analytic": analytic} if preview else {})},
                                 tuple(stack.resolution), src, folder)
     for i, e in enumerate(errors):
         name = f"tile{e['tile']}_view{i % views_per_tile()}" if tiles else f"view{i}"
@@ -392,12 +401,21 @@ def preview_record(errors: list[dict], fit_seconds: float, iterations: int = PRE
                         "fit_seconds": round(fit_seconds, 2)}}
 
 
+OWN_PREVIEW = {"preview_flip": 0.0, "preview": {"model": "the input's own UsdPreviewSurface (exact, not fitted)",
+                                                "own": True, "file": None, "iterations": 0}}
+"""The record's preview fields for a material whose input shader is its own fallback: it is the reference,
+so its HDR FLIP against it is 0 (the layer leaves the Material's ``outputs:surface`` as the input has it)."""
+
+
 def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, resolution, seed: int,
                 record: MaterialRecord, iterations: int = PREVIEW_ITERATIONS,
                 application: Application | None = None) -> MaterialRecord:
     """Fit (``iterations`` steps), save and measure the preview baseline for a material trained without
     it (the chosen decoder of an error budget, :func:`~mtlx2neural.pipeline.budget.train_within_budget`);
-    returns ``record`` with the fit's figures."""
+    returns ``record`` with the fit's figures (with :data:`OWN_PREVIEW`'s and no fit for an input whose own
+    shader is the fallback)."""
+    if getattr(src, "preview_surface", False):
+        return dataclasses.replace(record, **OWN_PREVIEW)
     if getattr(src, "measured", False):
         ref, stack = measured_reference(src, device)
     else:

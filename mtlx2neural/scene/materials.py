@@ -34,6 +34,10 @@ class MaterialSource:
     stage_file: str | None = None
     """Absolute path of the USD stage (its root layer) whose meshes ``bound_prims`` names, for geometry a
     graph reads (:mod:`mtlx2neural.scene.uv_raster`); None for ``.mtlx`` input or an in-memory stage."""
+    preview_surface: bool = False
+    """True when the Material's universal ``outputs:surface`` is a ``UsdPreviewSurface`` shader and is also
+    the surface converted (no other ``outputs:mtlx:surface``): the input's own shader is then an exact
+    UsdPreviewSurface fallback, kept as it is instead of a fitted one."""
     measured: bool = False
     """True for a measured BRDF (a MERL ``.binary`` table at ``source_file``): ``document`` is then None,
     and the material's reference is :class:`mtlx2neural.reference.measured.MeasuredMaterial`."""

@@ -176,4 +176,12 @@ def _from_network(stage: Usd.Stage, mat_path: str, bound: list[str]) -> Material
         source_file=source_file,
         bound_prims=bound,
         network=True,
+        preview_surface=_is_preview_surface(UsdShade.Material(prim)),
     )
+
+
+def _is_preview_surface(material: UsdShade.Material) -> bool:
+    """Whether ``material``'s universal surface output resolves to a ``UsdPreviewSurface`` shader that is
+    also what its ``mtlx`` render context resolves to (:attr:`MaterialSource.preview_surface`)."""
+    universal, mtlx = material.ComputeSurfaceSource()[0], material.ComputeSurfaceSource("mtlx")[0]
+    return bool(universal) and universal.GetPath() == mtlx.GetPath() and universal.GetIdAttr().Get() == "UsdPreviewSurface"

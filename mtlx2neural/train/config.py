@@ -110,7 +110,8 @@ class TrainConfig:
     """Seed of the initial weights and of the training data (0 to 2^63 - 1)."""
     preview_iterations: int = field(default=200, metadata={"metavar": "N"})
     """Adam steps of the analytic Lambert + GGX fit behind the layer's UsdPreviewSurface fallback
-    (fast: 100; 0: no fallback, so no ``NeuralPreview`` shader and no ``previewFlip``)."""
+    (fast: 100; 0: no fallback, so no ``NeuralPreview`` shader and no ``previewFlip``). A USD Material whose
+    surface is its own UsdPreviewSurface keeps that shader as the fallback, with nothing fitted."""
     probe_every: int = 0
     """Steps between quality probes during training (:class:`~mtlx2neural.render.flip_probe.FlipProbe`:
     HDR FLIP of the current model in three small views), written to ``training_curves.csv`` as

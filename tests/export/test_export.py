@@ -389,11 +389,12 @@ def test_original_variant_resolves_every_render_context_as_the_input(converted):
     unchanged.
 
     Structural identity of the Material's terminal outputs is no longer possible: an output the input
-    connects itself (CarPaint's ``outputs:mtlx:surface``, Plastic's ``outputs:surface``) can only be
+    connects itself and the neural variant replaces (CarPaint's ``outputs:mtlx:surface``) can only be
     taken over by an opinion outside the variants, which connects it to ``NeuralSwitch`` in both
     variants (:mod:`mtlx2neural.export.usd_switch`). What renderers read, the resolved network
     (``ComputeSurfaceSource``, which Hydra uses too), is identical; the switch NodeGraph is the only
-    extra prim of the ``original`` variant, and those outputs the only attributes that differ."""
+    extra prim of the ``original`` variant, and those outputs the only attributes that differ. Plastic's
+    ``outputs:surface`` is its own UsdPreviewSurface, kept as its fallback in both variants: not switched."""
     from pxr import Usd, UsdShade
 
     source = Usd.Stage.Open(str(converted["asset"]))
@@ -409,11 +410,10 @@ def test_original_variant_resolves_every_render_context_as_the_input(converted):
         for out in mat.GetOutputs():
             if any(str(c.GetPrimPath()).endswith("/NeuralSwitch") for c in out.GetAttr().GetConnections()):
                 switched.add(out.GetAttr().GetPath())
-    # the input connects these two itself (samples/layered_spheres.usda), so only they are switched
-    assert {str(p) for p in switched} == {"/World/Looks/CarPaint.outputs:mtlx:surface",
-                                          "/World/Looks/Plastic.outputs:surface"}
+    # the input connects this one itself (samples/layered_spheres.usda) and the neural variant replaces it
+    assert {str(p) for p in switched} == {"/World/Looks/CarPaint.outputs:mtlx:surface"}
     extra = {str(p.GetPath()) for p in stage.TraverseAll()} - {str(p.GetPath()) for p in source.TraverseAll()}
-    assert extra == {f"{n}/NeuralSwitch" for n in names}
+    assert extra == {"/World/Looks/CarPaint/NeuralSwitch"}
     for before in source.TraverseAll():
         after = stage.GetPrimAtPath(before.GetPath())
         assert after.GetTypeName() == before.GetTypeName()

@@ -53,9 +53,25 @@ def sample(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sample")
     asset = folder / SAMPLE.name
     shutil.copyfile(SAMPLE, asset)
+    author_preview(asset, "/World/Looks/CarPaint")
     summaries = convert_asset(asset, ConvertOptions(train=TINY, progress=False, device="cpu"))
     return {"asset": asset, "summaries": summaries, "usda": Path(summaries[0].usd),
             "out": folder / "layered_spheres_neural"}
+
+
+def author_preview(asset: Path, material: str) -> None:
+    """Give ``material`` of the stage ``asset`` (a MaterialX network on ``outputs:mtlx:surface``) an authored
+    UsdPreviewSurface on its universal ``outputs:surface``, as pipelines do for viewers without MaterialX:
+    then both its terminal outputs are the input's own (Plastic connects only ``outputs:surface``)."""
+    from pxr import Sdf, Usd, UsdShade
+
+    stage = Usd.Stage.Open(str(asset))
+    shader = UsdShade.Shader.Define(stage, f"{material}/AuthoredPreview")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set((0.6, 0.1, 0.1))
+    UsdShade.Material(stage.GetPrimAtPath(material)).CreateSurfaceOutput().ConnectToSource(
+        shader.CreateOutput("surface", Sdf.ValueTypeNames.Token))
+    stage.Save()
 
 
 def _document(path: Path):
@@ -143,21 +159,49 @@ def test_preview_surface_and_its_flip(red):
 
 
 def test_preview_flip_for_every_sample_material(sample):
+    """CarPaint's fitted fallback has a measured FLIP; Plastic's fallback is its own UsdPreviewSurface, the
+    reference itself (FLIP 0, nothing fitted, the export says so)."""
+    by_name = {s.material: s for s in sample["summaries"]}
+    assert set(by_name) == {"/World/Looks/CarPaint", "/World/Looks/Plastic"}
     for s in sample["summaries"]:
-        assert math.isfinite(s.preview_flip) and s.preview_flip > 0
+        own = s.material == "/World/Looks/Plastic"
+        assert math.isfinite(s.preview_flip) and (s.preview_flip == 0 if own else s.preview_flip > 0)
+        assert bool(s.preview.get("own")) == own and (s.preview["file"] is None) == own
         stage, mat = _material(sample["usda"], s.material)
         attr = mat.GetPrim().GetAttribute("neural:metrics:previewFlip").Get()
         assert attr == pytest.approx(s.preview_flip, abs=1e-6)
+    assert not (sample["out"] / "World.Looks.Plastic" / "analytic_baseline.pt").exists()
+    assert any("own UsdPreviewSurface stays its fallback" in n for n in by_name["/World/Looks/Plastic"].export_notes)
+
+
+def test_an_input_preview_surface_stays_its_own_fallback(sample):
+    """Plastic's universal surface is the input's UsdPreviewSurface: in both variants the universal render
+    context resolves to that shader, untouched (no switch, no NeuralPreview); the ``mtlx`` context switches
+    to the neural node in ``neural`` only."""
+    from pxr import Usd
+
+    name = "/World/Looks/Plastic"
+    source = Usd.Stage.Open(str(sample["asset"]))
+    own = source.GetPrimAtPath(f"{name}/Preview")
+    for variant in ("neural", "original"):
+        stage, mat = _material(sample["usda"], name, variant)
+        assert mat.ComputeSurfaceSource("")[0].GetPath() == own.GetPath(), variant
+        mtlx = mat.ComputeSurfaceSource("mtlx")[0]
+        assert (mtlx.GetShaderId() == "ND_surface") == (variant == "neural"), variant
+        assert not stage.GetPrimAtPath(f"{name}/NeuralPreview") and not stage.GetPrimAtPath(f"{name}/NeuralSwitch")
+        for attr in own.GetAttributes():  # the shader composes as authored
+            assert stage.GetAttributeAtPath(attr.GetPath()).Get() == attr.Get(), attr.GetPath()
 
 
 def test_neural_variant_wins_over_the_inputs_own_outputs(sample):
-    """CarPaint connects ``outputs:mtlx:surface`` itself and Plastic ``outputs:surface``: with ``neural``
-    selected, both render contexts still resolve to the neural networks, through the switch that the
-    layer connects outside the variants; in both variants every switch connection is one UsdShade
+    """CarPaint connects ``outputs:mtlx:surface`` and (``author_preview``) ``outputs:surface`` itself: with
+    ``neural`` selected, both render contexts still resolve to the neural networks, through the switch that
+    the layer connects outside the variants; in both variants every switch connection is one UsdShade
     allows (encapsulation)."""
     from pxr import Sdf, UsdShade
 
-    for name, own in (("/World/Looks/CarPaint", "outputs:mtlx:surface"), ("/World/Looks/Plastic", "outputs:surface")):
+    name = "/World/Looks/CarPaint"
+    for own in ("outputs:mtlx:surface", "outputs:surface"):
         n = node_names(name)
         stage, mat = _material(sample["usda"], name)
         assert mat.ComputeSurfaceSource("mtlx")[0].GetPath() == f"{name}/{n.surface}"
@@ -171,7 +215,7 @@ def test_neural_variant_wins_over_the_inputs_own_outputs(sample):
         for variant in ("neural", "original"):
             stage, mat = _material(sample["usda"], name, variant)
             switch = UsdShade.NodeGraph(stage.GetPrimAtPath(f"{name}/NeuralSwitch"))
-            assert switch and [o.GetBaseName() for o in switch.GetOutputs()] == [port]
+            assert switch and port in [o.GetBaseName() for o in switch.GetOutputs()]
             for attr in (switch.GetInput(port).GetAttr(), switch.GetOutput(port).GetAttr()):
                 (target,) = attr.GetConnections()
                 wrap = UsdShade.Input(attr) if UsdShade.Input.IsInput(attr) else UsdShade.Output(attr)
