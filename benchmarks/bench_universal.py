@@ -25,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from mtlx2neural.universal.choice import STEPS
+
 PATHS = {"own": ["--encoder", "material"],
          "universal": ["--encoder", "universal", "--universal-tune", "networks"],
          "universal-latents": ["--encoder", "universal", "--universal-tune", "latents"]}
@@ -57,7 +59,7 @@ def main(argv=None) -> int:
     p.add_argument("asset", type=Path)
     p.add_argument("--material", action="append", help="a material to measure (repeatable; default: all)")
     p.add_argument("--preset", default="fast")
-    p.add_argument("--steps", type=int, default=200, help="--universal-steps")
+    p.add_argument("--steps", type=int, default=STEPS, help="--universal-steps (default: %(default)s)")
     p.add_argument("--paths", default=",".join(PATHS), help="comma-separated subset of " + ", ".join(PATHS))
     p.add_argument("--json", type=Path, help="also write the rows here")
     a = p.parse_args(argv)

@@ -190,7 +190,9 @@ def downsample(img: np.ndarray, k: int = 2) -> np.ndarray:
 def sphere_flip(ref: np.ndarray, test: np.ndarray, covered: np.ndarray) -> float:
     """Mean HDR FLIP over the sphere's pixels only (``covered``, [H, W] bool); the frame mean of
     :func:`image_errors` also counts the background, where both images are black."""
-    from mtlx2neural.render.flip import hdr_flip  # Local: as render.renderer.image_errors, only where FLIP is computed
+    from mtlx2neural.render.flip import (
+        hdr_flip,  # Local: as render.renderer.image_errors, only where FLIP is computed
+    )
 
     values, _, _ = hdr_flip(ref, test, apply_magma=False)
     values = np.asarray(values).reshape(covered.shape + (-1,))[..., 0]

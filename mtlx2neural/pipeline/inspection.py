@@ -21,11 +21,12 @@ from mtlx2neural.reference.measured import load_measured
 from mtlx2neural.scene import load_asset
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.udim import training_tiles
+from mtlx2neural.universal.choice import STEPS
 
 
 def inspect_asset(path, material: str | InspectOptions | None = None, allow_missing_textures: bool = False,
                   cfg=None, texel_density: float | None = None, encoder: str = "material",
-                  universal_steps: int = 200, universal_tune: str = "networks") -> dict:
+                  universal_steps: int = STEPS, universal_tune: str = "networks") -> dict:
     """JSON-friendly report of ``path`` (a .mtlx file or USD stage).
 
     ``inspect_asset(path, options)`` takes an :class:`~mtlx2neural.pipeline.options.InspectOptions`

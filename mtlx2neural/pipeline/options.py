@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.train.config import PRESETS, TrainConfig, validate_config
-from mtlx2neural.universal.choice import ENCODERS, TUNES
+from mtlx2neural.universal.choice import ENCODERS, STEPS, TUNES
 
 NETWORKS = ("material", "scene")
 
@@ -65,9 +65,9 @@ class ConvertOptions:
     """material: each material trains its own encoder and networks. universal: a material whose surface
     shader is a UsdPreviewSurface (metallic workflow) with texture-driven inputs encodes its parameter
     pyramid with the network shipped for that model, then fine-tunes for --universal-steps (measured:
-    2.2-2.4x less training time than its own); the others train their own, and ``inspect`` says which path each
+    about half the conversion time of its own); the others train their own, and ``inspect`` says which path each
     material takes and why. Not with --network scene or --max-error."""
-    universal_steps: int = field(default=200, metadata={"metavar": "N"})
+    universal_steps: int = field(default=STEPS, metadata={"metavar": "N"})
     """Fine-tune steps of a material on the universal path (--encoder universal)."""
     universal_tune: str = field(default="networks", metadata={"choices": TUNES})
     """What the universal path's fine-tune trains: networks (the latents, decoder and sampler: the material
@@ -142,7 +142,7 @@ class InspectOptions:
     encoder: str = field(default="material", metadata={"choices": ENCODERS})
     """The path each material is shown to take (``mtlx2neural ASSET --encoder``): its own network, or
     the universal network of its shading model when it qualifies (and why not when it does not)."""
-    universal_steps: int = field(default=200, metadata={"metavar": "N"})
+    universal_steps: int = field(default=STEPS, metadata={"metavar": "N"})
     """Fine-tune steps shown for (and hashed with) the universal path."""
     universal_tune: str = field(default="networks", metadata={"choices": TUNES})
     """The universal path's fine-tune shown for (and hashed with) it: networks or latents."""

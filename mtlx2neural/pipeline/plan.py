@@ -53,7 +53,7 @@ from mtlx2neural.scene.texel_density import (
 from mtlx2neural.textures.parameter_stack import texture_resolution
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.udim import training_tiles
-from mtlx2neural.universal.choice import EncoderChoice, choose_encoder
+from mtlx2neural.universal.choice import STEPS, EncoderChoice, choose_encoder
 
 DECODERS = ("2x16", "2x32", "3x64")
 """Decoder sizes an error budget escalates through, smallest first."""
@@ -247,7 +247,7 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
                    max_error: float | None = None, texel_density: float | None = None,
                    asset=None, failures: list[MaterialFailure] | None = None,
                    strict: bool = False, application: Application | None = None, encoder: str = "material",
-                   universal_steps: int = 200, universal_tune: str = "networks") -> list[MaterialPlan]:
+                   universal_steps: int = STEPS, universal_tune: str = "networks") -> list[MaterialPlan]:
     """Compile each of ``sources`` and decide its grid, settings, cache key and sharing (module docstring).
 
     ``texel_density``: latent texels per metre of surface (``--texel-density``); the

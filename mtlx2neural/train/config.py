@@ -89,6 +89,10 @@ class TrainConfig:
     draws a K-th of the batch fresh and reuses the rest from the K - 1 steps before
     (:mod:`mtlx2neural.train.replay`), so the reference is called for a K-th of the rows. 1: every row
     fresh, the paper's loop."""
+    target_prefetch: int = field(default=1, metadata={"metavar": "P"})
+    """Steps whose fresh training rows are drawn in one call to the reference, then served a P-th per step
+    (:mod:`mtlx2neural.train.replay`): the same rows' distribution at a lower cost per row, each drawn at
+    most P - 1 steps early. 1: one call per step, the paper's loop."""
     level_rate: float = 1.0
     """Level distribution P(k) ~ exp(-rate k): larger favours fine levels more."""
     albedo_head: bool = False
@@ -172,7 +176,7 @@ def preset(name: str, **overrides) -> TrainConfig:
 
 
 _COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples": 1, "checkpoint_every": 1,
-           "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0, "target_reuse": 1,
+           "frames": 0, "iterations": 0, "preview_iterations": 0, "probe_every": 0, "target_reuse": 1, "target_prefetch": 1,
            "environment_batch": 1}
 """Integer settings and their smallest valid value."""
 _SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction", "block_fraction",

@@ -117,7 +117,7 @@ class Trainer:
         self.gen = torch.Generator().manual_seed(cfg.seed)  # every random draw of the training data
         self.targets = targets_for(reference, stack, cfg, self.gen,  # the rows' levels and targets for this kind
                                    self.surface.coverage_at if self.surface is not None else None)
-        self.replay = RowReplay(cfg.batch, cfg.target_reuse)
+        self.replay = RowReplay(cfg.batch, cfg.target_reuse, cfg.target_prefetch)
         # torch.compile fuses the MLPs' bias/ReLU/elementwise chains (BENCHMARKS.md, "Training throughput"); it costs
         # tens of seconds of compilation, so only the long presets turn it on.
         if cfg.compile:

@@ -18,6 +18,10 @@ from dataclasses import dataclass
 ENCODERS = ("material", "universal")
 TUNES = ("networks", "latents")
 """What the universal path's fine-tune trains besides the latents (:mod:`mtlx2neural.universal.fit`)."""
+STEPS = 300
+"""The universal path's fine-tune steps by default (``--universal-steps``): on the scene sample (``fast``,
+2 cores) 200 steps leave the lava at 1.43x its own network's HDR FLIP, 300 at 1.14x, 400 at 1.03x
+(docs/history/universal-2026-12-05.md)."""
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""Training rows reused over consecutive steps (train/replay.py, TrainConfig.target_reuse)."""
+"""Training rows reused over consecutive steps and drawn ahead (train/replay.py, TrainConfig.target_reuse and
+target_prefetch)."""
 
 from __future__ import annotations
 
@@ -81,6 +82,46 @@ def test_resume_continues_with_the_same_rows(carpaint, tmp_path, monkeypatch):
     ref, stack = carpaint
     cfg = preset("fast", iterations=12, batch=128, target_reuse=3, checkpoint_every=1000, seed=4)
     straight = Trainer(ref, stack, cfg, tmp_path / "a").run(progress=False).state_dict()
+    tr = Trainer(ref, stack, cfg, tmp_path / "b")
+    real_step = tr.train_step
+    monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == 5
+                        else real_step())
+    with pytest.raises(TrainingInterrupted):
+        tr.run(progress=False)
+    again = Trainer(ref, stack, cfg, tmp_path / "b")
+    assert again.resume() and again.step == 5
+    resumed = again.run(progress=False).state_dict()
+    assert all(torch.equal(straight[k], resumed[k]) for k in straight)
+
+
+def test_prefetch_draws_p_steps_at_once_and_serves_each_row_once():
+    """Prefetch 4: one draw per 4 steps, of 4x the rows; each step takes a strided quarter, so the extra
+    rows ``draw`` puts at the end (one per 4, like grazing rows) spread over the steps; no row twice."""
+    replay, draw = RowReplay(8, 1, prefetch=4), Counter()
+    batches = [replay.batch(draw) for _ in range(8)]
+    assert draw.sizes == [32, 32]
+    ids = torch.cat([b[0] for b in batches])
+    assert len(ids) == 2 * 40 and len(set(ids.tolist())) == 80
+    for ids, doubled in batches:
+        assert len(ids) == 10 and torch.equal(doubled, ids.float() * 2)
+        assert int((ids % 40 >= 32).sum()) == 2  # each step gets two of the draw's eight extra rows
+    with pytest.raises(ValueError, match="prefetch"):
+        RowReplay(8, 1, prefetch=0)
+    with pytest.raises(InputError, match="target_prefetch"):
+        validate_config(preset("fast", target_prefetch=0))
+
+
+def test_prefetch_with_reuse_and_resume_is_bit_for_bit(carpaint, tmp_path, monkeypatch):
+    """Prefetch combines with reuse (each chunk size drawn ahead on its own), the reference sees a P-th of
+    the calls, and a run interrupted between two draws resumes with the rows drawn ahead (checkpoint)."""
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=10, batch=128, target_reuse=2, target_prefetch=4, checkpoint_every=1000, seed=5)
+    tr = Trainer(ref, stack, cfg, tmp_path / "a")
+    calls = []
+    real = tr._targets
+    tr._targets = lambda wi, *rest: calls.append(wi.shape[0]) or real(wi, *rest)
+    straight = tr.run(progress=False).state_dict()
+    assert len(calls) == 3  # steps 0-9 request 11 chunks of 64 rows: drawn 4 at a time
     tr = Trainer(ref, stack, cfg, tmp_path / "b")
     real_step = tr.train_step
     monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == 5
