@@ -10,11 +10,11 @@ canonical form (:mod:`.canonical`: its stack then has the layout the shipped enc
    through its codec in the last ``block_fraction``), with ``tune`` (:data:`TUNES`):
 
    - ``networks``: the latents, the decoder and the sampler. The material gets its own copy of the
-     networks, fitted to it: measured on the scene sample (``fast``, 200 steps), HDR FLIP 0.040 on the
-     leaf where its own 1000-step training reaches 0.071, 0.028 on the lava against 0.020 (BENCHMARKS.md,
-     "Whole scenes");
+     networks, fitted to it: measured on the scene sample (``fast``, 300 steps), HDR FLIP 0.039 on the
+     leaf where its own 1000-step training reaches 0.071, 0.022 on the lava against 0.020, in half the
+     conversion's time (BENCHMARKS.md, "Whole scenes");
    - ``latents``: the latents alone, the networks frozen, so the shipped decoder and sampler stay byte
-     for byte and every material converted so shares them; the leaf then scores 0.168, the lava 0.110
+     for byte and every material converted so shares them; the leaf then scores 0.156, the lava 0.100
      (the universal decoder alone does not resolve them);
 4. finishes as a training run does (a cut-out's empty texels, the codec). With ``networks`` the
    environment head is fitted again (``environment_fraction`` of the fine-tune's steps: the sampler's

@@ -87,6 +87,25 @@ def test_the_cut_out_s_neutral_channel_is_skipped_and_another_value_refused(tmp_
         encoder_columns(stack, weights)
 
 
+def test_the_trainer_reads_the_canonical_stack_and_the_original_program(tmp_path):
+    """On the universal path the stack is the canonical form's (every input the encoder reads) and the reference
+    the training, views and measures evaluate is the original program's: the same BRDF (float32 rounding:
+    1e-5 relative) with fewer parameters to evaluate (the canonical form's zero-weight lobes folded away)."""
+    from mtlx2neural.scene import load_asset  # Local: the loader only for this test
+
+    (src,) = load_asset(_painted(tmp_path)).materials
+    setup = material_training.prepare_material(src, TINY, tmp_path / "run", "cpu", False, canonical=True)
+    canonical = ReferenceMaterial(setup.compiled)
+    assert setup.trainer.ref is setup.ref and setup.ref.compiled is not setup.compiled
+    assert len(setup.ref.compiled.varying_parameters()) < len(setup.compiled.varying_parameters())
+    g = torch.Generator().manual_seed(0)
+    uv = torch.rand(2048, 2, generator=g)
+    wi, wo = (torch.nn.functional.normalize(torch.randn(2048, 3, generator=g).abs() + 0.05, dim=-1) for _ in "io")
+    a, b = setup.ref.eval(wi, wo, uv=uv), canonical.eval(wi, wo, uv=uv)
+    assert torch.allclose(a, b, rtol=1e-5, atol=1e-6), float((a - b).abs().max())
+    assert float(b.abs().max()) > 0.05  # the comparison sees a lit material
+
+
 @pytest.mark.parametrize("tune", ["latents", "networks"])
 def test_encode_then_fine_tune_fits_the_material(tmp_path, weights, tune):
     ref, stack, trainer = _setup(tmp_path)
