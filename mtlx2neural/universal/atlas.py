@@ -11,10 +11,12 @@ per-input permutation. Inputs so vary at different rates in one region: a smooth
 per-texel bumps, a per-texel roughness over a flat normal, and so on. At a cell size of 2^k the
 levels below k hold pure parameter vectors, the levels above it LEAN/box mixtures of neighbours.
 
-Values per cell (:data:`DISTRIBUTIONS`): uniform over each input's range, except the inputs that
-production maps hold mostly at their ends (``metallic``: 0 or 1 four times in five; ``clearcoat``: 0
-half the time) and the normal, flat half the time and else tilted uniformly in angle up to
-:data:`MAX_TILT_DEGREES`.
+Values per cell (:data:`DISTRIBUTIONS`, per shading model): uniform over each input's range, except the
+inputs that production maps hold mostly at their ends (metalness: 0 or 1 four times in five; a coat's
+weight: 0 half the time; Standard Surface's ``base`` and ``specular`` 1 and its tints white half the time)
+and the normal, flat half the time and else tilted uniformly in angle up to :data:`MAX_TILT_DEGREES`
+(a model whose normal input is world-space reads it through a ``normalmap`` of the texture's encoded
+tangent-space normal, :attr:`~.canonical.ShadingModel.normal_map`).
 """
 
 from __future__ import annotations
@@ -44,27 +46,49 @@ def _normal(rng, n):
     return np.stack([np.sin(tilt) * np.cos(phi), np.sin(tilt) * np.sin(phi), np.cos(tilt)], -1)
 
 
+def _white_or(rng, n, p_white):
+    """[n, 3] colours: white with probability ``p_white``, else uniform."""
+    return np.where((rng.random(n) < p_white)[:, None], 1.0, rng.random((n, 3)))
+
+
 DISTRIBUTIONS = {
-    "diffuseColor": lambda rng, n: rng.random((n, 3)),
-    "metallic": lambda rng, n: _ends(rng, n, 0.4, 0.4),
-    "roughness": lambda rng, n: rng.random(n),
-    "clearcoat": lambda rng, n: _ends(rng, n, 0.5, 0.0),
-    "clearcoatRoughness": lambda rng, n: rng.random(n),
-    "ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
-    "normal": _normal,
+    "UsdPreviewSurface": {
+        "diffuseColor": lambda rng, n: rng.random((n, 3)),
+        "metallic": lambda rng, n: _ends(rng, n, 0.4, 0.4),
+        "roughness": lambda rng, n: rng.random(n),
+        "clearcoat": lambda rng, n: _ends(rng, n, 0.5, 0.0),
+        "clearcoatRoughness": lambda rng, n: rng.random(n),
+        "ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+        "normal": _normal,
+    },
+    "standard_surface": {
+        "base": lambda rng, n: _ends(rng, n, 0.0, 0.5),
+        "base_color": lambda rng, n: rng.random((n, 3)),
+        "metalness": lambda rng, n: _ends(rng, n, 0.4, 0.4),
+        "specular": lambda rng, n: _ends(rng, n, 0.1, 0.5),
+        "specular_color": lambda rng, n: _white_or(rng, n, 0.5),
+        "specular_roughness": lambda rng, n: rng.random(n),
+        "specular_IOR": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+        "coat": lambda rng, n: _ends(rng, n, 0.5, 0.0),
+        "coat_color": lambda rng, n: _white_or(rng, n, 0.5),
+        "coat_roughness": lambda rng, n: rng.random(n),
+        "coat_IOR": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+        "normal": _normal,
+    },
 }
-"""Per input of the model: ``(generator, n) -> [n] or [n, 3]`` values of n cells."""
+"""Per shading model and input: ``(generator, n) -> [n] or [n, 3]`` values of n cells."""
 
 
-def input_texture(name: str, size: int, rng: np.random.Generator) -> np.ndarray:
-    """[size, size, 3] float32 texture of input ``name`` (module docstring; a scalar in every channel)."""
+def input_texture(name: str, size: int, rng: np.random.Generator, model: str = "UsdPreviewSurface") -> np.ndarray:
+    """[size, size, 3] float32 texture of ``model``'s input ``name`` (module docstring; a scalar in every
+    channel; a normal as the tangent-space vector itself)."""
     half = size // 2
     out = np.zeros((size, size, 3), np.float32)
     sizes = rng.permutation(CELL_SIZES)
     for q, cell in enumerate(sizes):
         cell = int(min(cell, half))
         cells = math.ceil(half / cell)
-        values = np.asarray(DISTRIBUTIONS[name](rng, cells * cells), np.float32).reshape(cells, cells, -1)
+        values = np.asarray(DISTRIBUTIONS[model][name](rng, cells * cells), np.float32).reshape(cells, cells, -1)
         block = np.repeat(np.repeat(values, cell, 0), cell, 1)[:half, :half]
         r, c = divmod(q, 2)
         out[r * half:(r + 1) * half, c * half:(c + 1) * half] = block  # a scalar broadcasts to RGB
@@ -87,19 +111,28 @@ def write_atlas(folder, model: str = "UsdPreviewSurface", size: int = 512, seed:
     """Write the atlas of ``model`` into ``folder`` (one EXR per varying input and ``atlas.mtlx``, whose
     material is :data:`ATLAS_MATERIAL`); returns the document's path. Seeded: the same arguments write
     the same files."""
+    from mtlx2neural.scene import mxlib  # Local: the nodedef's input types
+
     spec = SHADING_MODELS[model]
+    nodedef = mxlib.nodedef(spec.nodedef)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    nodes = []
+    images, inputs = [], []
     for name in spec.varying:
-        _write_exr(folder / f"{name}.exr", input_texture(name, size, rng))
-        mx_type = "vector3" if name == "normal" else "color3" if name.endswith("Color") else "float"
-        nodes.append((name, mx_type))
-    images = "\n".join(
-        f'  <image name="img_{n}" type="{t}">\n    <input name="file" type="filename" value="{(folder / n).resolve()}.exr" />\n'
-        f'  </image>' for n, t in nodes)
-    inputs = "\n".join(f'    <input name="{n}" type="{t}" nodename="img_{n}" />' for n, t in nodes)
+        img = input_texture(name, size, rng, model)
+        mx_type = nodedef.getActiveInput(name).getType()
+        source = f"img_{name}"
+        if name == "normal" and spec.normal_map:  # encoded for a normalmap node: 0.5 * n + 0.5
+            img = 0.5 * img + 0.5
+            images.append(f'  <normalmap name="nm_{name}" type="vector3">\n'
+                          f'    <input name="in" type="vector3" nodename="img_{name}" />\n  </normalmap>')
+            source = f"nm_{name}"
+        _write_exr(folder / f"{name}.exr", img)
+        images.append(f'  <image name="img_{name}" type="{mx_type}">\n'
+                      f'    <input name="file" type="filename" value="{(folder / name).resolve()}.exr" />\n  </image>')
+        inputs.append(f'    <input name="{name}" type="{mx_type}" nodename="{source}" />')
+    images, inputs = "\n".join(images), "\n".join(inputs)
     text = (f'<?xml version="1.0"?>\n<materialx version="1.39" colorspace="lin_rec709">\n{images}\n'
             f'  <{spec.category} name="SR_atlas" type="surfaceshader">\n{inputs}\n  </{spec.category}>\n'
             f'  <surfacematerial name="{ATLAS_MATERIAL}" type="material">\n'

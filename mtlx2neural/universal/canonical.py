@@ -43,6 +43,10 @@ class ShadingModel:
     they change nothing: ``transmission_mix.mix`` 1 (the opaque lobes alone) appears when ``opacity`` is
     connected, since the graph's cut-out switch depends on it without changing the BRDF. A material holding
     another value there is not covered."""
+    normal_map: bool = False
+    """The ``normal`` input is a world-space normal (``standard_surface``): an unconnected one becomes a
+    ``normalmap`` of the flat tangent-space normal, spatial, which is the geometric normal. False: the input
+    is itself a tangent-space vector (UsdPreviewSurface), made spatial like any other value."""
 
 
 SHADING_MODELS = {
@@ -50,6 +54,15 @@ SHADING_MODELS = {
         "UsdPreviewSurface", "ND_UsdPreviewSurface_surfaceshader",
         ("diffuseColor", "metallic", "roughness", "clearcoat", "clearcoatRoughness", "ior", "normal"),
         {"useSpecularWorkflow": 0}, {"transmission_mix.mix": (1.0,)}),
+    # Autodesk Standard Surface's opaque reflection: diffuse, metal, specular and coat. The rest, off in most
+    # production materials (the chess set's pieces: 11 of 15), must hold its default.
+    "standard_surface": ShadingModel(
+        "standard_surface", "ND_standard_surface_surfaceshader",
+        ("base", "base_color", "metalness", "specular", "specular_color", "specular_roughness", "specular_IOR",
+         "coat", "coat_color", "coat_roughness", "coat_IOR", "normal"),
+        {"diffuse_roughness": 0.0, "specular_anisotropy": 0.0, "transmission": 0.0, "subsurface": 0.0, "sheen": 0.0,
+         "coat_anisotropy": 0.0, "coat_affect_color": 0.0, "coat_affect_roughness": 0.0, "thin_film_thickness": 0.0,
+         "thin_walled": False, "coat_normal": None, "tangent": None}, {}, normal_map=True),
 }
 
 
@@ -89,7 +102,8 @@ def eligibility(document: mx.Document, material: str | None = None) -> Eligibili
     for name, value in model.fixed.items():
         inp = shader.getInput(name)
         if inp is not None and (_connected(inp) or inp.getValue() != value):
-            return Eligibility(None, shader.getName(), f"shader '{shader.getName()}': {name} is not {value} "
+            held = "set" if value is None else f"not {value}"
+            return Eligibility(None, shader.getName(), f"shader '{shader.getName()}': {name} is {held} "
                                                        f"(the universal encoder covers that program only)")
     if model.category == "UsdPreviewSurface" and _transparent(shader):
         return Eligibility(None, shader.getName(), f"shader '{shader.getName()}' is transparent (opacity below 1 "
@@ -120,6 +134,18 @@ def _zero_node(doc: mx.Document) -> str:
     return name
 
 
+def _flat_normal_map(doc: mx.Document) -> str:
+    """A ``normalmap`` node of the flat tangent-space normal, made spatial: the geometric normal, as a value."""
+    name = f"{PREFIX}normal_map"
+    if doc.getNode(name) is None:
+        flat = doc.addNode("add", f"{PREFIX}flat_normal", "vector3")
+        flat.addInput("in1", "vector3").setValueString("0.5, 0.5, 1.0")
+        flat.addInput("in2", "float").setNodeName(_zero_node(doc))
+        nmap = doc.addNode("normalmap", name, "vector3")
+        nmap.addInput("in", "vector3").setNodeName(flat.getName())
+    return name
+
+
 def canonical_document(document: mx.Document, material: str | None = None) -> mx.Document:
     """A copy of ``document`` whose ``material``'s shader has every varying input of its model spatial
     (module docstring); ``ValueError`` when the material is not eligible (:func:`eligibility`)."""
@@ -137,11 +163,14 @@ def canonical_document(document: mx.Document, material: str | None = None) -> mx
         inp = shader.getInput(name)
         if inp is not None and _connected(inp):
             continue
-        decl = nodedef.getInput(name)
+        decl = nodedef.getActiveInput(name)
         value_string = inp.getValueString() if inp is not None and inp.getValueString() else decl.getValueString()
         mx_type = decl.getType()
         if inp is not None:
             shader.removeInput(name)
+        if name == "normal" and model.normal_map:
+            shader.addInput(name, mx_type).setNodeName(_flat_normal_map(doc))
+            continue
         add = doc.addNode("add", f"{PREFIX}{name}", mx_type)
         add.addInput("in1", mx_type).setValueString(value_string)
         add.addInput("in2", "float").setNodeName(_zero_node(doc))

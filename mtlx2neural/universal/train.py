@@ -1,6 +1,6 @@
 """Train a shading model's universal network on its parameter atlas, and write the weights the package ships.
 
-``python -m mtlx2neural.universal.train [--model UsdPreviewSurface] [--steps N] [--size S] [--seed K]``
+``python -m mtlx2neural.universal.train [--model UsdPreviewSurface] [--steps N] [--size S] [--seed K] [--prefetch P]``
 
 1. Write the model's atlas (:mod:`.atlas`: random parameter textures, ``size``² texels, seeded).
 2. Compile it in the canonical form (:mod:`.canonical`) and build its parameter stack, as a conversion
@@ -9,6 +9,7 @@
    steps and learning rate given here, and the encoder phase for the whole run
    (``encoder_fraction`` 1): the decoder and the sampler then learn from the encoder's codes, which are
    what a material's latents start from (:mod:`.fit`). The environment head is fitted last, as usual.
+   ``prefetch`` draws the rows of that many steps in one call to the reference (``target_prefetch``).
 4. Save the encoder, decoder (with its environment head) and sampler with the stack's channel layout
    and the run's provenance (:mod:`.weights`).
 
@@ -69,7 +70,8 @@ def folded_constants(stack) -> dict:
 
 
 def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS, size: int = DEFAULT_SIZE,
-                    seed: int = 0, lr: float = DEFAULT_LR, workdir: Path | None = None, progress: bool = True) -> dict:
+                    seed: int = 0, lr: float = DEFAULT_LR, workdir: Path | None = None, progress: bool = True,
+                    prefetch: int = 1) -> dict:
     """Steps 1-3 of the module docstring; returns the weights' dict (:mod:`.weights`)."""
     from mtlx2neural.train.config import PRESETS  # Local: fast --help
     from mtlx2neural.train.trainer import Trainer  # Local: fast --help
@@ -80,7 +82,7 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
         _, ref, stack = atlas_material(folder / "atlas", model, size, seed)
         cfg = dataclasses.replace(PRESETS["fast"], iterations=steps, seed=seed, lr_start=lr, encoder_fraction=1.0,
                                   preview_iterations=0, probe_every=0, checkpoint_every=max(1000, steps),
-                                  environment_fraction=ENVIRONMENT_FRACTION)
+                                  environment_fraction=ENVIRONMENT_FRACTION, target_prefetch=prefetch)
         trainer = Trainer(ref, stack, cfg, folder / "train")
         net = trainer.run(progress=progress)
     last = trainer.history[-1] if trainer.history else {}
@@ -92,7 +94,7 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
         "encoder": net.encoder.state_dict(), "decoder": net.decoder.state_dict(), "sampler": net.sampler.state_dict(),
         "provenance": {
             "command": f"python -m mtlx2neural.universal.train --model {model} --steps {steps} --size {size} "
-                       f"--seed {seed} --lr {lr}",
+                       f"--seed {seed} --lr {lr}" + (f" --prefetch {prefetch}" if prefetch > 1 else ""),
             "config": dataclasses.asdict(cfg), "atlas": {"size": size, "seed": seed},
             "seconds": round(time.time() - t0, 1), "torch": torch.__version__, "threads": torch.get_num_threads(),
             "final_loss_brdf": last.get("loss_brdf"), "final_loss_kl": last.get("loss_kl"),
@@ -107,10 +109,11 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=DEFAULT_SIZE, help="atlas texels per side (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the atlas and the training (default: %(default)s)")
     p.add_argument("--lr", type=float, default=DEFAULT_LR, help="Adam's starting learning rate (default: %(default)s)")
+    p.add_argument("--prefetch", type=int, default=1, help="steps whose rows are drawn in one call (default: %(default)s)")
     p.add_argument("--out", type=Path, default=WEIGHTS_DIR, help="folder of the weights file (default: the package's)")
     p.add_argument("--workdir", type=Path, default=None, help="keep the atlas and checkpoint here (default: a temporary folder)")
     a = p.parse_args(argv)
-    data = train_universal(a.model, a.steps, a.size, a.seed, a.lr, a.workdir)
+    data = train_universal(a.model, a.steps, a.size, a.seed, a.lr, a.workdir, prefetch=a.prefetch)
     path = weights_path(a.model, a.out)
     save_weights(path, data)
     print(f"{path}: {len(data['channels'])} channel groups, {data['provenance']['seconds']} s", flush=True)

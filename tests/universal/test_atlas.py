@@ -30,11 +30,12 @@ def test_each_input_spans_its_range_in_cells_of_every_size():
 
 
 @pytest.mark.slow
-def test_the_script_reproduces_the_shipped_layout_and_shape(tmp_path):
-    shipped = load_weights("UsdPreviewSurface")
+@pytest.mark.parametrize("model", ["UsdPreviewSurface", "standard_surface"])
+def test_the_script_reproduces_the_shipped_layout_and_shape(tmp_path, model):
+    shipped = load_weights(model)
     if shipped is None:
-        pytest.skip("no universal UsdPreviewSurface network in this checkout")
-    data = train_universal(steps=10, size=16, workdir=tmp_path, progress=False)
+        pytest.skip(f"no universal {model} network in this checkout")
+    data = train_universal(model, steps=10, size=16, workdir=tmp_path, progress=False)
     # the script's atlas compiles to the layout the shipped encoder reads, with the shipped network's shape
     assert data["channels"] == shipped["channels"] and data["shape"] == shipped["shape"]
     assert set(data["shape"]) == set(NETWORK_FIELDS)
@@ -42,3 +43,27 @@ def test_the_script_reproduces_the_shipped_layout_and_shape(tmp_path):
         {k: tuple(v.shape) for k, v in shipped["decoder"].items()}
     assert math.isfinite(data["provenance"]["final_loss_brdf"])
     assert "--steps 10 --size 16" in data["provenance"]["command"]
+
+
+def test_the_standard_surface_atlas_reads_like_a_material_of_its_model(tmp_path):
+    """The Standard Surface atlas (its normal through a normalmap of the encoded texture) compiles to the
+    stack layout of MaterialX's textured brass in its canonical form, so the network trained on it reads
+    real materials; its tints are white half the time."""
+    import MaterialX as mx
+    from conftest import shared_path
+
+    from mtlx2neural.graph.compile import compile_material
+    from mtlx2neural.textures.parameter_stack import build_parameter_stack
+    from mtlx2neural.universal.canonical import canonical_document, canonical_name
+    from mtlx2neural.universal.train import atlas_material
+
+    _, _, atlas = atlas_material(tmp_path, "standard_surface", 32, 0)
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
+                                            "standard_surface_brass_tiled.mtlx")))
+    brass = compile_material(canonical_document(doc, "Tiled_Brass"), "Tiled_Brass", allow_missing_textures=True)
+    layout = [(canonical_name(c.name), c.width) for c in build_parameter_stack(brass).channels]
+    assert [(canonical_name(c.name), c.width) for c in atlas.channels] == layout
+    tint = input_texture("specular_color", 128, np.random.default_rng(0), "standard_surface").reshape(-1, 3)
+    white = np.all(tint == 1, axis=1).mean()
+    assert 0.3 < white < 0.7 and len(np.unique(tint[:, 0])) > 100

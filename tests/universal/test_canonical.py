@@ -18,6 +18,9 @@ from mtlx2neural.universal.canonical import (
 )
 
 EXAMPLES = ("default", "gold", "carpaint", "plastic")
+SS_EXAMPLES = ("default", "gold", "plastic", "brass_tiled", "onyx_hextiled")
+"""MaterialX's Standard Surface examples the standard_surface model covers: a plain one, a metal, a plastic,
+textured ones (the brass's colour texture is missing from the assets: allow_missing_textures)."""
 
 
 def _read(path) -> mx.Document:
@@ -31,12 +34,20 @@ def _example(name):
                              f"usd_preview_surface_{name}.mtlx"))
 
 
-@pytest.mark.parametrize("name", EXAMPLES)
-def test_the_canonical_form_keeps_the_brdf(name):
-    doc = _example(name)
+def _ss_example(name):
+    return _read(shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
+                             f"standard_surface_{name}.mtlx"))
+
+
+@pytest.mark.parametrize("model,name", [("UsdPreviewSurface", n) for n in EXAMPLES]
+                         + [("standard_surface", n) for n in SS_EXAMPLES])
+def test_the_canonical_form_keeps_the_brdf(model, name):
+    doc = _example(name) if model == "UsdPreviewSurface" else _ss_example(name)
     material = doc.getMaterialNodes()[0].getName()
-    original = ReferenceMaterial(compile_material(doc, material))
-    canonical = ReferenceMaterial(compile_material(canonical_document(doc, material), material))
+    assert eligibility(doc, material).model == model
+    original = ReferenceMaterial(compile_material(doc, material, allow_missing_textures=True))
+    canonical = ReferenceMaterial(compile_material(canonical_document(doc, material), material,
+                                                   allow_missing_textures=True))
     wi, wo = random_dirs(512, 1), random_dirs(512, 2)
     uv = torch.rand(512, 2, generator=torch.Generator().manual_seed(3))
     a, b = original.eval(wi, wo, ShadingPoint(uv=uv)), canonical.eval(wi, wo, ShadingPoint(uv=uv))
@@ -58,13 +69,28 @@ def test_every_material_of_the_model_compiles_to_one_layout():
     assert {"coat_dielectric_bsdf.roughness", "metalness_workflow_bsdf.mix", "diffuse_bsdf.color"} <= set(*layouts)
 
 
+def test_standard_surface_materials_compile_to_one_layout():
+    """Plain, metal and textured Standard Surfaces (a normal map on the brass and the onyx, none on the others:
+    the canonical form's flat normal map stands in) share one program and layout with all four lobes."""
+    layouts = set()
+    for name in SS_EXAMPLES:
+        doc = _ss_example(name)
+        material = doc.getMaterialNodes()[0].getName()
+        compiled = compile_material(canonical_document(doc, material), material, allow_missing_textures=True)
+        layouts.add(tuple(canonical_names(k for k, _, _ in compiled.varying_parameters())))
+    assert len(layouts) == 1
+    assert {"coat_bsdf.roughness", "metal_bsdf.roughness", "specular_bsdf.normal", "diffuse_bsdf.color"} <= set(*layouts)
+
+
 def test_a_material_it_does_not_cover_is_named_with_the_reason():
-    ss = _read(shared_path("materialx", "resources", "Materials", "Examples", "StandardSurface",
-                           "standard_surface_default.mtlx"))
-    elig = eligibility(ss)
-    assert elig.model is None and "standard_surface" in elig.reason and "UsdPreviewSurface" in elig.reason
-    with pytest.raises(ValueError, match="standard_surface"):
-        canonical_document(ss)
+    openpbr = _read(shared_path("materialx", "resources", "Materials", "TestSuite", "pbrlib", "surfaceshader",
+                                "transparency_hints.mtlx"))
+    elig = eligibility(openpbr, "geom_hint")
+    assert elig.model is None and "open_pbr_surface" in elig.reason and "standard_surface" in elig.reason
+    with pytest.raises(ValueError, match="open_pbr_surface"):
+        canonical_document(openpbr, "geom_hint")
+    for name, held in (("glass", "transmission"), ("velvet", "sheen"), ("metal_brushed", "specular_anisotropy")):
+        assert held in eligibility(_ss_example(name)).reason, name  # another program than the four lobes
     assert "transparent" in eligibility(_example("glass")).reason  # transmission: another program
     doc = _example("plastic")
     doc.getNodes("UsdPreviewSurface")[0].setInputValue("useSpecularWorkflow", 1)
