@@ -82,14 +82,19 @@ def test_resume_continues_with_the_same_rows(carpaint, tmp_path, monkeypatch):
     ref, stack = carpaint
     cfg = preset("fast", iterations=12, batch=128, target_reuse=3, checkpoint_every=1000, seed=4)
     straight = Trainer(ref, stack, cfg, tmp_path / "a").run(progress=False).state_dict()
-    tr = Trainer(ref, stack, cfg, tmp_path / "b")
+    _assert_resumed_equals(straight, ref, stack, cfg, tmp_path / "b", monkeypatch)
+
+
+def _assert_resumed_equals(straight: dict, ref, stack, cfg, folder, monkeypatch, at: int = 5) -> None:
+    """A run of ``cfg`` interrupted at step ``at`` and resumed ends with the weights ``straight``, bit for bit."""
+    tr = Trainer(ref, stack, cfg, folder)
     real_step = tr.train_step
-    monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == 5
+    monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == at
                         else real_step())
     with pytest.raises(TrainingInterrupted):
         tr.run(progress=False)
-    again = Trainer(ref, stack, cfg, tmp_path / "b")
-    assert again.resume() and again.step == 5
+    again = Trainer(ref, stack, cfg, folder)
+    assert again.resume() and again.step == at
     resumed = again.run(progress=False).state_dict()
     assert all(torch.equal(straight[k], resumed[k]) for k in straight)
 
@@ -122,13 +127,4 @@ def test_prefetch_with_reuse_and_resume_is_bit_for_bit(carpaint, tmp_path, monke
     tr._targets = lambda wi, *rest: calls.append(wi.shape[0]) or real(wi, *rest)
     straight = tr.run(progress=False).state_dict()
     assert len(calls) == 3  # steps 0-9 request 11 chunks of 64 rows: drawn 4 at a time
-    tr = Trainer(ref, stack, cfg, tmp_path / "b")
-    real_step = tr.train_step
-    monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == 5
-                        else real_step())
-    with pytest.raises(TrainingInterrupted):
-        tr.run(progress=False)
-    again = Trainer(ref, stack, cfg, tmp_path / "b")
-    assert again.resume() and again.step == 5
-    resumed = again.run(progress=False).state_dict()
-    assert all(torch.equal(straight[k], resumed[k]) for k in straight)
+    _assert_resumed_equals(straight, ref, stack, cfg, tmp_path / "b", monkeypatch)
