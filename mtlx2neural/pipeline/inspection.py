@@ -42,7 +42,7 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
     ``density_meshes``, ``density_skipped``, ``notes``), ``source_hash``, ``content_hash``,
     ``identical_to`` (None, or the earlier material whose result it would share),
     ``encoder`` (the path it takes, :meth:`~mtlx2neural.universal.choice.EncoderChoice.record`, for
-    ``encoder``, ``--encoder``) and ``warnings``.
+    ``encoder``, ``--encoder``), ``fallback`` (the layer's UsdPreviewSurface for it, in words) and ``warnings``.
     """
 
     if isinstance(material, InspectOptions):
@@ -68,6 +68,9 @@ def inspect_asset(path, material: str | InspectOptions | None = None, allow_miss
         info["source_hash"], info["content_hash"] = plan.digest, plan.content
         info["identical_to"] = plan.shared_with
         info["encoder"] = plan.encoder.record()
+        info["fallback"] = ("the input's own UsdPreviewSurface, kept as authored" if getattr(src, "preview_surface", False)
+                            else "none (--preview-iterations 0)" if cfg.preview_iterations == 0
+                            else f"a UsdPreviewSurface fitted in {cfg.preview_iterations} steps")
         info["warnings"] = list(plan.warnings)
         # the UDIM tiles a conversion trains (None: no UDIM set), with why, as train.udim decides them
         info["udim_tiles"], info["udim_notes"] = (None, []) if plan.compiled is None else training_tiles(
@@ -144,6 +147,8 @@ def format_report(report: dict) -> str:
             lines += _density_lines(m["latent"])
             if m.get("encoder"):
                 lines.append(f"  network: {m['encoder']['text']}")
+            if m.get("fallback"):
+                lines.append(f"  fallback: {m['fallback']}")
             lines.append(f"  source hash: {m['source_hash'][:12]}  (content {m['content_hash'][:12]})")
             if m["identical_to"]:
                 lines.append(f"  identical to {m['identical_to']}: trained once (same compiled graph, textures "

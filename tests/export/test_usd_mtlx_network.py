@@ -30,6 +30,7 @@ from mtlx2neural.codegen.materialx_node import (
 from mtlx2neural.graph.library import with_libraries
 from mtlx2neural.imaging.mip_chain import read_mip_chain
 from mtlx2neural.pipeline.convert import convert_asset
+from mtlx2neural.pipeline.inspection import inspect_asset
 from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.train.config import preset
 
@@ -191,6 +192,8 @@ def test_an_input_preview_surface_stays_its_own_fallback(sample):
         assert not stage.GetPrimAtPath(f"{name}/NeuralPreview") and not stage.GetPrimAtPath(f"{name}/NeuralSwitch")
         for attr in own.GetAttributes():  # the shader composes as authored
             assert stage.GetAttributeAtPath(attr.GetPath()).Get() == attr.Get(), attr.GetPath()
+    said = {m["material"]: m["fallback"] for m in inspect_asset(sample["asset"])["materials"]}
+    assert "own UsdPreviewSurface" in said[name] and "fitted" in said["/World/Looks/CarPaint"]
 
 
 def test_neural_variant_wins_over_the_inputs_own_outputs(sample):
