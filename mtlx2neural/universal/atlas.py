@@ -75,6 +75,20 @@ DISTRIBUTIONS = {
         "coat_IOR": lambda rng, n: 1.1 + 1.4 * rng.random(n),
         "normal": _normal,
     },
+    "open_pbr_surface": {
+        "base_weight": lambda rng, n: _ends(rng, n, 0.0, 0.5),
+        "base_color": lambda rng, n: rng.random((n, 3)),
+        "base_metalness": lambda rng, n: _ends(rng, n, 0.4, 0.4),
+        "specular_weight": lambda rng, n: _ends(rng, n, 0.1, 0.5),
+        "specular_color": lambda rng, n: _white_or(rng, n, 0.5),
+        "specular_roughness": lambda rng, n: rng.random(n),
+        "specular_ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+        "coat_weight": lambda rng, n: _ends(rng, n, 0.5, 0.0),
+        "coat_color": lambda rng, n: _white_or(rng, n, 0.5),
+        "coat_roughness": lambda rng, n: rng.random(n),
+        "coat_ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+        "geometry_normal": _normal,
+    },
 }
 """Per shading model and input: ``(generator, n) -> [n] or [n, 3]`` values of n cells."""
 
@@ -123,7 +137,7 @@ def write_atlas(folder, model: str = "UsdPreviewSurface", size: int = 512, seed:
         img = input_texture(name, size, rng, model)
         mx_type = nodedef.getActiveInput(name).getType()
         source = f"img_{name}"
-        if name == "normal" and spec.normal_map:  # encoded for a normalmap node: 0.5 * n + 0.5
+        if name == spec.normal_map:  # encoded for a normalmap node: 0.5 * n + 0.5
             img = 0.5 * img + 0.5
             images.append(f'  <normalmap name="nm_{name}" type="vector3">\n'
                           f'    <input name="in" type="vector3" nodename="img_{name}" />\n  </normalmap>')

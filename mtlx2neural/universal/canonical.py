@@ -43,10 +43,10 @@ class ShadingModel:
     they change nothing: ``transmission_mix.mix`` 1 (the opaque lobes alone) appears when ``opacity`` is
     connected, since the graph's cut-out switch depends on it without changing the BRDF. A material holding
     another value there is not covered."""
-    normal_map: bool = False
-    """The ``normal`` input is a world-space normal (``standard_surface``): an unconnected one becomes a
-    ``normalmap`` of the flat tangent-space normal, spatial, which is the geometric normal. False: the input
-    is itself a tangent-space vector (UsdPreviewSurface), made spatial like any other value."""
+    normal_map: str = ""
+    """The varying input that is a world-space normal (``standard_surface``'s ``normal``): an unconnected one
+    becomes a ``normalmap`` of the flat tangent-space normal, spatial, which is the geometric normal. Empty:
+    the model's normal is itself a tangent-space vector (UsdPreviewSurface), made spatial like any value."""
 
 
 SHADING_MODELS = {
@@ -62,7 +62,16 @@ SHADING_MODELS = {
          "coat", "coat_color", "coat_roughness", "coat_IOR", "normal"),
         {"diffuse_roughness": 0.0, "specular_anisotropy": 0.0, "transmission": 0.0, "subsurface": 0.0, "sheen": 0.0,
          "coat_anisotropy": 0.0, "coat_affect_color": 0.0, "coat_affect_roughness": 0.0, "thin_film_thickness": 0.0,
-         "thin_walled": False, "coat_normal": None, "tangent": None}, {}, normal_map=True),
+         "thin_walled": False, "coat_normal": None, "tangent": None}, {}, normal_map="normal"),
+    # OpenPBR Surface's opaque reflection, as for Standard Surface: the base (diffuse and metal), specular and coat.
+    "open_pbr_surface": ShadingModel(
+        "open_pbr_surface", "ND_open_pbr_surface_surfaceshader",
+        ("base_weight", "base_color", "base_metalness", "specular_weight", "specular_color", "specular_roughness",
+         "specular_ior", "coat_weight", "coat_color", "coat_roughness", "coat_ior", "geometry_normal"),
+        {"base_diffuse_roughness": 0.0, "specular_roughness_anisotropy": 0.0, "transmission_weight": 0.0,
+         "subsurface_weight": 0.0, "fuzz_weight": 0.0, "coat_roughness_anisotropy": 0.0, "coat_darkening": 1.0,
+         "thin_film_weight": 0.0, "geometry_thin_walled": False, "geometry_coat_normal": None,
+         "geometry_tangent": None, "geometry_coat_tangent": None}, {}, normal_map="geometry_normal"),
 }
 
 
@@ -168,7 +177,7 @@ def canonical_document(document: mx.Document, material: str | None = None) -> mx
         mx_type = decl.getType()
         if inp is not None:
             shader.removeInput(name)
-        if name == "normal" and model.normal_map:
+        if name == model.normal_map:
             shader.addInput(name, mx_type).setNodeName(_flat_normal_map(doc))
             continue
         add = doc.addNode("add", f"{PREFIX}{name}", mx_type)

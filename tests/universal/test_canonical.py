@@ -83,15 +83,53 @@ def test_standard_surface_materials_compile_to_one_layout():
 
 
 def test_a_material_it_does_not_cover_is_named_with_the_reason():
-    openpbr = _read(shared_path("materialx", "resources", "Materials", "TestSuite", "pbrlib", "surfaceshader",
-                                "transparency_hints.mtlx"))
-    elig = eligibility(openpbr, "geom_hint")
-    assert elig.model is None and "open_pbr_surface" in elig.reason and "standard_surface" in elig.reason
-    with pytest.raises(ValueError, match="open_pbr_surface"):
-        canonical_document(openpbr, "geom_hint")
+    hints = _read(shared_path("materialx", "resources", "Materials", "TestSuite", "pbrlib", "surfaceshader",
+                              "transparency_hints.mtlx"))
+    assert "transmission_weight" in eligibility(hints, "transp_hint").reason  # an OpenPBR glass
+    gltf = _read(shared_path("materialx", "resources", "Materials", "TestSuite", "pbrlib", "surfaceshader",
+                             "transparency_hints.mtlx"))
+    gltf.getNode("geometric_opacity_hint").setCategory("gltf_pbr")
+    elig = eligibility(gltf, "geom_hint")
+    assert elig.model is None and "gltf_pbr" in elig.reason and "standard_surface" in elig.reason
+    with pytest.raises(ValueError, match="gltf_pbr"):
+        canonical_document(gltf, "geom_hint")
     for name, held in (("glass", "transmission"), ("velvet", "sheen"), ("metal_brushed", "specular_anisotropy")):
         assert held in eligibility(_ss_example(name)).reason, name  # another program than the four lobes
     assert "transparent" in eligibility(_example("glass")).reason  # transmission: another program
     doc = _example("plastic")
     doc.getNodes("UsdPreviewSurface")[0].setInputValue("useSpecularWorkflow", 1)
     assert "useSpecularWorkflow" in eligibility(doc).reason
+
+
+def _open_pbr(**inputs) -> mx.Document:
+    """One open_pbr_surface material ``M`` with ``inputs`` as (type, value string) pairs."""
+    text = ('<?xml version="1.0"?>\n<materialx version="1.39">\n  <open_pbr_surface name="SR" type="surfaceshader">\n'
+            + "".join(f'    <input name="{k}" type="{t}" value="{v}" />\n' for k, (t, v) in inputs.items())
+            + '  </open_pbr_surface>\n  <surfacematerial name="M" type="material">\n'
+            '    <input name="surfaceshader" type="surfaceshader" nodename="SR" />\n  </surfacematerial>\n</materialx>\n')
+    doc = mx.createDocument()
+    mx.readFromXmlString(doc, text)
+    return doc
+
+
+def test_open_pbr_materials_keep_their_brdf_in_one_layout(tmp_path):
+    """A default, a metal and a coated OpenPBR Surface: the canonical form keeps each BRDF (float32 rounding) and
+    compiles all three to the atlas's layout; a fuzzy one is refused with the reason."""
+    from mtlx2neural.textures.parameter_stack import build_parameter_stack
+    from mtlx2neural.universal.canonical import canonical_name
+    from mtlx2neural.universal.train import atlas_material
+
+    cases = [_open_pbr(), _open_pbr(base_metalness=("float", "1"), specular_roughness=("float", "0.2")),
+             _open_pbr(coat_weight=("float", "1"), coat_roughness=("float", "0.05"), base_color=("color3", "0.6, 0.1, 0.1"))]
+    _, _, atlas = atlas_material(tmp_path, "open_pbr_surface", 16, 0)
+    layout = [(canonical_name(c.name), c.width) for c in atlas.channels]
+    wi, wo = random_dirs(512, 1), random_dirs(512, 2)
+    uv = torch.rand(512, 2, generator=torch.Generator().manual_seed(3))
+    for doc in cases:
+        assert eligibility(doc, "M").model == "open_pbr_surface"
+        canonical = compile_material(canonical_document(doc, "M"), "M")
+        assert [(canonical_name(c.name), c.width) for c in build_parameter_stack(canonical).channels] == layout
+        a = ReferenceMaterial(compile_material(doc, "M")).eval(wi, wo, ShadingPoint(uv=uv))
+        b = ReferenceMaterial(canonical).eval(wi, wo, ShadingPoint(uv=uv))
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-7) and float(a.max()) > 0.02
+    assert "fuzz_weight" in eligibility(_open_pbr(fuzz_weight=("float", "0.5")), "M").reason
