@@ -11,7 +11,8 @@ and what the conversion cost and saved, material by material.
 - ``neural``: the exported neural models (:func:`mtlx2neural.load_neural`: FP16 latents and weights, with
   their emission and opacity maps), flagged ones included (the report shows what the quality gate judged);
 - ``preview``: the UsdPreviewSurface fallback, the analytic Lambert + GGX baseline the conversion fitted
-  (``<material folder>/analytic_baseline.pt``, shown with its ``surface_maps.pt``).
+  (``<material folder>/analytic_baseline.pt``, shown with its ``surface_maps.pt``); the reference where the
+  input's own UsdPreviewSurface is the fallback (the record's ``preview.own``).
 
 A material the layer skipped, or whose neural model (or record) cannot be read, is drawn with its reference
 in all three images (with missing textures at their declared defaults for a skipped one), or, when not even
@@ -291,7 +292,9 @@ def _converted(layer: Path, source: Path, prim: str, entry: dict) -> SceneEntry:
                      "; ".join((record.quality or {}).get("reasons") or []), record=record, folder=folder,
                      bound_prims=list(record.bound_prims), texels=tuple(int(s) for s in record.resolution))
     preview, how = reference, "the reference in the preview image (no analytic_baseline.pt)"
-    if (folder / BASELINE_FILE).is_file():
+    if (record.preview or {}).get("own"):  # the input's own UsdPreviewSurface is the fallback: the reference
+        how = "its neural model; its own UsdPreviewSurface, the reference, in the preview image"
+    elif (folder / BASELINE_FILE).is_file():
         try:
             preview = load_analytic(folder / BASELINE_FILE)
             maps = load_surface_maps(folder / SURFACE_FILE)  # the emission and opacity it is shown with
