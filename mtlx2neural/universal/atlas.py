@@ -75,21 +75,13 @@ DISTRIBUTIONS = {
         "coat_IOR": lambda rng, n: 1.1 + 1.4 * rng.random(n),
         "normal": _normal,
     },
-    "open_pbr_surface": {
-        "base_weight": lambda rng, n: _ends(rng, n, 0.0, 0.5),
-        "base_color": lambda rng, n: rng.random((n, 3)),
-        "base_metalness": lambda rng, n: _ends(rng, n, 0.4, 0.4),
-        "specular_weight": lambda rng, n: _ends(rng, n, 0.1, 0.5),
-        "specular_color": lambda rng, n: _white_or(rng, n, 0.5),
-        "specular_roughness": lambda rng, n: rng.random(n),
-        "specular_ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
-        "coat_weight": lambda rng, n: _ends(rng, n, 0.5, 0.0),
-        "coat_color": lambda rng, n: _white_or(rng, n, 0.5),
-        "coat_roughness": lambda rng, n: rng.random(n),
-        "coat_ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
-        "geometry_normal": _normal,
-    },
 }
+# OpenPBR's opaque inputs are Standard Surface's under other names: the same distributions.
+DISTRIBUTIONS["open_pbr_surface"] = {openpbr: DISTRIBUTIONS["standard_surface"][ss] for openpbr, ss in (
+    ("base_weight", "base"), ("base_color", "base_color"), ("base_metalness", "metalness"),
+    ("specular_weight", "specular"), ("specular_color", "specular_color"), ("specular_roughness", "specular_roughness"),
+    ("specular_ior", "specular_IOR"), ("coat_weight", "coat"), ("coat_color", "coat_color"),
+    ("coat_roughness", "coat_roughness"), ("coat_ior", "coat_IOR"), ("geometry_normal", "normal"))}
 """Per shading model and input: ``(generator, n) -> [n] or [n, 3]`` values of n cells."""
 
 
