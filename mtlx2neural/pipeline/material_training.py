@@ -131,8 +131,6 @@ def train_material(src, cfg: TrainConfig, folder: Path, device: str, resume: boo
     in its model's canonical form and its latents fit into the shipped network (:func:`mtlx2neural.universal.
     fit.fit_universal`); should its stack's layout not be the network's, it trains its own, with a note.
     """
-    if preview and getattr(src, "preview_surface", False):  # the input's own shader is an exact fallback
-        preview, extra = False, {**(extra or {}), **OWN_PREVIEW}
     if encoder is not None:
         done = _fit_universal(src, cfg, folder, device, allow_missing_textures, digest, resolution, extra, preview,
                               application, progress, encoder)
@@ -168,7 +166,10 @@ class MaterialSetup:
     surface: SurfaceMaps
     trainer: Trainer
     preview: bool
+    """Fit the analytic baseline of the UsdPreviewSurface fallback after training."""
     t0: float
+    own_preview: bool = False
+    """The input's own UsdPreviewSurface is the fallback (:data:`OWN_PREVIEW`): nothing is fitted."""
 
     @property
     def tiles(self) -> list[int] | None:
@@ -212,7 +213,8 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
     folder.mkdir(parents=True, exist_ok=True)
     # An interrupted run must not leave an old record (and its hash) beside a new checkpoint.
     (folder / RECORD_FILE).unlink(missing_ok=True)
-    preview = preview and cfg.preview_iterations > 0
+    own_preview = bool(preview and getattr(src, "preview_surface", False))  # the input's shader is exact
+    preview = preview and cfg.preview_iterations > 0 and not own_preview
     if not preview:  # a baseline of an earlier run would otherwise be exported as this run's fallback
         (folder / BASELINE_FILE).unlink(missing_ok=True)
     geometry_note = None
@@ -234,7 +236,7 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
         surface = surface_maps(compiled, stack, cfg, src.name, folder)
     trainer = Trainer(ref, stack, cfg, folder, device=device, surface=surface)
     return MaterialSetup(src, cfg, folder, device, compiled, ref, stack, list(stack_notes), geometry_note, surface,
-                         trainer, preview, t0)
+                         trainer, preview, t0, own_preview)
 
 
 def original_program(src, canonical, device: str, allow_missing_textures: bool, application):
@@ -276,7 +278,7 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         save_png(folder / f"{name}_reference.png", e["reference"])
         save_png(folder / f"{name}_neural.png", e["neural"])
         save_png(folder / f"{name}_flip.png", e["flip_map"], linear=False)
-    extra = dict(extra or {})
+    extra = {**(extra or {}), **(OWN_PREVIEW if setup.own_preview else {})}
     record = MaterialRecord(
         material=src.name, mtlx_material=src.material, source=src.source_file, source_hash=digest,
         bound_prims=list(src.bound_prims), resolution=list(stack.resolution),

@@ -60,6 +60,10 @@ def test_one_network_for_the_scene_and_one_per_material_otherwise(asset, monkeyp
         saved = json.loads((scene.folder / Path(r.material.lstrip("/")).as_posix().replace("/", ".")
                             / "summary.json").read_text())
         assert saved["network"] == r.network
+    # the Plastic's input UsdPreviewSurface stays its fallback in a shared group too: nothing fitted for it
+    own = {r.material: bool((r.preview or {}).get("own")) for r in scene}
+    assert own == {"/World/Looks/CarPaint": False, "/World/Looks/Plastic": True}
+    assert not (scene.folder / "World.Looks.Plastic" / "analytic_baseline.pt").exists()
     # the one network, written once: its module, weights and each material's latents
     listing = json.loads((scene.folder / "network" / "network.json").read_text())
     assert sorted(listing["materials"]) == names
