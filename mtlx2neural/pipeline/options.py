@@ -66,7 +66,8 @@ class ConvertOptions:
     shader is a UsdPreviewSurface (metallic workflow), a standard_surface or an open_pbr_surface (opaque
     reflection only: base, specular and coat) with texture-driven inputs encodes its parameter pyramid with the network shipped for that
     model, then fine-tunes for --universal-steps (measured: about half the conversion time of its own); the others train their own, and ``inspect`` says which path each
-    material takes and why. Not with --network scene or --max-error."""
+    material takes and why. With --network scene the group's shared network starts from the shipped one
+    (the fine-tune's schedule when every material of the group takes the universal path). Not with --max-error."""
     universal_steps: int = field(default=STEPS, metadata={"metavar": "N"})
     """Fine-tune steps of a material on the universal path (--encoder universal)."""
     universal_tune: str = field(default="networks", metadata={"choices": TUNES})
@@ -197,7 +198,7 @@ def check_options(options: ConvertOptions) -> TrainConfig:
 
 
 def _check_encoder(options) -> None:
-    """``--encoder``: a known choice, and ``universal`` with neither --network scene nor --max-error."""
+    """``--encoder``: a known choice, and ``universal`` without --max-error."""
     if options.encoder not in ENCODERS:
         raise InputError(f"--encoder {options.encoder!r}: choose one of {', '.join(ENCODERS)}")
     steps = options.universal_steps
@@ -205,12 +206,9 @@ def _check_encoder(options) -> None:
         raise InputError(f"--universal-steps {steps!r}: must be a whole number of at least 1")
     if options.universal_tune not in TUNES:
         raise InputError(f"--universal-tune {options.universal_tune!r}: choose one of {', '.join(TUNES)}")
-    if options.encoder == "universal":
-        clash = [flag for flag, given in (("--network scene", getattr(options, "network", "") == "scene"),
-                                          ("--max-error", getattr(options, "max_error", None) is not None)) if given]
-        if clash:
-            raise InputError(f"--encoder universal fits latents into a shipped network, so {', '.join(clash)} "
-                             f"(which train networks) cannot be used with it")
+    if options.encoder == "universal" and getattr(options, "max_error", None) is not None:
+        raise InputError("--encoder universal fits latents into a shipped network, so --max-error (which chooses "
+                         "a network size per material) cannot be used with it")
 
 
 def _check_network(options: ConvertOptions) -> None:

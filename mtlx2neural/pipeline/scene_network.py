@@ -43,6 +43,13 @@ from mtlx2neural.train.shared import (
     shape_differences,
 )
 from mtlx2neural.train.trainer import TrainingInterrupted
+from mtlx2neural.universal.fit import (
+    LayoutMismatch,
+    load_encoder,
+    load_networks,
+    use_fine_tune_schedule,
+)
+from mtlx2neural.universal.weights import load_weights
 
 
 def apply_scene_digests(plans) -> None:
@@ -112,7 +119,8 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
         cfg = dataclasses.replace(job.cfg, batch=scene_batch(job.cfg.batch, len(jobs)))
         try:
             setups.append(prepare_material(job.source(), cfg, Path(job.folder), device, job.allow_missing_textures,
-                                           job.resolution, application=job.application))
+                                           job.resolution, application=job.application,
+                                           canonical=job.encoder is not None))
             kept.append(k)
         except Exception as exc:  # noqa: BLE001 - that material's failure; the group trains without it
             if failed is None:
@@ -121,12 +129,13 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     out: list = [None] * len(jobs)
     if not setups:
         return out
+    start = warm_start(setups, [jobs[k] for k in kept])
     shared = SharedTrainer([s.trainer for s in setups])
-    cfg = setups[0].cfg
+    cfg = shared.cfg
     if progress:
-        print(f"--network scene: {len(setups)} materials share one decoder {cfg.decoder} and one sampler; "
-              f"{cfg.iterations} joint steps x {cfg.batch} rows per material, then {latent_steps(cfg.iterations)} "
-              f"latent steps per material", flush=True)
+        print(f"--network scene: {len(setups)} materials share one decoder {cfg.decoder} and one sampler"
+              f"{start.text if start else ''}; {cfg.iterations} joint steps x {cfg.batch} rows per material, then "
+              f"{latent_steps(cfg.iterations)} latent steps per material", flush=True)
     try:
         models = shared.run(progress=progress)
     except KeyboardInterrupt:
@@ -142,17 +151,87 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     info = {"id": hashlib.sha256(group.encode()).hexdigest()[:16],
             "materials": [jobs[k].name for k in kept], "joint_steps": cfg.iterations,
             "rows_per_material": cfg.batch, "latent_steps": latent_steps(cfg.iterations),
-            "seconds": dict(shared.seconds)}
+            "seconds": dict(shared.seconds), **({"universal": start.record()} if start else {})}
     for k, setup, model in zip(kept, setups, models):
-        _finish(jobs, k, setup, model, info, out, report, failed)
+        _finish(jobs, k, setup, model, info, out, report, failed, start)
     return out
 
 
-def _finish(jobs, k: int, setup, model, info: dict, out: list, report, failed) -> None:
+@dataclasses.dataclass
+class WarmStart:
+    """A group started from a shipped universal network (:func:`warm_start`)."""
+
+    model: str
+    """The shading model whose network the group's decoder and sampler start from."""
+    weights_sha: str
+    encoded: list[str]
+    """The materials whose latents the shipped encoder wrote before the first joint step."""
+    others: dict[str, str]
+    """The group's other materials: why each trains its own encoder (the full schedule then runs)."""
+    steps: int
+    """Joint steps: the universal fine-tune's when every material is encoded, else the full schedule's."""
+
+    @property
+    def text(self) -> str:
+        return (f", started from the universal {self.model} network ({len(self.encoded)} of "
+                f"{len(self.encoded) + len(self.others)} materials encoded by it)")
+
+    def record(self) -> dict:
+        return {"model": self.model, "weights_sha256": self.weights_sha, "encoded": list(self.encoded),
+                "own_encoder": dict(self.others), "joint_steps": self.steps}
+
+
+def warm_start(setups, jobs) -> WarmStart | None:
+    """Start a group from a shipped universal network when some of its materials took the universal path
+    (``jobs[i].encoder``, ``--encoder universal``; their ``setups[i]`` built on the canonical stack). The
+    network of the shading model most of them share (its decoder, environment head and sampler) goes into
+    the lead trainer's model, which :class:`~mtlx2neural.train.shared.SharedTrainer` ties every other one
+    to; each material of that model bakes its latents with the shipped encoder. When all of the group's
+    materials are so encoded, every trainer takes the universal fine-tune's schedule
+    (:func:`~mtlx2neural.universal.fit.use_fine_tune_schedule`, ``--universal-steps``); otherwise the
+    group runs its full schedule (the others' encoders train in its encoder phase), from the shipped
+    network rather than from random weights. Returns None when no material took the universal path."""
+    models = [job.encoder["model"] for job in jobs if job.encoder is not None]
+    if not models:
+        return None
+    model = max(sorted(set(models)), key=models.count)
+    weights = load_weights(model)
+    encoded, others = [], {}
+    for setup, job in zip(setups, jobs):
+        if job.encoder is None or job.encoder["model"] != model:
+            others[job.name] = (f"its universal network ({job.encoder['model']}) is not the group's"
+                                if job.encoder else "own network (not on the universal path)")
+            continue
+        try:
+            load_encoder(setup.trainer, weights)
+        except LayoutMismatch as exc:
+            others[job.name] = str(exc)
+            continue
+        encoded.append(job.name)
+    if not encoded:
+        return None
+    load_networks(setups[0].trainer.model, weights)
+    steps = setups[0].trainer.cfg.iterations
+    if not others:
+        steps = jobs[0].encoder["steps"]
+        for setup in setups:
+            use_fine_tune_schedule(setup.trainer, steps)
+    for setup, job in zip(setups, jobs):
+        if job.name in encoded:
+            setup.trainer.bake()
+    return WarmStart(model, weights["sha256"], encoded, others, steps)
+
+
+def _finish(jobs, k: int, setup, model, info: dict, out: list, report, failed, start: WarmStart | None = None) -> None:
     """Measure and record job ``k`` (``out[k]``: its record), or pass its failure to ``failed``."""
     job = jobs[k]
     extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings),
              "input_hash": job.input_hash, "latent": job.latent, "options": job.options, "network": info}
+    if start is not None and job.name in start.encoded:
+        extra["encoder"] = job.encoder
+    elif start is not None and job.encoder is not None:
+        extra["notes"].append(f"universal path not taken in the group: {start.others[job.name]}; its encoder "
+                              f"trained in the group's schedule")
     try:
         out[k] = finish_material(setup, model, job.digest, extra)
     except Exception as exc:  # noqa: BLE001 - measuring one material failed; the others are kept

@@ -174,9 +174,10 @@ class SharedTrainer:
         self._t0 = t0 = time.time()
         bar = progress_bar(cfg.iterations, self.step, enabled=progress, desc=f"{len(self.trainers)} materials")
         while self.step < cfg.iterations:
-            if self.step >= switch and not self.trainers[0].baked:
+            if self.step >= switch:  # some may be baked already (a universal start, pipeline.scene_network)
                 for t in self.trainers:
-                    t.bake()
+                    if not t.baked:
+                        t.bake()
             rec = self.joint_step()
             if not all(math.isfinite(rec[k]) for k in ("loss_brdf", "loss_kl", "grad_norm")):
                 raise FloatingPointError(f"non-finite loss at joint step {self.step}: {rec}")

@@ -84,26 +84,45 @@ class Columns:
         return raw[:, self.index.to(raw.device)]
 
 
+def load_encoder(trainer, weights: dict) -> None:
+    """Give ``trainer``'s model the shipped encoder, reading the stack's columns in the shipped layout
+    (:func:`encoder_columns`; raises :class:`LayoutMismatch`). Call before the optimiser is made: the
+    encoder is a new module."""
+    if trainer.cfg.encoder_input != "raw":
+        raise LayoutMismatch(f"the universal network reads raw channels, not --encoder-input {trainer.cfg.encoder_input}")
+    columns = Columns(encoder_columns(trainer.stack, weights))
+    trainer.encoder_input = columns
+    trainer.model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)
+    trainer.model.encoder.load_state_dict(weights["encoder"])
+
+
+def load_networks(model, weights: dict) -> None:
+    """The shipped decoder (its environment head included) and sampler, into ``model``'s."""
+    model.decoder.load_state_dict(weights["decoder"])
+    model.sampler.load_state_dict(weights["sampler"])
+
+
+def use_fine_tune_schedule(trainer, steps: int) -> None:
+    """Replace ``trainer``'s schedule with the fine-tune's: ``steps`` iterations, no encoder phase, Adam from
+    :data:`LR_START`, the mollification at its floor throughout (as the shipped decoder ended its training),
+    rows drawn :data:`PREFETCH` steps at a time, no FLIP probe."""
+    cfg = trainer.cfg
+    trainer.cfg = dataclasses.replace(cfg, iterations=max(1, steps), encoder_fraction=0.0, lr_start=LR_START,
+                                      probe_every=0, mollify_degrees=cfg.mollify_min_degrees,
+                                      target_prefetch=max(cfg.target_prefetch, PREFETCH))
+    trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, trainer.cfg.target_prefetch)
+
+
 def fit_universal(trainer, weights: dict, steps: int = STEPS, progress: bool = True, tune: str = "networks"):
     """Steps 1-4 of the module docstring on ``trainer`` (its ``cfg`` is replaced by the fine-tune's: ``steps``
     iterations, no encoder phase, the mollification at its floor throughout, as the shipped decoder
     ended its training, rows drawn :data:`PREFETCH` steps at a time). Saves the checkpoint and returns the model."""
     if tune not in TUNES:
         raise ValueError(f"tune {tune!r}: choose one of {TUNES}")
-    if trainer.cfg.encoder_input != "raw":
-        raise LayoutMismatch(f"the universal network reads raw channels, not --encoder-input {trainer.cfg.encoder_input}")
-    columns = Columns(encoder_columns(trainer.stack, weights))
+    load_encoder(trainer, weights)
     model = trainer.model
-    trainer.encoder_input = columns
-    model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)
-    model.encoder.load_state_dict(weights["encoder"])
-    model.decoder.load_state_dict(weights["decoder"])
-    model.sampler.load_state_dict(weights["sampler"])
-    cfg = trainer.cfg
-    trainer.cfg = dataclasses.replace(cfg, iterations=max(1, steps), encoder_fraction=0.0, lr_start=LR_START,
-                                      probe_every=0, mollify_degrees=cfg.mollify_min_degrees,
-                                      target_prefetch=max(cfg.target_prefetch, PREFETCH))
-    trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, trainer.cfg.target_prefetch)
+    load_networks(model, weights)
+    use_fine_tune_schedule(trainer, steps)
     trainer.bake()
     for p in (*model.decoder.parameters(), *model.sampler.parameters()):
         p.requires_grad_(tune == "networks")
