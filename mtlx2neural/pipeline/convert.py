@@ -529,7 +529,7 @@ def _train_and_share(plans, folders, cfg, device, resume, progress, allow_missin
         if progress:
             print(f"{plans[i].name}: {errors[i].reason}", flush=True)
 
-    ran = (run_scene_jobs(jobs, report, failed, kept_network) if network == "scene"
+    ran = (run_scene_jobs(jobs, report, failed, kept_network, workers) if network == "scene"
            else run_jobs(jobs, workers, report, failed))
     poor = poorly_fitted(ran, [r for _, r, cached in results.values() if cached]) if kept_network else {}
     if poor:  # the kept network cannot model an added material: the group trains again, with it

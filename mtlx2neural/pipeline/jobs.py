@@ -30,7 +30,10 @@ from mtlx2neural.graph.ops import Application
 from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.pipeline.budget import train_within_budget
 from mtlx2neural.pipeline.devices import resolve_device
-from mtlx2neural.pipeline.material_training import train_material
+from mtlx2neural.pipeline.material_training import (
+    finish_from_checkpoint,
+    train_material,
+)
 from mtlx2neural.pipeline.source_hash import input_hash
 from mtlx2neural.scene import MaterialSource
 from mtlx2neural.train.config import TrainConfig
@@ -99,6 +102,11 @@ class MaterialJob:
     """A measured BRDF: ``source_file`` is its MERL table and ``document_xml`` is empty."""
     preview_surface: bool = False
     """The input's own UsdPreviewSurface is the material's fallback (``MaterialSource.preview_surface``)."""
+    trained: dict | None = None
+    """Set for a material a shared network already trained (``--network scene``): its checkpoint is in
+    ``folder``, and the job only measures and records it
+    (:func:`~mtlx2neural.pipeline.material_training.finish_from_checkpoint`); the further record fields
+    (``network``, ``encoder``, ``notes``)."""
 
     def source(self):
         """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML (or the MERL file's path)."""
@@ -122,6 +130,11 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
                        encoder=plan.encoder.record() if plan.encoder.universal else None, **options)
 
 
+def _merged(extra: dict, more: dict) -> dict:
+    """``extra`` with ``more``'s fields, its ``notes`` appended."""
+    return {**extra, **more, "notes": [*extra.get("notes", []), *more.get("notes", [])]}
+
+
 def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
     """Train one material (any runner calls this); returns its record (also in ``summary.json``), or
     with ``job.ship`` a :class:`Shipped` that also carries the folder's files."""
@@ -142,7 +155,11 @@ def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
              "input_hash": job.input_hash, "latent": job.latent, "options": job.options}
     try:
         with _running():
-            if job.max_error is None:
+            if job.trained is not None:
+                record = finish_from_checkpoint(src, job.cfg, folder, device, job.allow_missing_textures,
+                                                job.digest, job.resolution, _merged(extra, job.trained),
+                                                application=job.application, canonical=job.encoder is not None)
+            elif job.max_error is None:
                 _, record = train_material(src, job.cfg, folder, device, job.resume, job.progress,
                                            job.allow_missing_textures, job.digest, job.resolution, extra,
                                            application=job.application, listener=listener, encoder=job.encoder)

@@ -46,6 +46,11 @@ from mtlx2neural.graph import compile_material
 from mtlx2neural.graph.geometry import bind_geometry
 from mtlx2neural.graph.ops import Application
 from mtlx2neural.material_record import RECORD_FILE, MaterialRecord, write_record
+from mtlx2neural.model.checkpoint import (
+    checkpoint_file,
+    load_checkpoint,
+    read_checkpoint,
+)
 from mtlx2neural.pipeline.devices import device_name
 from mtlx2neural.pipeline.in_scene_measure import measure_in_scene
 from mtlx2neural.pipeline.plan import latent_resolution, scaled_grid
@@ -313,6 +318,20 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
     return record
 
 
+
+
+def finish_from_checkpoint(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,
+                           digest: str, resolution, extra: dict, application: Application | None = None,
+                           canonical: bool = False) -> MaterialRecord:
+    """Measure and record a material whose model is already trained and saved in ``folder``'s checkpoint
+    (a ``--network scene`` group's, trained in another process): prepare it as its training did
+    (:func:`prepare_material`, ``cfg`` the one it trained with), read the model, its step and its
+    history from the checkpoint, then :func:`finish_material`."""
+    ck = read_checkpoint(checkpoint_file(folder))  # before prepare_material, which clears the old record
+    setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution,
+                             application=application, canonical=canonical)
+    setup.trainer.step, setup.trainer.history = ck["step"], list(ck["history"])
+    return finish_material(setup, load_checkpoint(folder, device), digest, extra)
 
 
 def surface_maps(compiled, stack, cfg: TrainConfig, name: str, folder: Path) -> SurfaceMaps:

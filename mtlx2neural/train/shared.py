@@ -36,6 +36,7 @@ import torch
 
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.environment_fit import fit_environment_head
+from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr
 
 SCENE_MIN_ROWS = 256
@@ -44,6 +45,9 @@ MATERIALS_PER_STEP = 4
 """Materials in one joint step (K): the joint phase's cost then does not grow with the scene's size."""
 LATENT_FRACTION = 0.2
 """Latent fine-tune steps per material, as a share of ``cfg.iterations`` (:func:`latent_steps`)."""
+LATENT_PREFETCH = 16
+"""Steps whose rows a latent fine-tune draws in one call to the reference (``TrainConfig.target_prefetch``):
+the reference's per-call cost dominates a material's 512-row batch on a CPU."""
 SHAPE_FIELDS = ("latent_dim", "frames", "decoder", "albedo_head", "analytic_cosine", "environment_fraction",
                 "iterations", "encoder_fraction", "lr_start", "lr_end")
 
@@ -148,6 +152,9 @@ class SharedTrainer:
         """The latent fine-tune of one material: its latents alone, the shared networks frozen."""
         if steps <= 0:
             return
+        # the mollification stays at its floor from here on, so rows may be drawn ahead: LATENT_PREFETCH steps
+        cfg = trainer.cfg
+        trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, max(cfg.target_prefetch, LATENT_PREFETCH))
         shared = _unique_parameters([trainer.model.decoder, trainer.model.sampler])
         for p in shared:
             p.requires_grad_(False)
