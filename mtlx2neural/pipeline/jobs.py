@@ -158,7 +158,8 @@ def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
             if job.trained is not None:
                 record = finish_from_checkpoint(src, job.cfg, folder, device, job.allow_missing_textures,
                                                 job.digest, job.resolution, _merged(extra, job.trained),
-                                                application=job.application, canonical=job.encoder is not None)
+                                                application=job.application, canonical=job.encoder is not None,
+                                                trained_seconds=sum(job.trained["network"]["seconds"].values()))
             elif job.max_error is None:
                 _, record = train_material(src, job.cfg, folder, device, job.resume, job.progress,
                                            job.allow_missing_textures, job.digest, job.resolution, extra,

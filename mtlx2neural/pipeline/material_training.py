@@ -322,15 +322,17 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
 
 def finish_from_checkpoint(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,
                            digest: str, resolution, extra: dict, application: Application | None = None,
-                           canonical: bool = False) -> MaterialRecord:
+                           canonical: bool = False, trained_seconds: float = 0.0) -> MaterialRecord:
     """Measure and record a material whose model is already trained and saved in ``folder``'s checkpoint
     (a ``--network scene`` group's, trained in another process): prepare it as its training did
     (:func:`prepare_material`, ``cfg`` the one it trained with), read the model, its step and its
-    history from the checkpoint, then :func:`finish_material`."""
+    history from the checkpoint, then :func:`finish_material`. ``trained_seconds``: the training's wall
+    time (the record's ``train_seconds``; its ``seconds`` adds this material's measures)."""
     ck = read_checkpoint(checkpoint_file(folder))  # before prepare_material, which clears the old record
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution,
                              application=application, canonical=canonical)
     setup.trainer.step, setup.trainer.history = ck["step"], list(ck["history"])
+    setup.t0 = time.time() - trained_seconds
     return finish_material(setup, load_checkpoint(folder, device), digest, extra)
 
 

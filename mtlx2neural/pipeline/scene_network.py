@@ -172,6 +172,11 @@ def _finish_all(jobs, kept: list[int], info: dict, out: list, report, failed, st
         out[k] = record
 
 
+WARM_SCHEDULE = 0.5
+"""A group started from a universal network but holding materials it did not encode runs this share of the
+schedule (every phase: the others' encoders, the joint steps, the latent and environment fits)."""
+
+
 @dataclasses.dataclass
 class WarmStart:
     """A group started from a shipped universal network (:func:`warm_start`)."""
@@ -184,7 +189,8 @@ class WarmStart:
     others: dict[str, str]
     """The group's other materials: why each trains its own encoder (the full schedule then runs)."""
     steps: int
-    """Joint steps: the universal fine-tune's when every material is encoded, else the full schedule's."""
+    """Joint steps: the universal fine-tune's when every material is encoded, else :data:`WARM_SCHEDULE` of
+    the schedule's."""
 
     @property
     def text(self) -> str:
@@ -204,8 +210,8 @@ def warm_start(setups, jobs) -> WarmStart | None:
     to; each material of that model bakes its latents with the shipped encoder. When all of the group's
     materials are so encoded, every trainer takes the universal fine-tune's schedule
     (:func:`~mtlx2neural.universal.fit.use_fine_tune_schedule`, ``--universal-steps``); otherwise the
-    group runs its full schedule (the others' encoders train in its encoder phase), from the shipped
-    network rather than from random weights. Returns None when no material took the universal path."""
+    group runs :data:`WARM_SCHEDULE` of its schedule (the others' encoders train in its encoder phase),
+    from the shipped network rather than from random weights. Returns None when no material took the universal path."""
     models = [job.encoder["model"] for job in jobs if job.encoder is not None]
     if not models:
         return None
@@ -226,11 +232,14 @@ def warm_start(setups, jobs) -> WarmStart | None:
     if not encoded:
         return None
     load_networks(setups[0].trainer.model, weights)
-    steps = setups[0].trainer.cfg.iterations
     if not others:
         steps = jobs[0].encoder["steps"]
         for setup in setups:
             use_fine_tune_schedule(setup.trainer, steps)
+    else:
+        steps = max(1, round(WARM_SCHEDULE * setups[0].trainer.cfg.iterations))
+        for setup in setups:
+            setup.trainer.cfg = dataclasses.replace(setup.trainer.cfg, iterations=steps)
     for setup, job in zip(setups, jobs):
         if job.name in encoded:
             setup.trainer.bake()

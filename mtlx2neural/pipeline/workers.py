@@ -177,7 +177,8 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[Materi
     ctx = multiprocessing.get_context("spawn")
     bars = _PoolBars(jobs, ctx) if jobs[0].progress else None
     if bars:
-        print(f"training {len(jobs)} materials in {n} processes ({threads} torch thread(s) each, "
+        what = "measuring" if jobs[0].trained is not None else "training"  # a shared network's: trained already
+        print(f"{what} {len(jobs)} materials in {n} processes ({threads} torch thread(s) each, "
               f"{', '.join(devices)})", flush=True)
     jobs = [dataclasses.replace(j, progress=False, threads=threads, device=devices[i % len(devices)],
                                 progress_queue=bars.queue if bars else None, index=i)

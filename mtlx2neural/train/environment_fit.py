@@ -37,6 +37,12 @@ from mtlx2neural.train.udim import draw_uv
 
 RELATIVE_EPS = 1e-3
 """eps of the relative squared error: reflectances far below it weigh as plain squared error."""
+AHEAD = 25
+"""Steps whose rows are drawn in one call per material. The rows do not depend on the head being fitted
+(the sampler, the latents and the rest of the decoder are frozen), so drawing ahead changes only the cost:
+the reference's per-call overhead dominates a CPU step, most of all for a group of many materials."""
+AHEAD_ROWS = 32768
+"""At most this many rows drawn ahead (over every material): a large ``environment_batch`` draws fewer steps."""
 LR_START, LR_END = 5e-3, 5e-4
 """Adam's learning rate, decayed geometrically over the fit."""
 
@@ -73,6 +79,14 @@ def lobe_targets(reference, targets, model, lat, uv, level, wi, generator) -> to
     return torch.stack([y * r_spec, y * (1.0 - r_spec)], 1)
 
 
+def _rows_ahead(trainers, per: int, steps: int) -> list[tuple[torch.Tensor, ...]]:
+    """The rows of ``steps`` steps (each: ``per`` rows of every trainer's material), drawn in one call per
+    material (:data:`AHEAD`)."""
+    drawn = [_rows(t, per * steps) for t in trainers]
+    return [tuple(torch.cat([part[k * per:(k + 1) * per] for part in parts]) for parts in zip(*drawn))
+            for k in range(steps)]
+
+
 def _rows(trainer, batch: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``batch`` rows of ``trainer``'s material: (latents, wi, the reference's per-lobe reflectance)."""
     model, dev, g = trainer.model, trainer.device, trainer.gen
@@ -89,8 +103,8 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     """Fit ``trainer.model``'s environment head for ``steps`` Adam steps of ``batch`` rows each (module
     docstring), drawing from ``trainer.gen``; the other networks and the latents are not changed.
     ``trainer`` may be a list of trainers whose models share one decoder (:mod:`.shared`): each step then
-    takes ``batch // len(trainers)`` rows (at least 64) of every material.
-    Returns one record per 25 steps (``step``, ``loss_environment``); ``listener(step, steps, record)``
+    takes ``batch // len(trainers)`` rows (at least 64) of every material. Rows are drawn :data:`AHEAD`
+    steps at a time. Returns one record per 25 steps (``step``, ``loss_environment``); ``listener(step, steps, record)``
     is called with each."""
     trainers = list(trainer) if isinstance(trainer, (list, tuple)) else [trainer]
     model = trainers[0].model
@@ -99,10 +113,12 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
         raise RuntimeError("the model has no environment head to fit")
     per = batch if len(trainers) == 1 else max(64, batch // len(trainers))
     opt = torch.optim.Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
-    history = []
+    history, ahead = [], []
     for step in range(1, steps + 1):
-        rows = [_rows(t, per) for t in trainers]
-        lat, wi, y = (torch.cat(parts) for parts in zip(*rows))
+        if not ahead:
+            ahead = _rows_ahead(trainers, per, max(1, min(AHEAD, AHEAD_ROWS // (per * len(trainers)),
+                                                          steps - step + 1)))
+        lat, wi, y = ahead.pop(0)
         c = model.decoder.predict_lobe_reflectance(lat, wi)
         loss = ((c - y) ** 2 / (c.detach() ** 2 + RELATIVE_EPS)).mean()
         for group in opt.param_groups:

@@ -146,3 +146,20 @@ def test_the_environment_head_fits_the_references_albedo():
     # latents of a 300-step BRDF; measured 0.90-1.12 in luminance at seed 1.
     assert torch.all((ratio > 0.8) & (ratio < 1.2)), ratio.tolist()
     assert torch.all(c[:, 0].sum(-1) > 0) and torch.all(c[:, 1].sum(-1) > 0)  # both lobes carry light
+
+
+def test_rows_drawn_ahead_keep_every_material_in_every_step(monkeypatch):
+    """Drawing the environment fit's rows several steps at a time (environment_fit.AHEAD): step k takes the
+    k-th block of ``per`` rows of every material, none twice."""
+    from mtlx2neural.train import environment_fit
+
+    def rows(trainer, batch):  # row i of material m holds (m, i)
+        ids = torch.stack([torch.full((batch,), float(trainer)), torch.arange(batch, dtype=torch.float32)], -1)
+        return ids, ids, ids
+
+    monkeypatch.setattr(environment_fit, "_rows", rows)
+    steps = environment_fit._rows_ahead([0, 1, 2], per=4, steps=3)
+    assert len(steps) == 3
+    for k, (lat, _, _) in enumerate(steps):
+        assert lat[:, 0].tolist() == [0.0] * 4 + [1.0] * 4 + [2.0] * 4
+        assert lat[:, 1].tolist() == list(range(4 * k, 4 * k + 4)) * 3

@@ -180,11 +180,11 @@ def test_a_scene_network_starts_from_the_universal_one(tmp_path, weights, monkey
     for name, r in records.items():
         assert r.held_out_log_l1 < 0.85 * scratch[name].held_out_log_l1, (name, r.held_out_log_l1)
     # a material off the universal path (a uniform standard_surface) trains its own encoder in the group's
-    # full schedule, still from the shipped network
+    # schedule, shortened (WARM_SCHEDULE of 40 steps) since the group starts from the shipped network
     mixed = tmp_path / "mixed.mtlx"
     mixed.write_text(document(bodies[0], standard_surface("Plain", "SR_s", base_color=(0.5, 0.2, 0.1))))
     records = {r.material: r for r in convert_asset(mixed, dataclasses.replace(opts, out=str(tmp_path / "mixed")))}
     start = records["Plain"].network["universal"]
-    assert start["encoded"] == ["Painted1"] and "Plain" in start["own_encoder"] and start["joint_steps"] == 40
+    assert start["encoded"] == ["Painted1"] and "Plain" in start["own_encoder"] and start["joint_steps"] == 20
     assert records["Painted1"].encoder["path"] == "universal" and records["Plain"].encoder is None
-    assert all(r.steps == 40 for r in records.values())
+    assert all(r.steps == 20 for r in records.values())
