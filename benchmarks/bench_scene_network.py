@@ -1,12 +1,14 @@
 """One shared network against one network per material, on a whole asset: wall time, HDR FLIP, weight
 bytes and the number of distinct networks shipped.
 
-Run:  python benchmarks/bench_scene_network.py ASSET [--preset fast] [--max-texels N] [--out DIR] [--json F]
+Run:  python benchmarks/bench_scene_network.py ASSET [--preset fast] [--max-texels N] [--encoder universal]
+                                                    [--out DIR] [--json F]
       python benchmarks/bench_scene_network.py ASSET --add MATERIAL [--preset fast] ...
 
 Converts ``ASSET`` twice with the project's own command, ``--network material`` (the default worker
-pool: one process per core) and ``--network scene`` (one process, torch's threads), each into its own
-folder with ``--force``, and prints a markdown table: the conversion's wall time (the whole command:
+pool: one process per core) and ``--network scene`` (training in one process, measures in the pool), each
+into its own folder with ``--force`` (``--encoder`` applies to the scene run), and prints a markdown
+table: the conversion's wall time (the whole command:
 compiling, training, measuring, exporting), mean and worst ``flip_mean`` (the three sphere views
 against the reference), the shipped weight files' bytes (every material's ``weights.bin``) and how many
 of them differ. Run it on an otherwise idle machine: the ratio of the two wall times is the figure.
@@ -30,10 +32,11 @@ import time
 from pathlib import Path
 
 
-def convert(asset: Path, out: Path, network: str, preset: str, max_texels: int | None, force: bool = True) -> dict:
+def convert(asset: Path, out: Path, network: str, preset: str, max_texels: int | None, force: bool = True,
+            encoder: str = "material") -> dict:
     """Run one conversion; its wall time and the figures read back from the written records."""
     cmd = [sys.executable, "-m", "mtlx2neural.cli", str(asset), "-o", str(out), "--preset", preset,
-           "--network", network, "--quiet", *(["--force"] if force else [])]
+           "--network", network, "--encoder", encoder, "--quiet", *(["--force"] if force else [])]
     if max_texels is not None:
         cmd += ["--max-texels", str(max_texels)]
     t = time.time()
@@ -45,7 +48,7 @@ def convert(asset: Path, out: Path, network: str, preset: str, max_texels: int |
     weights = sorted(out.glob("*/neural/weights.bin"))
     digests = {hashlib.sha256(p.read_bytes()).hexdigest() for p in weights}
     flips = [r["flip_mean"] for r in records]
-    return {"network": network, "seconds": round(seconds, 1), "materials": len(records),
+    return {"network": network + (f" --encoder {encoder}" if encoder != "material" else ""), "seconds": round(seconds, 1), "materials": len(records),
             "flip_mean": round(sum(flips) / len(flips), 4), "flip_worst": round(max(flips), 4),
             "flip_by_material": {r["material"]: r["flip_mean"] for r in records},
             "weight_bytes": sum(p.stat().st_size for p in weights), "distinct_networks": len(digests),
@@ -91,6 +94,8 @@ def main() -> int:
     ap.add_argument("--max-texels", type=int, default=None, help="latent grid cap for both runs (default: the preset's)")
     ap.add_argument("--out", type=Path, default=None, help="folder for the two conversions (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON here")
+    ap.add_argument("--encoder", default="material", choices=("material", "universal"),
+                    help="--encoder of the --network scene run (universal: the group starts from a shipped network)")
     ap.add_argument("--add", default=None, metavar="MATERIAL", help="measure adding this material to a converted scene")
     args = ap.parse_args()
     base = args.out or Path(tempfile.mkdtemp(prefix="bench_scene_network_"))
@@ -105,8 +110,8 @@ def main() -> int:
         if args.json:
             args.json.write_text(json.dumps(rows, indent=2) + "\n")
         return 0
-    rows = [convert(args.asset.resolve(), base / network, network, args.preset, args.max_texels)
-            for network in ("material", "scene")]
+    rows = [convert(args.asset.resolve(), base / network, network, args.preset, args.max_texels,
+                    encoder=args.encoder if network == "scene" else "material") for network in ("material", "scene")]
     print(f"{args.asset.name}, --preset {args.preset}" + (f", --max-texels {args.max_texels}" if args.max_texels else ""))
     print("| network | materials | wall s | mean HDR FLIP | worst | weight bytes | distinct networks |")
     print("|---|---|---|---|---|---|---|")
