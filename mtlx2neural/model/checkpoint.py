@@ -123,6 +123,12 @@ def load_checkpoint(path, map_location="cpu") -> NeuralMaterial:
         raise InputError(f"{f}: no neural-material checkpoint there; train one with "
                          f"`mtlx2neural ASSET` or pass --checkpoint PATH")
     ck = read_checkpoint(f, map_location, "retrain or point --checkpoint at a complete checkpoint.pt")
+    return model_from_checkpoint(ck, f, map_location)
+
+
+def model_from_checkpoint(ck: dict, f, map_location="cpu") -> NeuralMaterial:
+    """The NeuralMaterial of a checkpoint dict ``ck`` already read from the file ``f`` (:func:`read_checkpoint`),
+    as :func:`load_checkpoint` returns it; the same errors and warning, naming ``f``."""
     state, config = ck["model"], ck.get("config") or {}
     try:
         model = NeuralMaterial(**model_arguments(state, config))

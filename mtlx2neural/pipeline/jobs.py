@@ -135,6 +135,13 @@ def _merged(extra: dict, more: dict) -> dict:
     return {**extra, **more, "notes": [*extra.get("notes", []), *more.get("notes", [])]}
 
 
+def _trained_seconds(network: dict) -> float:
+    """The training time of a shared network's material: its own fit when it was added to a kept network,
+    else the group's phases."""
+    added = network.get("added")
+    return added["seconds"] if added else sum(network["seconds"].values())
+
+
 def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
     """Train one material (any runner calls this); returns its record (also in ``summary.json``), or
     with ``job.ship`` a :class:`Shipped` that also carries the folder's files."""
@@ -159,7 +166,7 @@ def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
                 record = finish_from_checkpoint(src, job.cfg, folder, device, job.allow_missing_textures,
                                                 job.digest, job.resolution, _merged(extra, job.trained),
                                                 application=job.application, canonical=job.encoder is not None,
-                                                trained_seconds=sum(job.trained["network"]["seconds"].values()))
+                                                trained_seconds=_trained_seconds(job.trained["network"]))
             elif job.max_error is None:
                 _, record = train_material(src, job.cfg, folder, device, job.resume, job.progress,
                                            job.allow_missing_textures, job.digest, job.resolution, extra,

@@ -48,7 +48,7 @@ from mtlx2neural.graph.ops import Application
 from mtlx2neural.material_record import RECORD_FILE, MaterialRecord, write_record
 from mtlx2neural.model.checkpoint import (
     checkpoint_file,
-    load_checkpoint,
+    model_from_checkpoint,
     read_checkpoint,
 )
 from mtlx2neural.pipeline.devices import device_name
@@ -328,12 +328,13 @@ def finish_from_checkpoint(src, cfg: TrainConfig, folder: Path, device: str, all
     (:func:`prepare_material`, ``cfg`` the one it trained with), read the model, its step and its
     history from the checkpoint, then :func:`finish_material`. ``trained_seconds``: the training's wall
     time (the record's ``train_seconds``; its ``seconds`` adds this material's measures)."""
-    ck = read_checkpoint(checkpoint_file(folder))  # before prepare_material, which clears the old record
+    f = checkpoint_file(folder)
+    ck = read_checkpoint(f, device)
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution,
                              application=application, canonical=canonical)
     setup.trainer.step, setup.trainer.history = ck["step"], list(ck["history"])
     setup.t0 = time.time() - trained_seconds
-    return finish_material(setup, load_checkpoint(folder, device), digest, extra)
+    return finish_material(setup, model_from_checkpoint(ck, f, device), digest, extra)
 
 
 def surface_maps(compiled, stack, cfg: TrainConfig, name: str, folder: Path) -> SurfaceMaps:

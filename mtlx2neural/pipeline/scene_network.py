@@ -4,9 +4,10 @@ The jobs of :func:`~mtlx2neural.pipeline.convert.convert_asset` (one per materia
 this process instead of one worker per material: each material is prepared as a per-material run
 prepares it (:func:`~mtlx2neural.pipeline.material_training.prepare_material`: its reference, training
 stack, surface maps, trainer), the trainers are trained together
-(:class:`~mtlx2neural.train.shared.SharedTrainer`), and each material is then measured and recorded as
-a per-material run records it (:func:`~mtlx2neural.pipeline.material_training.finish_material`), its
-record's ``network`` naming the group.
+(:class:`~mtlx2neural.train.shared.SharedTrainer`), and each material is then measured and recorded from
+its checkpoint in the worker pool, as a per-material run records it
+(:func:`~mtlx2neural.pipeline.material_training.finish_from_checkpoint`), its record's ``network`` naming
+the group.
 
 Reuse: each material's source hash is marked as a scene-mode hash (:func:`apply_scene_digests`), so a
 per-material result is never reused as part of a shared network (or the other way round). The network's
@@ -32,7 +33,7 @@ from pathlib import Path
 from mtlx2neural.errors import InputError
 from mtlx2neural.model.checkpoint import checkpoint_file, read_checkpoint
 from mtlx2neural.pipeline.devices import resolve_device
-from mtlx2neural.pipeline.material_training import finish_material, prepare_material
+from mtlx2neural.pipeline.material_training import prepare_material
 from mtlx2neural.pipeline.quality import flag_reasons
 from mtlx2neural.pipeline.workers import run_jobs
 from mtlx2neural.train.shared import (
@@ -114,7 +115,7 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     if not jobs:
         return []
     if network is not None:
-        return add_to_network(jobs, network, report, failed)
+        return add_to_network(jobs, network, report, failed, workers)
     device = resolve_device(jobs[0].device)
     progress = jobs[0].progress
     setups, kept = [], []
@@ -156,19 +157,24 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
             "rows_per_material": cfg.batch, "latent_steps": latent_steps(cfg.iterations),
             "seconds": dict(shared.seconds), **({"universal": start.record()} if start else {})}
     del setups, models, shared  # the measures run from the saved checkpoints
-    _finish_all(jobs, kept, info, out, report, failed, start, workers)
+    _measure([(k, dataclasses.replace(jobs[k], cfg=_group_config(jobs[k], len(jobs)),
+                                      trained=_record_fields(jobs[k], info, start))) for k in kept],
+             out, report, failed, workers)
     return out
 
 
-def _finish_all(jobs, kept: list[int], info: dict, out: list, report, failed, start, workers) -> None:
-    """Measure and record the trained jobs ``kept`` (``out[k]``: their records), in ``workers`` processes
-    (:func:`~mtlx2neural.pipeline.workers.run_jobs`; each reads its material's checkpoint), passing a
-    failure to ``failed``."""
-    finishing = [dataclasses.replace(jobs[k], cfg=_group_config(jobs[k], len(jobs)), resume=False,
-                                     trained=_record_fields(jobs[k], info, start)) for k in kept]
-    records = run_jobs(finishing, workers, report=(lambda i, r: report(kept[i], r)) if report else None,
-                       failed=(lambda i, exc: failed(kept[i], exc)) if failed else None)
-    for k, record in zip(kept, records):
+def _measure(trained: list[tuple], out: list, report, failed, workers) -> None:
+    """Measure and record trained materials into ``out``, in ``workers`` processes
+    (:func:`~mtlx2neural.pipeline.workers.run_jobs`; each reads its material's checkpoint), passing a failure to
+    ``failed``. ``trained``: (index into ``out``, its job as it was prepared for training, with ``trained``: its
+    record fields)."""
+    if not trained:
+        return
+    index = [k for k, _ in trained]
+    finishing = [dataclasses.replace(job, resume=False) for _, job in trained]
+    records = run_jobs(finishing, workers, report=(lambda i, r: report(index[i], r)) if report else None,
+                       failed=(lambda i, exc: failed(index[i], exc)) if failed else None)
+    for k, record in zip(index, records):
         out[k] = record
 
 
@@ -262,30 +268,16 @@ def _record_fields(job, info: dict, start: WarmStart | None = None) -> dict:
     return fields
 
 
-def _finish(jobs, k: int, setup, model, info: dict, out: list, report, failed) -> None:
-    """Measure and record job ``k`` (``out[k]``: its record), or pass its failure to ``failed``."""
-    job = jobs[k]
-    extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings),
-             "input_hash": job.input_hash, "latent": job.latent, "options": job.options, "network": info}
-    try:
-        out[k] = finish_material(setup, model, job.digest, extra)
-    except Exception as exc:  # noqa: BLE001 - measuring one material failed; the others are kept
-        if failed is None:
-            raise
-        failed(k, exc)
-        return
-    if report:
-        report(k, out[k])
-
-
-def add_to_network(jobs, network: TrainedNetwork, report=None, failed=None) -> list:
+def add_to_network(jobs, network: TrainedNetwork, report=None, failed=None, workers=None) -> list:
     """Each job's material fitted into ``network`` (its encoder and latents alone, the network frozen:
     :func:`~mtlx2neural.train.shared.fit_into_network`), then measured and recorded; records in job order.
-    Each record's ``network`` is the group's, with ``added``: the fit's steps and seconds."""
+    Each record's ``network`` is the group's, with ``added``: the fit's steps and seconds. The fits run in this
+    process, the measures in ``workers`` processes (:func:`_measure`)."""
     device = resolve_device(jobs[0].device)
     progress = jobs[0].progress
     shared = network.model.to(device)
     out: list = [None] * len(jobs)
+    fitted = []
     if progress:
         print(f"--network scene: {len(jobs)} material(s) fitted into the network of "
               f"{len(network.info.get('materials', []))} trained earlier (id {network.info['id']}): their latents "
@@ -296,7 +288,7 @@ def add_to_network(jobs, network: TrainedNetwork, report=None, failed=None) -> l
         try:
             setup = prepare_material(job.source(), job.cfg, Path(job.folder), device, job.allow_missing_textures,
                                      job.resolution, application=job.application)
-            model = fit_into_network(setup.trainer, shared, network.environment_history, progress=progress)
+            fit_into_network(setup.trainer, shared, network.environment_history, progress=progress)
         except KeyboardInterrupt:
             raise TrainingInterrupted(f"interrupted while fitting {job.name} into the scene's network; "
                                       f"run the conversion again") from None
@@ -306,5 +298,7 @@ def add_to_network(jobs, network: TrainedNetwork, report=None, failed=None) -> l
             failed(k, exc)
             continue
         info = {**network.info, "added": {"steps": setup.trainer.step, "seconds": round(time.time() - t0, 2)}}
-        _finish(jobs, k, setup, model, info, out, report, failed)
+        # prepared without the canonical form (encoder None), as the fit was; the record has no universal path
+        fitted.append((k, dataclasses.replace(job, encoder=None, trained={"network": info, "notes": []})))
+    _measure(fitted, out, report, failed, workers)
     return out
