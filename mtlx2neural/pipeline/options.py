@@ -63,9 +63,9 @@ class ConvertOptions:
     --material."""
     encoder: str = field(default="material", metadata={"choices": ENCODERS})
     """material: each material trains its own encoder and networks. universal: a material whose surface
-    shader is a UsdPreviewSurface (metallic workflow), a standard_surface or an open_pbr_surface (opaque
-    reflection only: base, specular and coat) with texture-driven inputs encodes its parameter pyramid with the network shipped for that
-    model, then fine-tunes for --universal-steps (measured: about half the conversion time of its own); the others train their own, and ``inspect`` says which path each
+    shader is a UsdPreviewSurface (metallic workflow), a standard_surface, an open_pbr_surface or a gltf_pbr
+    (opaque reflection only: base, specular and coat) with texture-driven inputs encodes its parameter pyramid with the network
+    shipped for that model, then fine-tunes for --universal-steps (measured: about half the conversion time of its own); the others train their own, and ``inspect`` says which path each
     material takes and why. With --network scene the group's shared network starts from the shipped one
     (the fine-tune's schedule when every material of the group takes the universal path). Not with --max-error."""
     universal_steps: int = field(default=STEPS, metadata={"metavar": "N"})

@@ -13,7 +13,8 @@ levels below k hold pure parameter vectors, the levels above it LEAN/box mixture
 
 Values per cell (:data:`DISTRIBUTIONS`, per shading model): uniform over each input's range, except the
 inputs that production maps hold mostly at their ends (metalness: 0 or 1 four times in five; a coat's
-weight: 0 half the time; Standard Surface's ``base`` and ``specular`` 1 and its tints white half the time)
+weight: 0 half the time; Standard Surface's ``base`` and ``specular`` 1 and its tints white half the time, as
+glTF's specular factor and colour)
 and the normal, flat half the time and else tilted uniformly in angle up to :data:`MAX_TILT_DEGREES`
 (a model whose normal input is world-space reads it through a ``normalmap`` of the texture's encoded
 tangent-space normal, :attr:`~.canonical.ShadingModel.normal_map`).
@@ -82,6 +83,18 @@ DISTRIBUTIONS["open_pbr_surface"] = {openpbr: DISTRIBUTIONS["standard_surface"][
     ("specular_weight", "specular"), ("specular_color", "specular_color"), ("specular_roughness", "specular_roughness"),
     ("specular_ior", "specular_IOR"), ("coat_weight", "coat"), ("coat_color", "coat_color"),
     ("coat_roughness", "coat_roughness"), ("coat_ior", "coat_IOR"), ("geometry_normal", "normal"))}
+# glTF PBR: KHR_materials_specular's factor is 1 and its colour white unless the extension is used, so half the time.
+DISTRIBUTIONS["gltf_pbr"] = {
+    "base_color": lambda rng, n: rng.random((n, 3)),
+    "metallic": lambda rng, n: _ends(rng, n, 0.4, 0.4),
+    "roughness": lambda rng, n: rng.random(n),
+    "specular": lambda rng, n: _ends(rng, n, 0.1, 0.5),
+    "specular_color": lambda rng, n: _white_or(rng, n, 0.5),
+    "ior": lambda rng, n: 1.1 + 1.4 * rng.random(n),
+    "clearcoat": lambda rng, n: _ends(rng, n, 0.5, 0.0),
+    "clearcoat_roughness": lambda rng, n: rng.random(n),
+    "normal": _normal,
+}
 """Per shading model and input: ``(generator, n) -> [n] or [n, 3]`` values of n cells."""
 
 

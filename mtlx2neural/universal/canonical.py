@@ -72,6 +72,15 @@ SHADING_MODELS = {
          "subsurface_weight": 0.0, "fuzz_weight": 0.0, "coat_roughness_anisotropy": 0.0, "coat_darkening": 1.0,
          "thin_film_weight": 0.0, "geometry_thin_walled": False, "geometry_coat_normal": None,
          "geometry_tangent": None, "geometry_coat_tangent": None}, {}, normal_map="geometry_normal"),
+    # glTF PBR (metallic-roughness, with KHR_materials_specular, _ior and _clearcoat): the diffuse, metal, specular
+    # and coat lobes. Transmission, volume, iridescence, sheen and anisotropy must be off; alpha and emission live
+    # beside the latents, and occlusion is not reflectance.
+    "gltf_pbr": ShadingModel(
+        "gltf_pbr", "ND_gltf_pbr_surfaceshader",
+        ("base_color", "metallic", "roughness", "specular", "specular_color", "ior", "clearcoat",
+         "clearcoat_roughness", "normal"),
+        {"transmission": 0.0, "thickness": 0.0, "dispersion": 0.0, "iridescence": 0.0, "sheen_color": (0.0, 0.0, 0.0),
+         "anisotropy_strength": 0.0, "clearcoat_normal": None, "tangent": None}, {}, normal_map="normal"),
 }
 
 
@@ -110,7 +119,7 @@ def eligibility(document: mx.Document, material: str | None = None) -> Eligibili
                                                    f"not one of {', '.join(SHADING_MODELS)}")
     for name, value in model.fixed.items():
         inp = shader.getInput(name)
-        if inp is not None and (_connected(inp) or inp.getValue() != value):
+        if inp is not None and (_connected(inp) or _value(inp) != value):
             held = "set" if value is None else f"not {value}"
             return Eligibility(None, shader.getName(), f"shader '{shader.getName()}': {name} is {held} "
                                                        f"(the universal encoder covers that program only)")
@@ -118,6 +127,12 @@ def eligibility(document: mx.Document, material: str | None = None) -> Eligibili
         return Eligibility(None, shader.getName(), f"shader '{shader.getName()}' is transparent (opacity below 1 "
                                                    f"without a cut-out threshold): its transmission is not covered")
     return Eligibility(model.category, shader.getName())
+
+
+def _value(inp: mx.Input):
+    """An input's value, a colour or vector as a tuple of floats (``fixed``'s form)."""
+    value = inp.getValue()
+    return tuple(float(x) for x in value) if hasattr(value, "__len__") and not isinstance(value, str) else value
 
 
 def _transparent(shader) -> bool:

@@ -30,7 +30,7 @@ def test_each_input_spans_its_range_in_cells_of_every_size():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", ["UsdPreviewSurface", "standard_surface", "open_pbr_surface"])
+@pytest.mark.parametrize("model", ["UsdPreviewSurface", "standard_surface", "open_pbr_surface", "gltf_pbr"])
 def test_the_script_reproduces_the_shipped_layout_and_shape(tmp_path, model):
     shipped = load_weights(model)
     if shipped is None:
