@@ -233,3 +233,52 @@ def test_the_gltf_network_encodes_a_textured_gltf_material(tmp_path):
     # held-out log-L1, measured: untrained 0.98, encoded 0.41 (0.42x), fine-tuned 60 steps 0.35 (0.85x); seeded, so
     # the bounds are margins against platform differences in float rounding, not noise
     assert baked < 0.6 * untrained and tuned < 0.93 * baked, (untrained, baked, tuned)
+
+
+def test_a_usd_stage_s_gltf_pbr_shader_takes_the_gltf_network(tmp_path):
+    """A UsdShade network (``ND_gltf_pbr_surfaceshader`` reading two textures) routes to the glTF network; the
+    same shader with sheen, which that network does not model, trains its own and ``inspect`` says why."""
+    if load_weights("gltf_pbr") is None:
+        pytest.skip("no universal gltf_pbr network in this checkout")
+    rng = np.random.default_rng(0)
+    write_float_image(tmp_path / "color.exr", rng.random((16, 16, 3), dtype=np.float32))
+    write_float_image(tmp_path / "rough.exr", np.repeat(rng.random((16, 16, 1), dtype=np.float32), 3, 2))
+
+    def stage(extra: str):
+        path = tmp_path / f"g{len(extra)}.usda"
+        path.write_text(f'''#usda 1.0
+def Xform "World" {{
+    def Sphere "Ball" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {{
+        rel material:binding = </World/G>
+    }}
+    def Material "G" {{
+        token outputs:mtlx:surface.connect = </World/G/SR.outputs:out>
+        def Shader "SR" {{
+            uniform token info:id = "ND_gltf_pbr_surfaceshader"
+            color3f inputs:base_color.connect = </World/G/Col.outputs:out>
+            float inputs:roughness.connect = </World/G/Rgh.outputs:out>
+            float inputs:metallic = 0
+            {extra}
+            token outputs:out
+        }}
+        def Shader "Col" {{
+            uniform token info:id = "ND_image_color3"
+            asset inputs:file = @{tmp_path}/color.exr@
+            color3f outputs:out
+        }}
+        def Shader "Rgh" {{
+            uniform token info:id = "ND_image_float"
+            asset inputs:file = @{tmp_path}/rough.exr@
+            float outputs:out
+        }}
+    }}
+}}
+''')
+        (entry,) = inspect_asset(path, encoder="universal")["materials"]
+        return entry["encoder"]
+
+    plain = stage("")
+    assert plain["path"] == "universal" and "gltf_pbr" in plain["text"], plain
+    sheen = stage("color3f inputs:sheen_color = (0.5, 0.5, 0.5)")
+    assert sheen["path"] == "material" and "sheen_color" in sheen["text"], sheen
