@@ -37,7 +37,7 @@ class ShadingModel:
     (emission and opacity live beside the latents; displacement and occlusion are not reflectance)."""
     fixed: dict
     """Inputs that must keep these constant values (a switch between two programs), else the material
-    is not of this model's canonical form."""
+    is not of this model's canonical form: a colour as a tuple of floats; None, unset (not authored)."""
     neutral: dict
     """Parameters a material's canonical form may add that the atlas's folds away, with the value at which
     they change nothing: ``transmission_mix.mix`` 1 (the opaque lobes alone) appears when ``opacity`` is
