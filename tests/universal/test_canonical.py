@@ -7,6 +7,7 @@ import MaterialX as mx
 import pytest
 import torch
 from conftest import random_dirs, shared_path
+from materials import document
 
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.graph.compile import compile_material
@@ -113,10 +114,10 @@ def _shader(category: str, **inputs) -> mx.Document:
         source = 'nodename="noise"' if v == "@noise" else f'value="{v}"'
         return f'    <input name="{k}" type="{t}" {source} />\n'
 
-    text = (f'<?xml version="1.0"?>\n<materialx version="1.39">\n{NOISE}  <{category} name="SR" type="surfaceshader">\n'
-            + "".join(line(k, t, v) for k, (t, v) in inputs.items())
-            + f'  </{category}>\n  <surfacematerial name="M" type="material">\n'
-            '    <input name="surfaceshader" type="surfaceshader" nodename="SR" />\n  </surfacematerial>\n</materialx>\n')
+    text = document(NOISE, f'  <{category} name="SR" type="surfaceshader">\n',
+                    *(line(k, t, v) for k, (t, v) in inputs.items()),
+                    f'  </{category}>\n  <surfacematerial name="M" type="material">\n'
+                    '    <input name="surfaceshader" type="surfaceshader" nodename="SR" />\n  </surfacematerial>\n')
     doc = mx.createDocument()
     mx.readFromXmlString(doc, text)
     return doc
