@@ -169,6 +169,18 @@ class ShadingPoint:
         params = None if self.params is None else {key: rep(v) for key, v in self.params.items()}
         return ShadingPoint(rep(self.uv), rep(self.lod), rep(self.u_level), params)
 
+    def select(self, index: torch.Tensor, n: int) -> ShadingPoint:
+        """This point's rows ``index`` (a [M] integer tensor into its ``n`` rows), to match directions
+        selected with ``wi[index]``. As in :meth:`repeat_rows`, only fields with ``n`` rows are selected."""
+
+        def pick(x):
+            if isinstance(x, torch.Tensor) and x.dim() > 0 and x.shape[0] == n:
+                return x[index.to(x.device)]
+            return x
+
+        params = None if self.params is None else {key: pick(v) for key, v in self.params.items()}
+        return ShadingPoint(pick(self.uv), pick(self.lod), pick(self.u_level), params)
+
 
 def as_point(at) -> ShadingPoint:
     """``at`` as a :class:`ShadingPoint`: ``None`` -> ``ShadingPoint()`` (the material's defaults), a

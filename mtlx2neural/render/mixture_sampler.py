@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import torch
 
+from mtlx2neural.contract import as_point
+
 
 class MixtureSampler:
     """``sample`` and ``pdf`` (the :class:`~mtlx2neural.contract.Material` contract's, local frame, solid-angle
@@ -30,14 +32,15 @@ class MixtureSampler:
     def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None):
         """(wo [N, 3], zeros [N, 3], mixture pdf [N]): material ``floor(u0 k)`` samples with ``(u0 k - pick,
         u1, ...)``; a sample its material fails (pdf 0) keeps pdf 0."""
-        k = len(self.materials)
+        k, n = len(self.materials), wi.shape[0]
         pick = (u[:, 0] * k).floor().clamp(max=k - 1)
         rescaled = torch.cat([(u[:, 0] * k - pick)[:, None], u[:, 1:]], -1)
-        wo, ok = torch.zeros_like(wi), torch.zeros(wi.shape[0], dtype=torch.bool, device=wi.device)
-        for i, m in enumerate(self.materials):  # every material samples every row; the pick selects
-            w, _, p = m.sample(wi, rescaled, at)
-            mine = pick == i
-            wo = torch.where(mine[:, None], w, wo)
-            ok = torch.where(mine, p > 0, ok)
+        point = as_point(at)
+        wo, ok = torch.zeros_like(wi), torch.zeros(n, dtype=torch.bool, device=wi.device)
+        for i, m in enumerate(self.materials):  # each material samples the rows it is picked for
+            rows = torch.nonzero(pick == i)[:, 0]
+            if len(rows):
+                w, _, p = m.sample(wi[rows], rescaled[rows], point.select(rows, n))
+                wo[rows], ok[rows] = w.to(wo.dtype), p > 0
         pdf = torch.where(ok, self.pdf(wi, wo, at), torch.zeros_like(ok, dtype=wi.dtype))
         return wo, torch.zeros_like(wi), pdf

@@ -127,8 +127,9 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
     strategy = torch.arange(samples, device=wi.device).repeat(n) % 3
     with torch.no_grad():
         wo = cosine_sample(u[:, :2])
-        wo = torch.where((strategy == 0)[:, None], model.sample(rep, u, point)[0], wo)
-        wo = torch.where((strategy == 1)[:, None], reference.sample(rep, u, ref_point)[0], wo)
+        for who, at_rows, k in ((model, point, 0), (reference, ref_point, 1)):  # each samples its third
+            rows = torch.nonzero(strategy == k)[:, 0]
+            wo[rows] = who.sample(rep[rows], u[rows], at_rows.select(rows, rep.shape[0]))[0].to(wo.dtype)
         density = (model.pdf(rep, wo, point) + reference.pdf(rep, wo, ref_point)
                    + wo[:, 2].clamp(min=0.0) / math.pi) / 3.0
         f = model.eval(rep, wo, point)
