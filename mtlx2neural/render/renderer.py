@@ -49,6 +49,7 @@ from mtlx2neural.render.geometry import (
 )
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
 from mtlx2neural.render.prefiltered import PrefilteredEnvironment, has_environment_head
+from mtlx2neural.render.replayed_sampler import ReplayedSampler
 
 
 @dataclass(frozen=True)
@@ -292,7 +293,8 @@ def compare_many(reference: Material, models: dict, texels: tuple[int, int], vie
     ``"neural 2x16"``...) and cannot be one of :data:`RESERVED`. Under environment maps every render,
     the reference's included, also samples the reference's BSDF (``mis``; :func:`render_scene`'s
     ``sampler``), so the materials see the same directions; ``sampler`` replaces the reference as that
-    sampler (e.g. a :class:`.mixture_sampler.MixtureSampler` of the reference and the model)."""
+    sampler (e.g. a :class:`.mixture_sampler.MixtureSampler` of the reference and the model). The sampler's
+    answers for the reference's render are replayed for the others (:class:`.replayed_sampler.ReplayedSampler`)."""
     clash = [label for label in models if label in RESERVED]
     if clash:
         raise ValueError(f"material labels {clash} clash with compare's keys {RESERVED}")
@@ -305,7 +307,10 @@ def compare_many(reference: Material, models: dict, texels: tuple[int, int], vie
             scene = (geometry if geometry is not None else Sphere(), Camera(view.azimuth, view.elevation, distance),
                      lights if lights is not None else [DirectionalLight(view.light, view.intensity)])
 
-            def draw(material, scene=scene, i=i, sampler=(sampler or reference) if mis else None):
+            # every render of the view asks the sampler the same questions: answered once, then replayed
+            def draw(material, scene=scene, i=i, sampler=ReplayedSampler(sampler or reference) if mis else None):
+                if sampler is not None:
+                    sampler.start()
                 return render_scene(material, *scene, res, spp, texels, seed=i, sampler=sampler)
         ref = draw(reference)
         for label, model in models.items():

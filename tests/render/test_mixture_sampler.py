@@ -32,3 +32,20 @@ def test_a_mixture_of_one_is_that_material():
     # the same uniform numbers (u0 * 1 - 0 = u0): the same directions and densities, to float rounding
     torch.testing.assert_close(wo1, wo, rtol=0, atol=1e-6)
     torch.testing.assert_close(pdf1, pdf, rtol=1e-5, atol=1e-6)
+
+
+def test_each_row_is_its_picked_materials_sample():
+    diffuse = closure_material("oren_nayar_diffuse_bsdf", color=(0.5, 0.5, 0.5))
+    glossy = closure_material("conductor_bsdf", roughness=(0.2, 0.2))
+    u = torch.rand(256, 2, generator=torch.Generator().manual_seed(5))
+    wi = WI.expand(256, 3)
+    with torch.no_grad():
+        wo, _, pdf = MixtureSampler(diffuse, glossy).sample(wi, u)
+        pick = (u[:, 0] * 2).floor()
+        rescaled = torch.stack([u[:, 0] * 2 - pick, u[:, 1]], -1)
+        expected = torch.where((pick == 0)[:, None], diffuse.sample(wi, rescaled)[0], glossy.sample(wi, rescaled)[0])
+        density = (diffuse.pdf(wi, expected) + glossy.pdf(wi, expected)) / 2
+    # each material draws only its own rows, from the same numbers: the same directions, to float rounding
+    assert 0 < int((pick == 0).sum()) < 256
+    torch.testing.assert_close(wo, expected, rtol=0, atol=1e-6)
+    torch.testing.assert_close(pdf, density, rtol=1e-5, atol=1e-6)
