@@ -26,16 +26,23 @@ class TrainConfig:
     noisy targets), relative_l2 (squared error relative to the prediction, follows their mean, so sharp
     lobes keep their energy, but overshoots it), or log_l1 plus a tenth of relative_l2 (keeps a decoder
     whose targets are mostly black from collapsing to zero)."""
+    brdf_eps: float = field(default=1e-3, metadata={"metavar": "X"})
+    """log_l1's radiance scale (f * cos, linear RGB): errors below it count linearly, above it by their ratio
+    (``train.losses.log_l1``). 1e-3 sees the dim tails of sharp lobes, which HDR FLIP weighs, that 1e-2 left
+    to a linear, nearly flat loss (`fast`, seed 0, with the normalized encoder input: HDR FLIP 0.071 / 0.079
+    on the GlazedCeramic, 0.147 / 0.151 on the BrushedMetal, 0.054 / 0.059 on the CarPaint, 0.33 / 0.35 on
+    the near mirror, 1e-3 against 1e-2). The held-out figure (``held_out_log_l1``) keeps 1e-2."""
     frames: int = field(default=2, metadata={"metavar": "N"})
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
     """Latent channels."""
-    encoder_input: str = field(default="raw", metadata={"choices": ("raw", "normalized")})
-    """What the encoder reads of a texel (:mod:`mtlx2neural.train.encoder_input`): raw (the parameter stack's
-    channels as they are) or normalized (each channel standardised over the finest level, plus log(alpha) of
-    each LEAN lobe's roughness; `fast`, seeds 0 / 1: HDR FLIP 0.075 / 0.072 against 0.083 / 0.079 on the
-    GlazedCeramic, 0.163 / 0.170 against 0.174 / 0.184 on the BrushedMetal, 0.393 against 0.531 on the near
-    mirror, seed 0; a uniform material has no channels, so both read nothing)."""
+    encoder_input: str = field(default="normalized", metadata={"choices": ("raw", "normalized")})
+    """What the material's own encoder reads of a texel (:mod:`mtlx2neural.train.encoder_input`): normalized
+    (each channel standardised over the finest level, plus log(alpha) of each LEAN lobe's roughness) or raw
+    (the parameter stack's channels as they are). A universal network reads raw channels whatever this says.
+    Measured with `fast`, seed 0 (docs/history/energy-and-loss-2026-12-06.md): HDR FLIP against raw 0.079 /
+    0.086 on the GlazedCeramic, 0.151 / 0.160 on the BrushedMetal, 0.35 / 0.46 on the near mirror; a uniform
+    material has no channels, so both read nothing."""
     latent_format: str = field(default="exr", metadata={"choices": ("exr", "bc6h", "bc1")})
     """How the latent textures ship (:mod:`mtlx2neural.formats.latent_codec`): exr (half-float OpenEXR,
     16 bytes per texel for 8 channels), bc6h (signed BC6H DDS, 3 channels per texture, 3 bytes per texel)
@@ -219,6 +226,8 @@ def validate_config(cfg: TrainConfig, allow_untrained: bool = False) -> None:
         v = getattr(cfg, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise bad(name, "must be a positive learning rate")
+    if not (isinstance(cfg.brdf_eps, (int, float)) and math.isfinite(cfg.brdf_eps) and cfg.brdf_eps > 0):
+        raise bad("brdf_eps", "must be a positive radiance scale (f * cos), e.g. 1e-3")
     for name in ("mollify_degrees", "mollify_min_degrees", "level_rate"):
         v = getattr(cfg, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):

@@ -9,13 +9,13 @@ energy-and-loss-2026-12-04.md).
 
 ``TrainConfig.encoder_input``:
 
-- ``raw`` (the default): the channels as they are.
-- ``normalized``: every channel standardised by its mean and standard deviation over the stack's finest
-  level (the deviation at least 1e-8), followed by log(alpha) of each LEAN lobe's decoded roughness (two
-  values per lobe, alpha at least ``ALPHA_FLOOR``). Measured (`fast`, seeds 0 / 1,
-  ``benchmarks/bench_energy.py --set encoder_input=normalized``): HDR FLIP GlazedCeramic 0.075 / 0.072 against
-  0.083 / 0.079, BrushedMetal 0.163 / 0.170 against 0.174 / 0.184 (energy unchanged), the near mirror 0.393
-  against 0.531 (seed 0; its coarse levels then keep 78-82 % of the energy).
+- ``normalized`` (the default since 2026-12-06): every channel standardised by its mean and standard
+  deviation over the stack's finest level (the deviation at least 1e-8), followed by log(alpha) of each LEAN
+  lobe's decoded roughness (two values per lobe, alpha at least ``ALPHA_FLOOR``). Measured (`fast`, seed 0,
+  docs/history/energy-and-loss-2026-12-06.md): HDR FLIP GlazedCeramic 0.079 against raw's 0.086,
+  BrushedMetal 0.151 against 0.160, the near mirror 0.35 against 0.46, whose rough texels then decode as
+  broad lobes (raw: as sharp as the smooth ones).
+- ``raw``: the channels as they are. The shipped universal encoders read these.
 
 The statistics are recomputed from the stack, so a resumed run reads the same features. A uniform
 material has no channels: both modes give the encoder nothing to read.
@@ -45,7 +45,7 @@ class EncoderInput:
             return
         level0 = torch.cat([s.levels[0].float().reshape(channels, -1) for s in getattr(stack, "stacks", [stack])], 1)
         self.mean = level0.mean(1)
-        self.std = level0.std(1).clamp_min(1e-8)
+        self.std = level0.std(1, correction=0).clamp_min(1e-8)  # one texel: 0, not NaN
         self.dim = channels + 2 * len(self.lobes)
 
     def __call__(self, raw: torch.Tensor) -> torch.Tensor:

@@ -30,6 +30,7 @@ trainer compiles with ``torch.compile``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -69,14 +70,22 @@ MIXED_RELATIVE_WEIGHT = 0.1
 at 0.187 (log_l1: 0.96 / 0.85 at 0.045 / 0.174; BENCHMARKS.md, "Energy and the BRDF loss")."""
 
 
-def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """:func:`log_l1` plus :data:`MIXED_RELATIVE_WEIGHT` times :func:`relative_l2`: log-L1's shape, and a
-    mean-seeking pull that keeps the prediction from collapsing where most targets are black."""
-    return log_l1(pred, target) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
+def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+    """:func:`log_l1` (its scale ``eps``) plus :data:`MIXED_RELATIVE_WEIGHT` times :func:`relative_l2`:
+    log-L1's shape, and a mean-seeking pull that keeps the prediction from collapsing where most targets are
+    black."""
+    return log_l1(pred, target, eps) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
 
 
 BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2, "log_l1+relative_l2": mixed_log_l1}
 """The decoder's losses by ``TrainConfig.brdf_loss`` name."""
+
+
+def brdf_loss_of(name: str, eps: float = EPS):
+    """The decoder's loss ``(pred, target) -> scalar`` named ``name`` (:data:`BRDF_LOSSES`), its log-L1 part
+    at the radiance scale ``eps`` (``TrainConfig.brdf_eps``); relative_l2 keeps its own :data:`EPS`."""
+    loss = BRDF_LOSSES[name]
+    return loss if loss is relative_l2 else functools.partial(loss, eps=eps)
 
 
 def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:

@@ -50,9 +50,9 @@ from mtlx2neural.train.latent_init import (
     noise_latents,
 )
 from mtlx2neural.train.losses import (
-    BRDF_LOSSES,
     albedo_loss,
     brdf_and_sampler_losses,
+    brdf_loss_of,
 )
 from mtlx2neural.train.mollify import lobe_directions
 from mtlx2neural.train.replay import RowReplay
@@ -124,7 +124,7 @@ class Trainer:
             import logging
 
             torch._logging.set_logs(dynamo=logging.ERROR)  # the reference's data-dependent branches break graphs
-        losses = functools.partial(brdf_and_sampler_losses, brdf_loss=BRDF_LOSSES[cfg.brdf_loss])
+        losses = functools.partial(brdf_and_sampler_losses, brdf_loss=brdf_loss_of(cfg.brdf_loss, cfg.brdf_eps))
         self._losses = torch.compile(losses) if cfg.compile else losses
         if cfg.encoder_fraction <= 0:
             self._direct_latents()

@@ -87,9 +87,9 @@ class Columns:
 def load_encoder(trainer, weights: dict) -> None:
     """Give ``trainer``'s model the shipped encoder, reading the stack's columns in the shipped layout
     (:func:`encoder_columns`; raises :class:`LayoutMismatch`). Call before the optimiser is made: the
-    encoder is a new module."""
-    if trainer.cfg.encoder_input != "raw":
-        raise LayoutMismatch(f"the universal network reads raw channels, not --encoder-input {trainer.cfg.encoder_input}")
+    encoder is a new module. The shipped encoder reads raw channels: ``trainer.cfg.encoder_input`` becomes
+    raw (the material's own encoder's setting does not apply)."""
+    trainer.cfg = dataclasses.replace(trainer.cfg, encoder_input="raw")
     columns = Columns(encoder_columns(trainer.stack, weights))
     trainer.encoder_input = columns
     trainer.model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)

@@ -45,6 +45,10 @@ DEFAULT_LR = 2e-3
 ENVIRONMENT_FRACTION = 0.1  # of the steps: the environment head fitted last (fast: 0.3 of 1000)
 
 
+SHIPPED_BRDF_EPS = 1e-2
+"""log_l1's scale the shipped networks were trained with (the default before 2026-12-06): kept, so that the
+script reproduces them. Their encoders read the stack's raw channels."""
+
 def atlas_material(folder: Path, model: str, size: int, seed: int):
     """(compiled canonical atlas, its reference, its parameter stack), the atlas written into ``folder``."""
     from mtlx2neural.graph.compile import compile_material  # Local: fast --help
@@ -82,7 +86,8 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
         _, ref, stack = atlas_material(folder / "atlas", model, size, seed)
         cfg = dataclasses.replace(PRESETS["fast"], iterations=steps, seed=seed, lr_start=lr, encoder_fraction=1.0,
                                   preview_iterations=0, probe_every=0, checkpoint_every=max(1000, steps),
-                                  environment_fraction=ENVIRONMENT_FRACTION, target_prefetch=prefetch)
+                                  environment_fraction=ENVIRONMENT_FRACTION, target_prefetch=prefetch,
+                                  encoder_input="raw", brdf_eps=SHIPPED_BRDF_EPS)
         trainer = Trainer(ref, stack, cfg, folder / "train")
         net = trainer.run(progress=progress)
     last = trainer.history[-1] if trainer.history else {}

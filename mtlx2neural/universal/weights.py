@@ -15,6 +15,7 @@ A file (``<model>.pt``, torch's format, a few hundred kilobytes) holds a dict:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 from pathlib import Path
@@ -66,10 +67,16 @@ def load_weights(model: str, folder: Path | None = None) -> dict | None:
 
 def shape_mismatch(weights: dict, cfg) -> list[str]:
     """The settings of ``cfg`` (a TrainConfig) that the shipped network cannot serve: its
-    :data:`NETWORK_FIELDS` that differ, ``encoder_input`` unless raw, and ``environment_fraction`` when the settings fit no head."""
+    :data:`NETWORK_FIELDS` that differ, and ``environment_fraction`` when the settings fit no head. Not
+    ``encoder_input``: the shipped encoder reads the stack's raw channels, and a material on the universal
+    path is planned with them (:func:`universal_config`)."""
     out = [f for f in NETWORK_FIELDS if getattr(cfg, f) != weights["shape"][f]]
-    if cfg.encoder_input != "raw":  # the shipped encoder reads the stack's raw channels
-        out.append("encoder_input")
     if cfg.environment_steps <= 0:
         out.append("environment_fraction")
     return out
+
+
+def universal_config(cfg):
+    """``cfg`` (a TrainConfig) as a material on the universal path trains with it: the shipped encoder's input,
+    the stack's raw channels (``encoder_input`` raw), whatever ``cfg`` asked of its own encoder."""
+    return dataclasses.replace(cfg, encoder_input="raw")

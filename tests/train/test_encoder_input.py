@@ -36,7 +36,8 @@ def test_raw_is_the_stack_channels(mirror):
 
 def test_normalized_standardises_and_adds_log_roughness(mirror):
     """On the finest level the standardised channels have mean 0 and deviation 1 (within float32 rounding,
-    1e-4), a constant channel reads 0, and the last two columns are log(alpha) of the LEAN lobe."""
+    1e-4; the population deviation, as a one-texel stack has one), a constant channel reads 0, and the last two
+    columns are log(alpha) of the LEAN lobe."""
     _, stack = mirror
     raw = stack.levels[0].float().reshape(stack.levels[0].shape[0], -1).T
     feed = EncoderInput(stack, "normalized")
@@ -45,7 +46,7 @@ def test_normalized_standardises_and_adds_log_roughness(mirror):
     c = raw.shape[1]
     varying = raw.std(0) > 1e-7
     torch.testing.assert_close(x[:, :c].mean(0), torch.zeros(c), atol=1e-4, rtol=0)
-    torch.testing.assert_close(x[:, :c].std(0)[varying], torch.ones(int(varying.sum())), atol=1e-4, rtol=0)
+    torch.testing.assert_close(x[:, :c].std(0, correction=0)[varying], torch.ones(int(varying.sum())), atol=1e-4, rtol=0)
     alpha = stack.decode(raw)[f"{feed.lobes[0]}.roughness"]
     torch.testing.assert_close(x[:, c:c + 2], torch.log(alpha.clamp_min(ALPHA_FLOOR)))
     assert float(x[:, c:].std()) > 0.1  # the roughness texture shows: alpha 4e-4..0.09 spans 5 in log

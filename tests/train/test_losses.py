@@ -166,3 +166,19 @@ def test_the_floor_ignores_rows_below_the_horizon():
     per_row = (OUTPUT_FLOOR + 20.0) ** 2  # (floor - raw)^2
     assert float(floor_penalty(raw, wo)) == per_row * 2 / 4
     assert float(floor_penalty(raw)) == per_row
+
+
+def test_the_training_scale_sees_dim_tails():
+    """``brdf_loss_of(name, eps)``: at the default scale 1e-3 a dim tail predicted at twice its value (2e-3
+    against 1e-3, f * cos) costs 0.58 of what the same ratio costs on a bright lobe (2 against 1); at 1e-2,
+    where it falls in the linear part, 0.13. Bounds 0.3-0.7 and 0-0.15. relative_l2 keeps its own scale."""
+    from mtlx2neural.train.config import TrainConfig
+    from mtlx2neural.train.losses import brdf_loss_of, relative_l2
+
+    dim, bright = (torch.full((1, 3), 2e-3), torch.full((1, 3), 1e-3)), (torch.full((1, 3), 2.0), torch.ones(1, 3))
+    for eps, least, most in ((TrainConfig.brdf_eps, 0.3, 0.7), (1e-2, 0.0, 0.15)):
+        for name in ("log_l1", "log_l1+relative_l2"):
+            loss = brdf_loss_of(name, eps)
+            share = float(loss(*dim)) / float(loss(*bright))
+            assert least <= share <= most, (name, eps, share)
+    assert brdf_loss_of("relative_l2", 1e-3) is relative_l2
