@@ -57,8 +57,9 @@ def test_one_network_for_the_scene_and_one_per_material_otherwise(asset, monkeyp
         assert sorted(r.network["materials"]) == names
         assert r.network["joint_steps"] == 40 and r.network["rows_per_material"] == 256
         assert r.config["batch"] == 256 and set(r.network["seconds"]) == {"joint", "latents", "environment"}
-        # measured in a worker from its checkpoint: its times still count the group's training
-        assert r.train_seconds >= sum(r.network["seconds"].values()) and r.seconds > r.train_seconds
+        # measured in a worker from its checkpoint: its times still count the group's training (each figure
+        # rounded, to 0.01 s here, the phases to their own: hence the 0.01)
+        assert r.train_seconds >= sum(r.network["seconds"].values()) - 0.01 and r.seconds > r.train_seconds
         saved = json.loads((scene.folder / Path(r.material.lstrip("/")).as_posix().replace("/", ".")
                             / "summary.json").read_text())
         assert saved["network"] == r.network
