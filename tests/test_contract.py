@@ -252,6 +252,16 @@ def test_as_point():
     assert torch.equal(rep.uv, uv.repeat_interleave(2, 0)) and rep.lod.shape == (6,) and rep.u_level is None
 
 
+def test_select_takes_the_rows_of_every_per_row_field():
+    uv, lod, colour = torch.rand(5, 2), torch.arange(5.0), torch.rand(5, 3)
+    shared = torch.rand(1, 3)  # one row for all: broadcast, kept as it is
+    p = ShadingPoint(uv=uv, lod=lod, params={"base_color": colour, "tint": shared})
+    rows = torch.tensor([4, 1])
+    sel = p.select(rows, 5)
+    assert torch.equal(sel.uv, uv[[4, 1]]) and torch.equal(sel.lod, torch.tensor([4.0, 1.0])) and sel.u_level is None
+    assert torch.equal(sel.params["base_color"], colour[[4, 1]]) and sel.params["tint"] is shared
+
+
 @pytest.mark.parametrize("name", MODELS)
 def test_a_uv_tensor_means_a_shading_point_with_that_uv(name):
     g = torch.Generator().manual_seed(2)
