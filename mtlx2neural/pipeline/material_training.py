@@ -72,7 +72,7 @@ from mtlx2neural.textures.surface_maps import (
     build_surface_maps,
     load_surface_maps,
 )
-from mtlx2neural.train.config import TrainConfig
+from mtlx2neural.train.config import PRESETS, TrainConfig
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.trainer import Trainer
@@ -383,17 +383,27 @@ def with_energy(record: MaterialRecord, ref, model, stack, device, surface: Surf
                          params_at=(lambda pts: stack.sample(pts, 0)) if native else None,
                          coverage=surface.coverage_at if surface is not None and surface.partial else None)
     record = dataclasses.replace(record, energy=check.to_json())
+    longer = train_longer(record.config.get("iterations") if record.config else None)
     if check.min_ratio < ENERGY_WARNING:
         record = record.with_warning(
             f"the neural model keeps {check.min_ratio:.0%} of the reference's directional albedo at MIP level "
-            f"{check.worst_level} (energy check; under {ENERGY_WARNING:.0%} renders visibly darker): train "
-            "longer (--preset standard) or try --brdf-loss log_l1+relative_l2")
+            f"{check.worst_level} (energy check; under {ENERGY_WARNING:.0%} renders visibly darker): {longer} "
+            "or try --brdf-loss log_l1+relative_l2")
     if check.max_ratio > ENERGY_WARNING_BRIGHT:
         record = record.with_warning(
             f"the neural model reflects {check.max_ratio:.0%} of the reference's directional albedo at MIP level "
             f"{check.brightest_level} (energy check; over {ENERGY_WARNING_BRIGHT:.0%} renders visibly brighter): "
-            "train longer (--preset standard)")
+            f"{longer}")
     return record
+
+
+def train_longer(iterations: int | None) -> str:
+    """The advice to train longer for a material trained ``iterations`` steps: the standard preset when it
+    trained fewer steps than that, else more steps than it had."""
+    standard = PRESETS["standard"].iterations
+    if iterations is None or iterations < standard:
+        return "train longer (--preset standard)"
+    return f"train longer (--iterations over {iterations})"
 
 
 PREVIEW_ITERATIONS = TrainConfig.preview_iterations
