@@ -20,11 +20,11 @@ import torch
 from mtlx2neural.contract import as_point
 
 
-def _key(wi: torch.Tensor, x: torch.Tensor, at) -> tuple:
+def _fields(wi: torch.Tensor, x: torch.Tensor, at) -> tuple:
+    """A call's inputs, flattened: ``wi``, ``u`` or ``wo``, and the shading point's fields and parameters."""
     p = as_point(at)
     params = tuple(sorted((p.params or {}).items()))
-    fields = (wi, x, p.uv, p.lod, p.u_level, *(f for item in params for f in item))
-    return tuple(f.clone() if isinstance(f, torch.Tensor) else f for f in fields)
+    return (wi, x, p.uv, p.lod, p.u_level, *(f for item in params for f in item))
 
 
 def _same(a: tuple, b: tuple) -> bool:
@@ -60,22 +60,22 @@ class ReplayedSampler:
         self.recording, self.replaying = self.renders == 0, self.renders > 0
         self.position, self.renders = 0, self.renders + 1
 
-    def _answer(self, kind: str, key: tuple, compute):
-        if self.recording:
+    def _answer(self, kind: str, fields: tuple, compute):
+        if self.recording:  # the inputs are kept as copies, in case a caller reuses its tensors
             out = compute()
-            self.calls.append((kind, key, out))
+            self.calls.append((kind, tuple(f.clone() if isinstance(f, torch.Tensor) else f for f in fields), out))
             return out
         if self.replaying and self.position < len(self.calls):
             k, recorded, out = self.calls[self.position]
-            if k == kind and _same(recorded, key):
+            if k == kind and _same(recorded, fields):
                 self.position += 1
                 self.replayed += 1
                 return out
-        self.replaying = False  # diverged: compute the rest of this render
+        self.replaying = False  # diverged (or passing through): compute the rest of this render
         return compute()
 
     def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None):
-        return self._answer("sample", _key(wi, u, at), lambda: self.sampler.sample(wi, u, at))
+        return self._answer("sample", _fields(wi, u, at), lambda: self.sampler.sample(wi, u, at))
 
     def pdf(self, wi: torch.Tensor, wo: torch.Tensor, at=None) -> torch.Tensor:
-        return self._answer("pdf", _key(wi, wo, at), lambda: self.sampler.pdf(wi, wo, at))
+        return self._answer("pdf", _fields(wi, wo, at), lambda: self.sampler.pdf(wi, wo, at))

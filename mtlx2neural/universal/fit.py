@@ -32,6 +32,7 @@ from mtlx2neural.model.networks import Encoder
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
 from mtlx2neural.universal.choice import STEPS, TUNES
+from mtlx2neural.universal.weights import universal_config
 
 LR_START = 5e-3
 """The latents' learning rate at the fine-tune's first step (the codes start close: a large first step
@@ -89,7 +90,7 @@ def load_encoder(trainer, weights: dict) -> None:
     (:func:`encoder_columns`; raises :class:`LayoutMismatch`). Call before the optimiser is made: the
     encoder is a new module. The shipped encoder reads raw channels: ``trainer.cfg.encoder_input`` becomes
     raw (the material's own encoder's setting does not apply)."""
-    trainer.cfg = dataclasses.replace(trainer.cfg, encoder_input="raw")
+    trainer.cfg = universal_config(trainer.cfg)
     columns = Columns(encoder_columns(trainer.stack, weights))
     trainer.encoder_input = columns
     trainer.model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)

@@ -49,6 +49,7 @@ SHIPPED_BRDF_EPS = 1e-2
 """log_l1's scale the shipped networks were trained with (the default before 2026-12-06): kept, so that the
 script reproduces them. Their encoders read the stack's raw channels."""
 
+
 def atlas_material(folder: Path, model: str, size: int, seed: int):
     """(compiled canonical atlas, its reference, its parameter stack), the atlas written into ``folder``."""
     from mtlx2neural.graph.compile import compile_material  # Local: fast --help
