@@ -54,7 +54,7 @@ from mtlx2neural.textures.parameter_stack import texture_resolution
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.udim import training_tiles
 from mtlx2neural.universal.choice import STEPS, EncoderChoice, choose_encoder
-from mtlx2neural.universal.weights import universal_config
+from mtlx2neural.universal.weights import load_weights, universal_config
 
 DECODERS = ("2x16", "2x32", "3x64")
 """Decoder sizes an error budget escalates through, smallest first."""
@@ -299,8 +299,8 @@ def plan_materials(sources, cfg: TrainConfig, allow_missing_textures: bool = Fal
         grid, native, kind = grid_decision(compiled, cfg, implied)
         eff = dataclasses.replace(cfg, max_resolution=implied) if kind == "density" else cfg
         choice = choose_encoder(encoder, src.document, src.material, compiled, eff, universal_steps, universal_tune)
-        if choice.universal:  # the shipped encoder reads the stack's raw channels
-            eff = universal_config(eff)
+        if choice.universal:  # the shipped encoder reads what it was trained on
+            eff = universal_config(eff, load_weights(choice.model))
         tags += choice.tag
         content = content_hash(compiled, eff, allow_missing_textures,
                                f"{budget_tag(max_error)}\0grid={grid[0]}x{grid[1]}{tags}")

@@ -39,7 +39,8 @@ class TrainConfig:
     encoder_input: str = field(default="normalized", metadata={"choices": ("raw", "normalized")})
     """What the material's own encoder reads of a texel (:mod:`mtlx2neural.train.encoder_input`): normalized
     (each channel standardised over the finest level, plus log(alpha) of each LEAN lobe's roughness) or raw
-    (the parameter stack's channels as they are). A universal network reads raw channels whatever this says.
+    (the parameter stack's channels as they are). A universal network reads what it was trained on, whatever
+    this says (its atlas's statistics: :mod:`mtlx2neural.universal.weights`).
     Measured with `fast`, seed 0 (docs/history/energy-and-loss-2026-12-06.md): HDR FLIP against raw 0.079 /
     0.086 on the GlazedCeramic, 0.151 / 0.160 on the BrushedMetal, 0.35 / 0.46 on the near mirror; a uniform
     material has no channels, so both read nothing."""

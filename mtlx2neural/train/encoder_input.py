@@ -30,6 +30,17 @@ ALPHA_FLOOR = 1e-4
 MODES = ("raw", "normalized")
 
 
+def standardised(raw: torch.Tensor, columns: torch.Tensor, mean: torch.Tensor, std: torch.Tensor, stack,
+                 lobes: list[str]) -> torch.Tensor:
+    """The ``normalized`` features of raw channels [N, C]: ``raw[:, columns]`` standardised by ``mean`` and ``std``
+    (one value per column), then log(alpha) of each of ``lobes``' decoded roughness (``stack.decode``; two
+    values per lobe, alpha at least :data:`ALPHA_FLOOR`). [N, len(columns) + 2 len(lobes)]."""
+    x = (raw[:, columns.to(raw.device)] - mean.to(raw)) / std.to(raw)
+    decoded = stack.decode(raw) if lobes else {}
+    logs = [torch.log(decoded[f"{lobe}.roughness"].clamp_min(ALPHA_FLOOR)).to(raw) for lobe in lobes]
+    return torch.cat([x, *logs], -1)
+
+
 class EncoderInput:
     """The encoder's input for ``stack`` in ``mode`` (module docstring): call it on raw channels [N, C] to get
     the features [N, dim]."""
@@ -44,14 +55,19 @@ class EncoderInput:
             self.mode, self.dim = "raw", channels
             return
         level0 = torch.cat([s.levels[0].float().reshape(channels, -1) for s in getattr(stack, "stacks", [stack])], 1)
+        self.columns = torch.arange(channels)
         self.mean = level0.mean(1)
         self.std = level0.std(1, correction=0).clamp_min(1e-8)  # one texel: 0, not NaN
         self.dim = channels + 2 * len(self.lobes)
 
+    def statistics(self) -> dict | None:
+        """What reproduces these features on another stack of the same layout (the universal networks ship it:
+        :mod:`mtlx2neural.universal.weights`): ``{"mode", "mean", "std", "lobes"}``, or None in the raw mode."""
+        if self.mode == "raw":
+            return None
+        return {"mode": self.mode, "mean": self.mean.tolist(), "std": self.std.tolist(), "lobes": list(self.lobes)}
+
     def __call__(self, raw: torch.Tensor) -> torch.Tensor:
         if self.mode == "raw":
             return raw
-        x = (raw - self.mean.to(raw)) / self.std.to(raw)
-        decoded = self.stack.decode(raw) if self.lobes else {}
-        logs = [torch.log(decoded[f"{lobe}.roughness"].clamp_min(ALPHA_FLOOR)).to(raw) for lobe in self.lobes]
-        return torch.cat([x, *logs], -1)
+        return standardised(raw, self.columns, self.mean, self.std, self.stack, self.lobes)

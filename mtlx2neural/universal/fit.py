@@ -29,6 +29,7 @@ import math
 import torch
 
 from mtlx2neural.model.networks import Encoder
+from mtlx2neural.train.encoder_input import standardised
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
 from mtlx2neural.universal.choice import STEPS, TUNES
@@ -74,24 +75,47 @@ def encoder_columns(stack, weights: dict) -> torch.Tensor:
 
 
 class Columns:
-    """The encoder's input on the universal path: the stack's raw channels [N, C] -> the shipped layout's
-    columns [N, dim] (an :class:`~mtlx2neural.train.encoder_input.EncoderInput` in the ``raw`` mode the
-    network was trained with)."""
+    """The encoder's input on the universal path: the stack's raw channels [N, C] -> the shipped network's
+    features [N, dim]: the columns ``index`` in the shipped layout, as they are (a file without ``input``) or
+    standardised by the atlas's statistics, with log roughness of its lobes
+    (:func:`~mtlx2neural.train.encoder_input.standardised`)."""
 
-    def __init__(self, index: torch.Tensor):
-        self.index, self.dim = index, int(index.numel())
+    def __init__(self, index: torch.Tensor, stack=None, spec: dict | None = None):
+        self.index, self.stack, self.spec = index, stack, spec
+        self.lobes = list(spec["lobes"]) if spec else []
+        self.dim = int(index.numel()) + 2 * len(self.lobes)
+        if spec:
+            self.mean = torch.tensor(spec["mean"], dtype=torch.float32)
+            self.std = torch.tensor(spec["std"], dtype=torch.float32)
 
     def __call__(self, raw: torch.Tensor) -> torch.Tensor:
-        return raw[:, self.index.to(raw.device)]
+        if not self.spec:
+            return raw[:, self.index.to(raw.device)]
+        return standardised(raw, self.index, self.mean, self.std, self.stack, self.lobes)
+
+
+def encoder_input(stack, weights: dict) -> Columns:
+    """The shipped encoder's input on ``stack`` (:class:`Columns`). Raises :class:`LayoutMismatch` when the
+    channels differ (:func:`encoder_columns`) or a lobe whose roughness the encoder reads (named canonically)
+    is not a LEAN lobe of ``stack``."""
+    spec = weights.get("input")
+    if spec:
+        lobes = {canonical_name(lobe): lobe for lobe in getattr(stack, "lean_groups", None) or []}
+        lost = [lobe for lobe in spec["lobes"] if lobe not in lobes]
+        if lost:
+            raise LayoutMismatch(f"the universal {weights['model']} network reads the roughness of lobes the "
+                                 f"material lacks ({', '.join(lost)})")
+        spec = {**spec, "lobes": [lobes[lobe] for lobe in spec["lobes"]]}
+    return Columns(encoder_columns(stack, weights), stack, spec)
 
 
 def load_encoder(trainer, weights: dict) -> None:
-    """Give ``trainer``'s model the shipped encoder, reading the stack's columns in the shipped layout
-    (:func:`encoder_columns`; raises :class:`LayoutMismatch`). Call before the optimiser is made: the
-    encoder is a new module. The shipped encoder reads raw channels: ``trainer.cfg.encoder_input`` becomes
-    raw (the material's own encoder's setting does not apply)."""
-    trainer.cfg = universal_config(trainer.cfg)
-    columns = Columns(encoder_columns(trainer.stack, weights))
+    """Give ``trainer``'s model the shipped encoder, reading the stack as the network was trained to
+    (:func:`encoder_input`; raises :class:`LayoutMismatch`). Call before the optimiser is made: the
+    encoder is a new module. ``trainer.cfg.encoder_input`` becomes the shipped one's mode (the material's
+    own encoder's setting does not apply)."""
+    columns = encoder_input(trainer.stack, weights)
+    trainer.cfg = universal_config(trainer.cfg, weights)
     trainer.encoder_input = columns
     trainer.model.encoder = Encoder(columns.dim, trainer.cfg.latent_dim).to(trainer.device)
     trainer.model.encoder.load_state_dict(weights["encoder"])

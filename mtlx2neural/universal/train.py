@@ -1,6 +1,7 @@
 """Train a shading model's universal network on its parameter atlas, and write the weights the package ships.
 
-``python -m mtlx2neural.universal.train [--model UsdPreviewSurface] [--steps N] [--size S] [--seed K] [--prefetch P]``
+``python -m mtlx2neural.universal.train [--model UsdPreviewSurface] [--steps N] [--size S] [--seed K] [--prefetch P]
+[--input normalized|raw] [--brdf-eps E]``
 
 1. Write the model's atlas (:mod:`.atlas`: random parameter textures, ``size``² texels, seeded).
 2. Compile it in the canonical form (:mod:`.canonical`) and build its parameter stack, as a conversion
@@ -10,8 +11,11 @@
    (``encoder_fraction`` 1): the decoder and the sampler then learn from the encoder's codes, which are
    what a material's latents start from (:mod:`.fit`). The environment head is fitted last, as usual.
    ``prefetch`` draws the rows of that many steps in one call to the reference (``target_prefetch``).
-4. Save the encoder, decoder (with its environment head) and sampler with the stack's channel layout
-   and the run's provenance (:mod:`.weights`).
+   ``input`` is what the encoder reads (:mod:`mtlx2neural.train.encoder_input`): ``normalized``, the
+   atlas's channels standardised by the atlas's own statistics, plus log roughness, which every material
+   is then read with; ``brdf_eps`` is log-L1's scale (``TrainConfig.brdf_eps``).
+4. Save the encoder, decoder (with its environment head) and sampler with the stack's channel layout,
+   the encoder's input statistics and the run's provenance (:mod:`.weights`).
 
 The run is deterministic for one seed, torch version and thread count. Its cost grows with ``steps``
 (about 0.1 s per step on 2 CPU cores).
@@ -43,11 +47,7 @@ DEFAULT_STEPS = 6000
 DEFAULT_SIZE = 512
 DEFAULT_LR = 2e-3
 ENVIRONMENT_FRACTION = 0.1  # of the steps: the environment head fitted last (fast: 0.3 of 1000)
-
-
-SHIPPED_BRDF_EPS = 1e-2
-"""log_l1's scale the shipped networks were trained with (the default before 2026-12-06): kept, so that the
-script reproduces them. Their encoders read the stack's raw channels."""
+INPUTS = ("normalized", "raw")
 
 
 def atlas_material(folder: Path, model: str, size: int, seed: int):
@@ -74,9 +74,14 @@ def folded_constants(stack) -> dict:
     return out
 
 
+def canonical_statistics(stats: dict | None) -> dict | None:
+    """The encoder input's statistics with its lobes named canonically (a material's lobe paths name its shader)."""
+    return stats and {**stats, "lobes": [canonical_name(lobe) for lobe in stats["lobes"]]}
+
+
 def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS, size: int = DEFAULT_SIZE,
                     seed: int = 0, lr: float = DEFAULT_LR, workdir: Path | None = None, progress: bool = True,
-                    prefetch: int = 1) -> dict:
+                    prefetch: int = 1, encoder_input: str = "normalized", brdf_eps: float | None = None) -> dict:
     """Steps 1-3 of the module docstring; returns the weights' dict (:mod:`.weights`)."""
     from mtlx2neural.train.config import PRESETS  # Local: fast --help
     from mtlx2neural.train.trainer import Trainer  # Local: fast --help
@@ -88,7 +93,8 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
         cfg = dataclasses.replace(PRESETS["fast"], iterations=steps, seed=seed, lr_start=lr, encoder_fraction=1.0,
                                   preview_iterations=0, probe_every=0, checkpoint_every=max(1000, steps),
                                   environment_fraction=ENVIRONMENT_FRACTION, target_prefetch=prefetch,
-                                  encoder_input="raw", brdf_eps=SHIPPED_BRDF_EPS)
+                                  encoder_input=encoder_input,
+                                  brdf_eps=PRESETS["fast"].brdf_eps if brdf_eps is None else brdf_eps)
         trainer = Trainer(ref, stack, cfg, folder / "train")
         net = trainer.run(progress=progress)
     last = trainer.history[-1] if trainer.history else {}
@@ -97,10 +103,12 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
         "channels": [[canonical_name(c.name), c.width] for c in stack.channels],
         "constants": folded_constants(stack),
         "shape": {f: getattr(cfg, f) for f in NETWORK_FIELDS},
+        "input": canonical_statistics(trainer.encoder_input.statistics()),
         "encoder": net.encoder.state_dict(), "decoder": net.decoder.state_dict(), "sampler": net.sampler.state_dict(),
         "provenance": {
             "command": f"python -m mtlx2neural.universal.train --model {model} --steps {steps} --size {size} "
-                       f"--seed {seed} --lr {lr}" + (f" --prefetch {prefetch}" if prefetch > 1 else ""),
+                       f"--seed {seed} --lr {lr} --input {encoder_input} --brdf-eps {cfg.brdf_eps}"
+                       + (f" --prefetch {prefetch}" if prefetch > 1 else ""),
             "config": dataclasses.asdict(cfg), "atlas": {"size": size, "seed": seed},
             "seconds": round(time.time() - t0, 1), "torch": torch.__version__, "threads": torch.get_num_threads(),
             "final_loss_brdf": last.get("loss_brdf"), "final_loss_kl": last.get("loss_kl"),
@@ -116,10 +124,16 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the atlas and the training (default: %(default)s)")
     p.add_argument("--lr", type=float, default=DEFAULT_LR, help="Adam's starting learning rate (default: %(default)s)")
     p.add_argument("--prefetch", type=int, default=1, help="steps whose rows are drawn in one call (default: %(default)s)")
+    p.add_argument("--input", choices=INPUTS, default="normalized",
+                   help="what the encoder reads: channels standardised by the atlas's statistics plus log roughness, "
+                        "or the raw channels (default: %(default)s)")
+    p.add_argument("--brdf-eps", type=float, default=None,
+                   help="log-L1's scale in f*cos units (default: the fast preset's)")
     p.add_argument("--out", type=Path, default=WEIGHTS_DIR, help="folder of the weights file (default: the package's)")
     p.add_argument("--workdir", type=Path, default=None, help="keep the atlas and checkpoint here (default: a temporary folder)")
     a = p.parse_args(argv)
-    data = train_universal(a.model, a.steps, a.size, a.seed, a.lr, a.workdir, prefetch=a.prefetch)
+    data = train_universal(a.model, a.steps, a.size, a.seed, a.lr, a.workdir, prefetch=a.prefetch,
+                           encoder_input=a.input, brdf_eps=a.brdf_eps)
     path = weights_path(a.model, a.out)
     save_weights(path, data)
     print(f"{path}: {len(data['channels'])} channel groups, {data['provenance']['seconds']} s", flush=True)

@@ -9,6 +9,10 @@ A file (``<model>.pt``, torch's format, a few hundred kilobytes) holds a dict:
   material's settings must share to use it (latent channels, frames, decoder, heads);
 - ``encoder``, ``decoder``, ``sampler``: the networks' state dicts (the decoder's holds the
   environment head);
+- ``input`` (absent: the raw channels): what the encoder reads, the atlas's
+  :meth:`~mtlx2neural.train.encoder_input.EncoderInput.statistics`: every channel standardised by the
+  atlas's fixed mean and deviation (a material's own statistics would move every code the encoder gives),
+  then log(alpha) of the named lobes;
 - ``provenance``: how it was trained (command, steps, atlas size and seed, seconds, torch version,
   final losses), so ``python -m mtlx2neural.universal.train`` can reproduce it.
 """
@@ -43,6 +47,8 @@ def save_weights(path: Path, data: dict) -> None:
 def weights_digest(weights: dict) -> str:
     """SHA-256 of a network's layout and every tensor of its encoder, decoder and sampler."""
     h = hashlib.sha256(repr(weights["channels"]).encode())
+    if weights.get("input"):
+        h.update(repr(weights["input"]).encode())
     for part in ("encoder", "decoder", "sampler"):
         for k, v in sorted(weights[part].items()):
             h.update(k.encode())
@@ -65,18 +71,23 @@ def load_weights(model: str, folder: Path | None = None) -> dict | None:
     return _load(str(path), path.stat().st_mtime)
 
 
+def input_mode(weights: dict) -> str:
+    """What the shipped encoder reads (an ``encoder_input`` mode): ``raw`` for a file without ``input``."""
+    return (weights.get("input") or {}).get("mode", "raw")
+
+
 def shape_mismatch(weights: dict, cfg) -> list[str]:
     """The settings of ``cfg`` (a TrainConfig) that the shipped network cannot serve: its
     :data:`NETWORK_FIELDS` that differ, and ``environment_fraction`` when the settings fit no head. Not
-    ``encoder_input``: the shipped encoder reads the stack's raw channels, and a material on the universal
-    path is planned with them (:func:`universal_config`)."""
+    ``encoder_input``: the shipped encoder reads what it was trained on, and a material on the universal
+    path is planned with that (:func:`universal_config`)."""
     out = [f for f in NETWORK_FIELDS if getattr(cfg, f) != weights["shape"][f]]
     if cfg.environment_steps <= 0:
         out.append("environment_fraction")
     return out
 
 
-def universal_config(cfg):
-    """``cfg`` (a TrainConfig) as a material on the universal path trains with it: the shipped encoder's input,
-    the stack's raw channels (``encoder_input`` raw), whatever ``cfg`` asked of its own encoder."""
-    return dataclasses.replace(cfg, encoder_input="raw")
+def universal_config(cfg, weights: dict):
+    """``cfg`` (a TrainConfig) as a material on the universal path trains with it: the shipped encoder's input
+    mode (:func:`input_mode`; its statistics are the atlas's), whatever ``cfg`` asked of its own encoder."""
+    return dataclasses.replace(cfg, encoder_input=input_mode(weights))

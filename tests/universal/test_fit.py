@@ -282,3 +282,36 @@ def Xform "World" {{
     assert plain["path"] == "universal" and "gltf_pbr" in plain["text"], plain
     sheen = stage("color3f inputs:sheen_color = (0.5, 0.5, 0.5)")
     assert sheen["path"] == "material" and "sheen_color" in sheen["text"], sheen
+
+
+def test_the_shipped_encoder_reads_a_material_with_the_atlas_s_statistics(tmp_path):
+    """A network trained on the ``normalized`` input (``universal.train``, 2 steps on a 16² atlas: only the
+    file's layout is tested) ships the atlas's mean and deviation and its lobes' canonical names. A material is
+    read with those, not its own: its columns standardised by the atlas's statistics (float32 rounding, 1e-5),
+    then log roughness of its own lobes; a lobe it lacks is refused; the statistics join the digest."""
+    from mtlx2neural.train.encoder_input import ALPHA_FLOOR
+    from mtlx2neural.universal.fit import encoder_input
+    from mtlx2neural.universal.train import train_universal
+    from mtlx2neural.universal.weights import weights_digest
+
+    trained = train_universal(steps=2, size=16, progress=False, workdir=tmp_path / "atlas")
+    spec = trained["input"]
+    assert spec["mode"] == "normalized" and "--input normalized" in trained["provenance"]["command"]
+    assert spec["lobes"] and all(">/" not in lobe for lobe in spec["lobes"])
+    _, stack, _ = _setup(tmp_path)
+    columns = encoder_input(stack, trained)
+    raw = stack.levels[0].float().reshape(stack.levels[0].shape[0], -1).T
+    x = columns(raw)
+    index = encoder_columns(stack, trained)
+    assert x.shape[1] == index.numel() + 2 * len(spec["lobes"])
+    want = (raw[:, index] - torch.tensor(spec["mean"])) / torch.tensor(spec["std"])
+    torch.testing.assert_close(x[:, :index.numel()], want, atol=1e-5, rtol=1e-5)
+    lobe = next(g for g in stack.lean_groups if g.endswith(spec["lobes"][0]))
+    alpha = stack.decode(raw)[f"{lobe}.roughness"]
+    torch.testing.assert_close(x[:, index.numel():index.numel() + 2], torch.log(alpha.clamp_min(ALPHA_FLOOR)))
+    assert float(x[:, :index.numel()].mean(0).abs().max()) > 0.1  # the atlas's statistics, not the material's own
+    stack.lean_groups = [g for g in stack.lean_groups if g != lobe]
+    with pytest.raises(LayoutMismatch, match=spec["lobes"][0]):
+        encoder_input(stack, trained)
+    other = {**trained, "input": {**spec, "mean": [m + 1 for m in spec["mean"]]}}
+    assert weights_digest(other) != weights_digest(trained)
