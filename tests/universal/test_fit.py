@@ -118,9 +118,10 @@ def test_encode_then_fine_tune_fits_the_material(tmp_path, weights, tune):
     _, _, trainer = _setup(tmp_path)
     model = fit_universal(trainer, weights, steps=60, progress=False, tune=tune)
     after = held_out_error(ref, model, stack, n=4096)
-    # the fine-tune fits the material's own targets: its held-out log-L1 falls (measured with the 8000-step network: latents 0.21 -> 0.16,
-    # networks 0.21 -> 0.07); a 10 % margin keeps sampling noise of the 4096 rows out
-    assert after < 0.9 * before
+    # the fine-tune fits the material's own targets: its held-out log-L1 falls (measured with the shipped 16000-step
+    # network on the normalized input: latents 0.263 -> 0.236, 0.90x; networks, whose one-step start is a full-rate
+    # step on the decoder, 0.75 -> 0.23); seeded, so the 0.95 bound is a margin for platform rounding, not noise
+    assert after < 0.95 * before
     same = {part: _digest(getattr(model, part)) == shipped[part] for part in ("decoder", "sampler")}
     assert same == ({"decoder": True, "sampler": True} if tune == "latents" else {"decoder": False, "sampler": False})
     assert trainer.checkpoint_path.is_file()
@@ -171,9 +172,9 @@ def test_a_scene_network_starts_from_the_universal_one(tmp_path, weights, monkey
     assert start["model"] == "UsdPreviewSurface" and sorted(start["encoded"]) == ["Painted1", "Painted2"]
     assert len({hashlib.sha256(p.read_bytes()).hexdigest()
                 for p in (tmp_path / "scene").glob("*/neural/weights.bin")}) == 1
-    # from random weights, twice the steps: the shipped start fits both better (measured with the 8000-step network: held-out log-L1 0.29-0.30
-    # against 0.37-0.39, the per-material universal path's figure at 20 steps; seeded, so the 0.85 bound is a margin
-    # against platform differences, not noise)
+    # from random weights, twice the steps: the shipped start fits both better (measured with the shipped 16000-step
+    # network: held-out log-L1 0.254-0.258 against 0.372-0.390; seeded, so the 0.85 bound is a margin against
+    # platform differences, not noise)
     scratch = {r.material: r for r in convert_asset(both, dataclasses.replace(opts, encoder="material",
                                                                                 out=str(tmp_path / "scratch")))}
     assert all(r.encoder is None and r.steps == 40 for r in scratch.values())
