@@ -15,7 +15,10 @@ energy-and-loss-2026-12-04.md).
   docs/history/energy-and-loss-2026-12-06.md): HDR FLIP GlazedCeramic 0.079 against raw's 0.086,
   BrushedMetal 0.151 against 0.160, the near mirror 0.35 against 0.46, whose rough texels then decode as
   broad lobes (raw: as sharp as the smooth ones).
-- ``raw``: the channels as they are. The shipped universal encoders read these.
+- ``raw``: the channels as they are.
+
+A universal network reads the ``normalized`` features with its atlas's fixed statistics
+(:func:`standardised`, :mod:`mtlx2neural.universal.weights`).
 
 The statistics are recomputed from the stack, so a resumed run reads the same features. A uniform
 material has no channels: both modes give the encoder nothing to read.

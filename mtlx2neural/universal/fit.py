@@ -10,12 +10,12 @@ canonical form (:mod:`.canonical`: its stack then has the layout the shipped enc
    through its codec in the last ``block_fraction``), with ``tune`` (:data:`TUNES`):
 
    - ``networks``: the latents, the decoder and the sampler. The material gets its own copy of the
-     networks, fitted to it: measured on the scene sample (``fast``, 300 steps), HDR FLIP 0.039 on the
-     leaf where its own 1000-step training reaches 0.071, 0.022 on the lava against 0.020, in half the
-     conversion's time (BENCHMARKS.md, "Whole scenes");
+     networks, fitted to it: measured on the scene sample (``fast``, 300 steps, the 2026-12-06 networks),
+     HDR FLIP 0.034 on the leaf where its own 1000-step training reaches 0.038, 0.017 on the lava against
+     0.011 (600 steps: 0.013), in half the conversion's time (BENCHMARKS.md, "Whole scenes");
    - ``latents``: the latents alone, the networks frozen, so the shipped decoder and sampler stay byte
-     for byte and every material converted so shares them; the leaf then scores 0.156, the lava 0.100
-     (the universal decoder alone does not resolve them);
+     for byte and every material converted so shares them; the leaf then scored 0.156, the lava 0.100
+     (the raw-input networks of 2026-12-05: the universal decoder alone does not resolve them);
 4. finishes as a training run does (a cut-out's empty texels, the codec). With ``networks`` the
    environment head is fitted again (``environment_fraction`` of the fine-tune's steps: the sampler's
    lobes moved); with ``latents`` the shipped head serves.
