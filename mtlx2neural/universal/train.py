@@ -18,7 +18,7 @@
    the encoder's input statistics and the run's provenance (:mod:`.weights`).
 
 The run is deterministic for one seed, torch version and thread count. Its cost grows with ``steps``
-(about 0.1 s per step on 2 CPU cores).
+(0.05-0.08 s per step on 2 CPU cores: 857-1223 s for 16000 steps, 2026-12-06).
 """
 
 from __future__ import annotations
