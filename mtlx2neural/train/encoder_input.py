@@ -18,7 +18,7 @@ energy-and-loss-2026-12-04.md).
 - ``raw``: the channels as they are.
 
 A universal network reads the ``normalized`` features with its atlas's fixed statistics
-(:func:`standardised`, :mod:`mtlx2neural.universal.weights`).
+(:meth:`EncoderInput.fixed`, :mod:`mtlx2neural.universal.weights`).
 
 The statistics are recomputed from the stack, so a resumed run reads the same features. A uniform
 material has no channels: both modes give the encoder nothing to read.
@@ -33,12 +33,13 @@ ALPHA_FLOOR = 1e-4
 MODES = ("raw", "normalized")
 
 
-def standardised(raw: torch.Tensor, columns: torch.Tensor, mean: torch.Tensor, std: torch.Tensor, stack,
+def standardised(raw: torch.Tensor, columns: torch.Tensor | None, mean: torch.Tensor, std: torch.Tensor, stack,
                  lobes: list[str]) -> torch.Tensor:
-    """The ``normalized`` features of raw channels [N, C]: ``raw[:, columns]`` standardised by ``mean`` and ``std``
-    (one value per column), then log(alpha) of each of ``lobes``' decoded roughness (``stack.decode``; two
-    values per lobe, alpha at least :data:`ALPHA_FLOOR`). [N, len(columns) + 2 len(lobes)]."""
-    x = (raw[:, columns.to(raw.device)] - mean.to(raw)) / std.to(raw)
+    """The ``normalized`` features of raw channels [N, C]: ``raw[:, columns]`` (every column when None)
+    standardised by ``mean`` and ``std`` (one value per column), then log(alpha) of each of ``lobes``' decoded
+    roughness (``stack.decode``; two values per lobe, alpha at least :data:`ALPHA_FLOOR`)."""
+    x = raw if columns is None else raw[:, columns.to(raw.device)]
+    x = (x - mean.to(raw)) / std.to(raw)
     decoded = stack.decode(raw) if lobes else {}
     logs = [torch.log(decoded[f"{lobe}.roughness"].clamp_min(ALPHA_FLOOR)).to(raw) for lobe in lobes]
     return torch.cat([x, *logs], -1)
@@ -46,22 +47,37 @@ def standardised(raw: torch.Tensor, columns: torch.Tensor, mean: torch.Tensor, s
 
 class EncoderInput:
     """The encoder's input for ``stack`` in ``mode`` (module docstring): call it on raw channels [N, C] to get
-    the features [N, dim]."""
+    the features [N, dim]. :meth:`fixed` reads given columns with given statistics instead (a universal
+    network's)."""
 
     def __init__(self, stack, mode: str = "raw"):
         if mode not in MODES:
             raise ValueError(f"encoder input {mode!r}: choose one of {MODES}")
-        self.stack, self.mode = stack, mode
+        self.stack, self.mode, self.columns = stack, mode, None
         channels = int(stack.levels[0].shape[0])
         self.lobes = list(getattr(stack, "lean_groups", []) or [])
         if mode == "raw" or channels == 0:
             self.mode, self.dim = "raw", channels
             return
         level0 = torch.cat([s.levels[0].float().reshape(channels, -1) for s in getattr(stack, "stacks", [stack])], 1)
-        self.columns = torch.arange(channels)
         self.mean = level0.mean(1)
         self.std = level0.std(1, correction=0).clamp_min(1e-8)  # one texel: 0, not NaN
         self.dim = channels + 2 * len(self.lobes)
+
+    @classmethod
+    def fixed(cls, stack, columns: torch.Tensor, spec: dict | None) -> "EncoderInput":
+        """The raw channels ``columns`` of ``stack`` (a shipped layout's order), as they are (``spec`` None) or
+        in ``spec``'s mode with its statistics (:meth:`statistics`'s dict; its lobes named as ``stack`` names
+        them)."""
+        self = cls.__new__(cls)
+        self.stack, self.columns = stack, columns
+        self.mode = spec["mode"] if spec else "raw"
+        self.lobes = list(spec["lobes"]) if spec else []
+        if spec:
+            self.mean = torch.tensor(spec["mean"], dtype=torch.float32)
+            self.std = torch.tensor(spec["std"], dtype=torch.float32)
+        self.dim = int(columns.numel()) + 2 * len(self.lobes)
+        return self
 
     def statistics(self) -> dict | None:
         """What reproduces these features on another stack of the same layout (the universal networks ship it:
@@ -72,5 +88,5 @@ class EncoderInput:
 
     def __call__(self, raw: torch.Tensor) -> torch.Tensor:
         if self.mode == "raw":
-            return raw
+            return raw if self.columns is None else raw[:, self.columns.to(raw.device)]
         return standardised(raw, self.columns, self.mean, self.std, self.stack, self.lobes)

@@ -29,7 +29,7 @@ import math
 import torch
 
 from mtlx2neural.model.networks import Encoder
-from mtlx2neural.train.encoder_input import standardised
+from mtlx2neural.train.encoder_input import EncoderInput
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
 from mtlx2neural.universal.choice import STEPS, TUNES
@@ -74,28 +74,10 @@ def encoder_columns(stack, weights: dict) -> torch.Tensor:
     return torch.cat([torch.arange(offsets[n][0], offsets[n][0] + w) for n, w in weights["channels"]])
 
 
-class Columns:
-    """The encoder's input on the universal path: the stack's raw channels [N, C] -> the shipped network's
-    features [N, dim]: the columns ``index`` in the shipped layout, as they are (a file without ``input``) or
-    standardised by the atlas's statistics, with log roughness of its lobes
-    (:func:`~mtlx2neural.train.encoder_input.standardised`)."""
-
-    def __init__(self, index: torch.Tensor, stack=None, spec: dict | None = None):
-        self.index, self.stack, self.spec = index, stack, spec
-        self.lobes = list(spec["lobes"]) if spec else []
-        self.dim = int(index.numel()) + 2 * len(self.lobes)
-        if spec:
-            self.mean = torch.tensor(spec["mean"], dtype=torch.float32)
-            self.std = torch.tensor(spec["std"], dtype=torch.float32)
-
-    def __call__(self, raw: torch.Tensor) -> torch.Tensor:
-        if not self.spec:
-            return raw[:, self.index.to(raw.device)]
-        return standardised(raw, self.index, self.mean, self.std, self.stack, self.lobes)
-
-
-def encoder_input(stack, weights: dict) -> Columns:
-    """The shipped encoder's input on ``stack`` (:class:`Columns`). Raises :class:`LayoutMismatch` when the
+def encoder_input(stack, weights: dict) -> EncoderInput:
+    """The shipped encoder's input on ``stack``: its columns in the shipped layout (:func:`encoder_columns`), as
+    they are (a file without ``input``) or standardised by the atlas's statistics, with log roughness of its
+    lobes (:meth:`~mtlx2neural.train.encoder_input.EncoderInput.fixed`). Raises :class:`LayoutMismatch` when the
     channels differ (:func:`encoder_columns`) or a lobe whose roughness the encoder reads (named canonically)
     is not a LEAN lobe of ``stack``."""
     spec = weights.get("input")
@@ -106,7 +88,7 @@ def encoder_input(stack, weights: dict) -> Columns:
             raise LayoutMismatch(f"the universal {weights['model']} network reads the roughness of lobes the "
                                  f"material lacks ({', '.join(lost)})")
         spec = {**spec, "lobes": [lobes[lobe] for lobe in spec["lobes"]]}
-    return Columns(encoder_columns(stack, weights), stack, spec)
+    return EncoderInput.fixed(stack, encoder_columns(stack, weights), spec)
 
 
 def load_encoder(trainer, weights: dict) -> None:
