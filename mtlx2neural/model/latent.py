@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from mtlx2neural.formats.latent_codec import LatentCodec
-from mtlx2neural.imaging.grid_lookup import bilinear_periodic
+from mtlx2neural.imaging.grid_lookup import bilinear_periodic, blend_texels
 from mtlx2neural.imaging.udim import check_tiles, udim_of_uv
 
 
@@ -47,18 +47,14 @@ def bilinear_clamp(grid: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     """[C, H, W] grid, [N, 2] uv in [0, 1] -> [N, C]: bilinear with clamp-to-edge addressing (the
     conventions of :func:`~mtlx2neural.imaging.grid_lookup.bilinear_periodic`: row 0 at v = 1, texel
     centres at half-integers)."""
-    c, h, w = grid.shape
+    _, h, w = grid.shape
     x = uv[:, 0].clamp(0.0, 1.0) * w - 0.5
     y = (1.0 - uv[:, 1].clamp(0.0, 1.0)) * h - 0.5
     x0, y0 = x.floor(), y.floor()
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     x0, y0 = x0.long(), y0.long()
-    flat = grid.reshape(c, -1)
-    out = 0
-    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        idx = (y0 + dy).clamp(0, h - 1) * w + (x0 + dx).clamp(0, w - 1)
-        out = out + flat[:, idx].T * wgt
-    return out
+    return blend_texels(grid, x0.clamp(0, w - 1), y0.clamp(0, h - 1), (x0 + 1).clamp(0, w - 1),
+                        (y0 + 1).clamp(0, h - 1), fx, fy)
 
 
 class LatentPyramid(nn.Module):

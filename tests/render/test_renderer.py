@@ -293,6 +293,26 @@ def test_mis_with_the_reference_sampler_tames_a_clear_coat_under_the_sky():
     assert np.allclose(half, 0.5 * mis, rtol=1e-5, atol=1e-7)
 
 
+def test_passes_shaded_together_equal_pass_by_pass(monkeypatch):
+    """render_scene shades the hits of several passes in one call (PASS_BATCH_POINTS): the same rays,
+    levels, light and sampler directions as one call per pass, so the image is the same. Tolerance 1e-6
+    relative: only the order of the float32 sums over the passes differs."""
+    from mtlx2neural.render import renderer
+
+    ref = m2n.load_reference(SAMPLE, "/World/Looks/CarPaint")
+    sky = EnvironmentMap.sky()
+
+    def draw():
+        return render_scene(ref, Sphere(), Camera(30, 20, distance=4.0), [sky, DirectionalLight((0.4, 0.7, 0.6), 3.0)],
+                            res=24, spp=8, seed=5, sampler=ref)
+
+    together = draw()
+    monkeypatch.setattr(renderer, "PASS_BATCH_POINTS", 1)
+    alone = draw()
+    assert (together.sum(-1) > 0).mean() > 0.3
+    np.testing.assert_allclose(together, alone, rtol=1e-6, atol=1e-7)
+
+
 def test_hdr_environment_from_the_materialx_resources():
     """The MaterialX resources' (irradiance) lat-long maps load through OpenImageIO, their pdf
     integrates to 1, and a Lambertian plane under one matches its irradiance within 3 % (std ~0.8 %)."""

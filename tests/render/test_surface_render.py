@@ -7,8 +7,10 @@ float32 sums over the samples)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
+from mtlx2neural.render import renderer
 from mtlx2neural.render.geometry import Camera, Plane
 from mtlx2neural.render.in_scene import mesh_from_triangles
 from mtlx2neural.render.lighting import DirectionalLight
@@ -71,6 +73,14 @@ def test_a_ray_continues_through_a_cut_out_to_what_lies_behind():
     img = render_scene(BlackEmitter(_left_half_mask(16)), mesh, Camera(0.0, 0.0, 6.0), [], res=24, spp=1)
     centre = img[8:16, 8:16]
     np.testing.assert_allclose(centre, np.broadcast_to([1.0, 2.0, 3.0], centre.shape), rtol=1e-5)
+    # Several jittered passes shaded together (renderer.PASS_BATCH_POINTS) keep each layer's hits on their pixels:
+    # the same image as one pass at a time.
+    many = render_scene(BlackEmitter(_left_half_mask(16)), mesh, Camera(0.0, 0.0, 6.0), [], res=24, spp=6)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(renderer, "PASS_BATCH_POINTS", 1)
+        alone = render_scene(BlackEmitter(_left_half_mask(16)), mesh, Camera(0.0, 0.0, 6.0), [], res=24, spp=6)
+    np.testing.assert_allclose(many, alone, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(many[8:16, 8:16], centre, rtol=1e-5)
 
 
 def test_a_scene_draws_each_triangle_with_its_own_material():
