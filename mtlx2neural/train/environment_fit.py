@@ -33,6 +33,7 @@ import torch
 
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.model import proxy
+from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.udim import draw_uv
 
 RELATIVE_EPS = 1e-3
@@ -112,7 +113,7 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     if head is None:
         raise RuntimeError("the model has no environment head to fit")
     per = batch if len(trainers) == 1 else max(64, batch // len(trainers))
-    opt = torch.optim.Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
+    opt = Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     history, ahead = [], []
     for step in range(1, steps + 1):
         if not ahead:

@@ -35,6 +35,7 @@ import time
 import torch
 
 from mtlx2neural.progress import progress_bar
+from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.environment_fit import fit_environment_head
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr
@@ -100,7 +101,7 @@ class SharedTrainer:
         self.trainers = trainers
         self.cfg = lead.cfg
         self.params = _unique_parameters(t.model for t in trainers)
-        self.opt = torch.optim.Adam(self.params, lr=self.cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+        self.opt = Adam(self.params, lr=self.cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
         for t in trainers:
             t.opt = self.opt  # a trainer's checkpoint stores the shared optimiser's state
         self.step = 0
@@ -159,7 +160,7 @@ class SharedTrainer:
         for p in shared:
             p.requires_grad_(False)
         try:
-            opt = torch.optim.Adam(trainer.model.latents.parameters(), lr=self.cfg.lr_end, betas=(0.9, 0.999),
+            opt = Adam(trainer.model.latents.parameters(), lr=self.cfg.lr_end, betas=(0.9, 0.999),
                                    eps=1e-7)
             for _ in range(steps):
                 loss, _, _ = trainer.step_loss()
@@ -235,6 +236,6 @@ def fit_into_network(trainer: Trainer, network, environment_history: list[dict],
     for p in _unique_parameters([network.decoder, network.sampler]):
         p.requires_grad_(False)
     own = [p for p in trainer.model.parameters() if p.requires_grad]  # the encoder, the latents
-    trainer.opt = torch.optim.Adam(own, lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+    trainer.opt = Adam(own, lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
     trainer.environment_history = [dict(r) for r in environment_history] or [{"step": 0, "frozen": True}]
     return trainer.run(progress=progress)

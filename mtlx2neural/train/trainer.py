@@ -39,6 +39,7 @@ from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.textures.parameter_stack import ParameterStack
 from mtlx2neural.textures.surface_maps import SurfaceMaps, dilate
+from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
 from mtlx2neural.train.encoder_input import EncoderInput
@@ -108,7 +109,7 @@ class Trainer:
                 check_block_shapes([tuple(lv.shape[-2:]) for lv in self.model.latents.levels])
             except ValueError as exc:
                 raise InputError(f"--latent-format {cfg.latent_format}: {exc}") from None
-        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+        self.opt = Adam(self.model.parameters(), lr=cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
         self.step = 0
         self.baked = False
         self.history: list[dict] = []

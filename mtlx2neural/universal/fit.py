@@ -29,6 +29,7 @@ import math
 import torch
 
 from mtlx2neural.model.networks import Encoder
+from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.encoder_input import EncoderInput
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
@@ -134,7 +135,7 @@ def fit_universal(trainer, weights: dict, steps: int = STEPS, progress: bool = T
     for p in (*model.decoder.parameters(), *model.sampler.parameters()):
         p.requires_grad_(tune == "networks")
     tuned = [p for p in model.parameters() if p.requires_grad]
-    trainer.opt = torch.optim.Adam(tuned, lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
+    trainer.opt = Adam(tuned, lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     # The shipped environment head serves frozen networks; a tuned sampler has other lobes: fit it again.
     trainer.environment_history = [] if tune == "networks" else [
         {"step": 0, "universal": weights["model"], "frozen": True}]
