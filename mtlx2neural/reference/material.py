@@ -194,13 +194,29 @@ class ReferenceMaterial:
         pdf = self._mixture_pdf(lobes, probs, wi, wo)
         return zero_below_horizon(pdf, wi, wo)
 
-    def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None, *, uv=None, params: dict | None = None):
+    def eval_pdf(self, wi: torch.Tensor, wo: torch.Tensor, at=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(eval(wi, wo, at), pdf(wi, wo, at))`` from one evaluation of the material's parameters and lobes:
+        the same values, bit for bit, for about half the cost of the two calls (the mollified training
+        targets ask for both at every point, :func:`~mtlx2neural.train.mollify.cone_mean`)."""
+        wi, wo = self._directions(wi, wo)
+        p = self._point(at)
+        tree = self._tree(wi.shape[0], p.uv, p.params)
+        response, _ = tree.eval(wi, wo)
+        above = above_horizon(wi, wo)
+        response = torch.where(above, _finite(response), 0.0)
+        lobes, probs = self._selection(tree, wi)
+        pdf = zero_below_horizon(self._mixture_pdf(lobes, probs, wi, wo), wi, wo)
+        return (response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response), pdf
+
+    def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None, *, uv=None, params: dict | None = None,
+               with_value: bool = False):
         """Importance-sample ``wo`` from ``u`` [N,2] (or [N,3]: the third number picks the lobe).
 
         Returns (wo [N,3] unit, local frame, away from the surface; weight [N,3] = eval/pdf, the cosine
         included; pdf [N] = ``pdf(wi, wo)`` per steradian); weight and pdf are 0 for failed samples, for a
         ``wo`` at or below the horizon, and when wi is at or below the horizon. ``wi`` and ``at`` as for
-        :meth:`eval`; ``u`` finite (NaN/Inf raise ValueError).
+        :meth:`eval`; ``u`` finite (NaN/Inf raise ValueError). ``with_value``: (wo, ``eval(wi, wo)``, pdf)
+        instead, the value bit for bit as :meth:`eval` gives it, without evaluating the material again.
         """
         wi = prepare_direction("wi", wi, self.dtype, self.device)
         n = wi.shape[0]
@@ -232,6 +248,8 @@ class ReferenceMaterial:
         ok = above & (pdf[:, None] > 0)
         weight = torch.where(ok, _finite(response) / pdf.clamp_min(1e-30)[:, None], torch.zeros_like(response))
         pdf = torch.where(above[:, 0], pdf, torch.zeros_like(pdf))
+        if with_value:  # eval(wi, wo): the response above the horizon, as eval() masks it
+            return wo, torch.where(above, _finite(response), 0.0), pdf
         return wo, _finite(weight), pdf
 
     def albedo(self, wi: torch.Tensor, at=None, samples: int = 256, seed: int = 0) -> torch.Tensor:

@@ -54,15 +54,24 @@ def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs
     at_p = ShadingPoint(uv=rep(uv), params=None if params is None else {k: rep(v) for k, v in params.items()})
     w_uniform = cone_jitter(wo, angle, pairs, generator)
     u = torch.rand(n * pairs, 2, generator=generator).to(wi.device)
-    w_sampled, _, _ = reference.sample(wi_p, u, at_p)
-    w_sampled = torch.where(torch.isfinite(w_sampled).all(-1, keepdim=True), w_sampled, w_uniform)
+    fast = hasattr(reference, "eval_pdf")  # a ReferenceMaterial: value and density from one evaluation
+    if fast:
+        w_sampled, f_sampled, p_sampled = reference.sample(wi_p, u, at_p, with_value=True)
+    else:
+        w_sampled, _, _ = reference.sample(wi_p, u, at_p)
+    finite = torch.isfinite(w_sampled).all(-1, keepdim=True)
+    if not bool(finite.all()):  # a non-finite sample takes the uniform direction: evaluate it there
+        w_sampled, fast = torch.where(finite, w_sampled, w_uniform), False
     axis = rep(wo)
     total = torch.zeros(n * pairs, 3, dtype=wi.dtype, device=wi.device)
     for w in (w_uniform, w_sampled):
         inside = (w * axis).sum(-1) >= cos_max - 1e-7
         # balance heuristic over one sample of each strategy: f / (p_uniform + p_reference)
-        density = inside.to(wi.dtype) / omega + reference.pdf(wi_p, w, at_p)
-        f = reference.eval(wi_p, w, at_p)
+        if fast:
+            f, pdf = (f_sampled, p_sampled) if w is w_sampled else reference.eval_pdf(wi_p, w, at_p)
+        else:
+            f, pdf = reference.eval(wi_p, w, at_p), reference.pdf(wi_p, w, at_p)
+        density = inside.to(wi.dtype) / omega + pdf
         ok = inside & (density > 0)
         total = total + torch.where(ok[:, None], f / density.clamp_min(1e-30)[:, None], torch.zeros_like(f))
     est = total.view(n, pairs, 3).mean(1) / omega

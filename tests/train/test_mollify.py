@@ -77,6 +77,37 @@ def test_cone_mean_reads_a_textured_material_once_per_point():
     assert float(cone_mean(ref, wi, down, math.radians(2.0), 1, g, ShadingPoint(uv=uv)).abs().max()) == 0.0
 
 
+class _Contract:
+    """The Material contract's eval/sample/pdf of a reference, nothing more (no fast paths)."""
+
+    def __init__(self, reference):
+        self.reference = reference
+
+    def eval(self, wi, wo, at=None):
+        return self.reference.eval(wi, wo, at)
+
+    def pdf(self, wi, wo, at=None):
+        return self.reference.pdf(wi, wo, at)
+
+    def sample(self, wi, u, at=None):
+        return self.reference.sample(wi, u, at)
+
+
+def test_cone_mean_fast_path_equals_the_contract(carpaint):
+    """cone_mean takes the reference's value and density from one evaluation (``eval_pdf``, ``sample(...,
+    with_value=True)``): bit for bit what separate eval and pdf calls give, so the estimate is the same."""
+    g = torch.Generator().manual_seed(3)
+    wi = torch.nn.functional.normalize(torch.randn(4096, 3, generator=g).abs() + torch.tensor([0.0, 0.0, 0.2]), dim=-1)
+    wo = wi * torch.tensor([-1.0, -1.0, 1.0]) + 0.05 * torch.randn(4096, 3, generator=g)
+    fast = cone_mean(carpaint, wi, wo, math.radians(2.0), 2, torch.Generator().manual_seed(4))
+    plain = cone_mean(_Contract(carpaint), wi, wo, math.radians(2.0), 2, torch.Generator().manual_seed(4))
+    assert float(fast.mean()) > 0.01 and fast.equal(plain)
+    f, pdf = carpaint.eval_pdf(wi, wo)
+    assert f.equal(carpaint.eval(wi, wo)) and pdf.equal(carpaint.pdf(wi, wo))
+    w, value, density = carpaint.sample(wi, torch.rand(4096, 2, generator=g), with_value=True)
+    assert value.equal(carpaint.eval(wi, w)) and density.equal(carpaint.pdf(wi, w))
+
+
 def test_lobe_directions_gather_around_the_coat(carpaint):
     """Directions from the reference's sampler spread over the cone: most lie within a few degrees of
     the mirror direction (the coat and the metal's roughness-0.3 lobe share the energy), all above the
