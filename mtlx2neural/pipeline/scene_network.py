@@ -45,6 +45,7 @@ from mtlx2neural.train.shared import (
     shape_differences,
 )
 from mtlx2neural.train.trainer import TrainingInterrupted
+from mtlx2neural.universal.choice import SCENE_STEP_SHARE
 from mtlx2neural.universal.fit import (
     LayoutMismatch,
     load_encoder,
@@ -195,8 +196,8 @@ class WarmStart:
     others: dict[str, str]
     """The group's other materials: why each trains its own encoder (the full schedule then runs)."""
     steps: int
-    """Joint steps: the universal fine-tune's when every material is encoded, else :data:`WARM_SCHEDULE` of
-    the schedule's."""
+    """Joint steps: :data:`~mtlx2neural.universal.choice.SCENE_STEP_SHARE` of ``--universal-steps`` when every
+    material is encoded, else :data:`WARM_SCHEDULE` of the schedule's."""
 
     @property
     def text(self) -> str:
@@ -215,7 +216,8 @@ def warm_start(setups, jobs) -> WarmStart | None:
     the lead trainer's model, which :class:`~mtlx2neural.train.shared.SharedTrainer` ties every other one
     to; each material of that model bakes its latents with the shipped encoder. When all of the group's
     materials are so encoded, every trainer takes the universal fine-tune's schedule
-    (:func:`~mtlx2neural.universal.fit.use_fine_tune_schedule`, ``--universal-steps``); otherwise the
+    (:func:`~mtlx2neural.universal.fit.use_fine_tune_schedule`) for
+    :data:`~mtlx2neural.universal.choice.SCENE_STEP_SHARE` of ``--universal-steps``, on the group's batch; otherwise the
     group runs :data:`WARM_SCHEDULE` of its schedule (the others' encoders train in its encoder phase),
     from the shipped network rather than from random weights. Returns None when no material took the universal path."""
     models = [job.encoder["model"] for job in jobs if job.encoder is not None]
@@ -239,9 +241,9 @@ def warm_start(setups, jobs) -> WarmStart | None:
         return None
     load_networks(setups[0].trainer.model, weights)
     if not others:
-        steps = jobs[0].encoder["steps"]
+        steps = max(1, round(jobs[0].encoder["steps"] * SCENE_STEP_SHARE))
         for setup in setups:
-            use_fine_tune_schedule(setup.trainer, steps)
+            use_fine_tune_schedule(setup.trainer, steps, batch_share=1.0)
     else:
         steps = max(1, round(WARM_SCHEDULE * setups[0].trainer.cfg.iterations))
         for setup in setups:

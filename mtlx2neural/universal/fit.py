@@ -5,14 +5,15 @@ canonical form (:mod:`.canonical`: its stack then has the layout the shipped enc
 
 1. loads the shipped encoder, decoder (with its environment head) and sampler (:mod:`.weights`);
 2. bakes: the encoder runs over every texel of every level of the material's parameter pyramid;
-3. fine-tunes for ``steps`` steps on the material's own training rows, Adam with a cosine decay from
+3. fine-tunes for ``steps`` steps on the material's own training rows (each step on
+   :data:`~mtlx2neural.universal.choice.BATCH_SHARE` of the settings' batch), Adam with a cosine decay from
    :data:`LR_START` to the settings' ``lr_end`` (a block-compressed ``latent_format`` reads the latents
    through its codec in the last ``block_fraction``), with ``tune`` (:data:`TUNES`):
 
    - ``networks``: the latents, the decoder and the sampler. The material gets its own copy of the
-     networks, fitted to it: measured on the scene sample (``fast``, 300 steps, the 2026-12-06 networks),
-     HDR FLIP 0.034 on the leaf where its own 1000-step training reaches 0.038, 0.017 on the lava against
-     0.011 (600 steps: 0.013), in half the conversion's time (BENCHMARKS.md, "Whole scenes");
+     networks, fitted to it: measured on the scene sample (``fast``, 900 steps of 1024 rows, the 2026-12-06
+     networks), HDR FLIP 0.030 on the leaf where its own 1000-step training reaches 0.038, 0.012 on the lava
+     against 0.011, in under half the conversion's time (BENCHMARKS.md, "Whole scenes");
    - ``latents``: the latents alone, the networks frozen, so the shipped decoder and sampler stay byte
      for byte and every material converted so shares them; the leaf then scored 0.156, the lava 0.100
      (the raw-input networks of 2026-12-05: the universal decoder alone does not resolve them);
@@ -33,7 +34,7 @@ from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.encoder_input import EncoderInput
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
-from mtlx2neural.universal.choice import STEPS, TUNES
+from mtlx2neural.universal.choice import BATCH_SHARE, STEPS, TUNES
 from mtlx2neural.universal.weights import universal_config
 
 LR_START = 5e-3
@@ -110,15 +111,17 @@ def load_networks(model, weights: dict) -> None:
     model.sampler.load_state_dict(weights["sampler"])
 
 
-def use_fine_tune_schedule(trainer, steps: int) -> None:
-    """Replace ``trainer``'s schedule with the fine-tune's: ``steps`` iterations, no encoder phase, Adam from
-    :data:`LR_START`, the mollification at its floor throughout (as the shipped decoder ended its training),
-    rows drawn :data:`PREFETCH` steps at a time, no FLIP probe."""
+def use_fine_tune_schedule(trainer, steps: int, batch_share: float = BATCH_SHARE) -> None:
+    """Replace ``trainer``'s schedule with the fine-tune's: ``steps`` iterations on ``batch_share`` of its batch
+    (:data:`~mtlx2neural.universal.choice.BATCH_SHARE`), no encoder phase, Adam from :data:`LR_START`, the
+    mollification at its floor throughout (as the shipped decoder ended its training), rows drawn
+    :data:`PREFETCH` steps at a time, no FLIP probe."""
     cfg = trainer.cfg
     trainer.cfg = dataclasses.replace(cfg, iterations=max(1, steps), encoder_fraction=0.0, lr_start=LR_START,
-                                      probe_every=0, mollify_degrees=cfg.mollify_min_degrees,
+                                      batch=max(1, round(cfg.batch * batch_share)), probe_every=0,
+                                      mollify_degrees=cfg.mollify_min_degrees,
                                       target_prefetch=max(cfg.target_prefetch, PREFETCH))
-    trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, trainer.cfg.target_prefetch)
+    trainer.replay = RowReplay(trainer.cfg.batch, cfg.target_reuse, trainer.cfg.target_prefetch)
 
 
 def fit_universal(trainer, weights: dict, steps: int = STEPS, progress: bool = True, tune: str = "networks"):

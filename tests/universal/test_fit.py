@@ -163,10 +163,11 @@ def test_a_scene_network_starts_from_the_universal_one(tmp_path, weights, monkey
         bodies.append(body)
     both = tmp_path / "both.mtlx"
     both.write_text(document(*bodies))
-    opts = ConvertOptions(train=TINY, device="cpu", progress=False, encoder="universal", universal_steps=20,
+    opts = ConvertOptions(train=TINY, device="cpu", progress=False, encoder="universal", universal_steps=60,
                           network="scene", workers=1, out=str(tmp_path / "scene"))
     records = {r.material: r for r in convert_asset(both, opts)}
-    # every material encoded by the shipped network: the group takes the fine-tune's schedule, and ships one network
+    # every material encoded by the shipped network: the group takes the fine-tune's schedule (a third of
+    # --universal-steps as joint steps, SCENE_STEP_SHARE), and ships one network
     assert all(r.encoder["path"] == "universal" and r.steps == 20 for r in records.values())
     start = records["Painted1"].network["universal"]
     assert start["model"] == "UsdPreviewSurface" and sorted(start["encoded"]) == ["Painted1", "Painted2"]
