@@ -129,7 +129,9 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
         wo = cosine_sample(u[:, :2])
         for who, at_rows, k in ((model, point, 0), (reference, ref_point, 1)):  # each samples its third
             rows = torch.nonzero(strategy == k)[:, 0]
-            wo[rows] = who.sample(rep[rows], u[rows], at_rows.select(rows, rep.shape[0]))[0].to(wo.dtype)
+            # the direction alone: a model that can draw it without evaluating its BRDF does so
+            draw = getattr(who, "sample_direction", None) or who.sample
+            wo[rows] = draw(rep[rows], u[rows], at_rows.select(rows, rep.shape[0]))[0].to(wo.dtype)
         density = (model.pdf(rep, wo, point) + reference.pdf(rep, wo, ref_point)
                    + wo[:, 2].clamp(min=0.0) / math.pi) / 3.0
         f = model.eval(rep, wo, point)
