@@ -190,6 +190,8 @@ def render_scene(material: Material, geometry, camera, lights, res: int = 128, s
 
 MAX_LAYERS = 8
 """Surfaces a ray passes through at most (each a cut-out's or a blended surface's hit)."""
+MIN_THROUGHPUT = 1e-3
+"""A ray stops once the surfaces in front leave less than this of its pixel."""
 PASS_BATCH_POINTS = 1 << 16
 """:func:`render_scene` shades the hits of as many passes at once as fit this many pixels (at least one
 pass): a 96^2 summary view shades 7 passes per call. Larger calls amortise each tensor operation's fixed
@@ -229,8 +231,6 @@ class _Shading:
                         cat([p.to_camera for p in parts]), at,
                         [cat([p.light_u[k] for p in parts]) for k in range(len(first.light_u))],
                         [cat([p.bsdf_u[k] for p in parts]) for k in range(len(first.bsdf_u))])
-MIN_THROUGHPUT = 1e-3
-"""A ray stops once the surfaces in front leave less than this of its pixel."""
 
 
 def _shade(material: Material, sampler, lights, frame: Hits, to_camera, at: ShadingPoint,
