@@ -33,7 +33,7 @@ SCENE_STEP_SHARE = 1 / 3
 """``--network scene``, every material of the group encoded by the shipped network: the group's joint steps
 are this share of ``--universal-steps`` (300 of the default 900). A joint step trains every material at once on
 the group's full batch, so its cost does not shrink with the batch as one material's step does. Measured on the
-scene sample (``fast``, 2 cores; per-material training: 105-113 s, mean HDR FLIP 0.121): 300 joint steps 40-43 s,
+scene sample (``fast``, 2 cores; per-material training: 105-121 s, mean HDR FLIP 0.121): 300 joint steps 40-44 s,
 0.1215 (+0.7 %); 200 steps 36-43 s, 0.1265 (+4.8 %): no time gain beyond this machine's noise; 150 steps 0.139."""
 
 
