@@ -61,6 +61,13 @@ from mtlx2neural.reference.vec import INV_PI, cosine_sample, luminance
 DEFAULT_UV = (0.5, 0.5)
 
 
+def _value(response: torch.Tensor, above: torch.Tensor) -> torch.Tensor:
+    """What :meth:`ReferenceMaterial.eval` returns of a tree's raw ``response`` [N, 1 or 3]: finite, 0 where
+    ``above`` ([N, 1], both directions above the horizon) is False, RGB [N, 3]."""
+    response = torch.where(above, _finite(response), 0.0)
+    return response.expand(response.shape[0], 3) if response.shape[-1] == 1 else response
+
+
 def _finite(x: torch.Tensor) -> torch.Tensor:
     """Internal guard for lobe numerics on finite, normalised input (never applied to the input)."""
     return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
@@ -162,9 +169,7 @@ class ReferenceMaterial:
         wi, wo = self._directions(wi, wo)
         p = self._point(at, uv, params)
         response, _ = self._tree(wi.shape[0], p.uv, p.params).eval(wi, wo)
-        above = above_horizon(wi, wo)
-        response = torch.where(above, _finite(response), 0.0)
-        return response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response
+        return _value(response, above_horizon(wi, wo))
 
     def _selection(self, tree, wi):
         leaves = tree.leaves(wi, torch.ones_like(wi))
@@ -189,10 +194,12 @@ class ReferenceMaterial:
         below the horizon (where :meth:`sample` gives weight 0 and pdf 0). Inputs as for :meth:`eval`."""
         wi, wo = self._directions(wi, wo)
         p = self._point(at, uv, params)
-        tree = self._tree(wi.shape[0], p.uv, p.params)
+        return self._density(self._tree(wi.shape[0], p.uv, p.params), wi, wo)
+
+    def _density(self, tree, wi, wo):
+        """:meth:`pdf` from a built tree."""
         lobes, probs = self._selection(tree, wi)
-        pdf = self._mixture_pdf(lobes, probs, wi, wo)
-        return zero_below_horizon(pdf, wi, wo)
+        return zero_below_horizon(self._mixture_pdf(lobes, probs, wi, wo), wi, wo)
 
     def eval_pdf(self, wi: torch.Tensor, wo: torch.Tensor, at=None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(eval(wi, wo, at), pdf(wi, wo, at))`` from one evaluation of the material's parameters and lobes:
@@ -202,11 +209,7 @@ class ReferenceMaterial:
         p = self._point(at)
         tree = self._tree(wi.shape[0], p.uv, p.params)
         response, _ = tree.eval(wi, wo)
-        above = above_horizon(wi, wo)
-        response = torch.where(above, _finite(response), 0.0)
-        lobes, probs = self._selection(tree, wi)
-        pdf = zero_below_horizon(self._mixture_pdf(lobes, probs, wi, wo), wi, wo)
-        return (response.expand(wi.shape[0], 3) if response.shape[-1] == 1 else response), pdf
+        return _value(response, above_horizon(wi, wo)), self._density(tree, wi, wo)
 
     def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None, *, uv=None, params: dict | None = None,
                with_value: bool = False):
@@ -248,8 +251,8 @@ class ReferenceMaterial:
         ok = above & (pdf[:, None] > 0)
         weight = torch.where(ok, _finite(response) / pdf.clamp_min(1e-30)[:, None], torch.zeros_like(response))
         pdf = torch.where(above[:, 0], pdf, torch.zeros_like(pdf))
-        if with_value:  # eval(wi, wo): the response above the horizon, as eval() masks it
-            return wo, torch.where(above, _finite(response), 0.0), pdf
+        if with_value:
+            return wo, _value(response, above), pdf
         return wo, _finite(weight), pdf
 
     def albedo(self, wi: torch.Tensor, at=None, samples: int = 256, seed: int = 0) -> torch.Tensor:
