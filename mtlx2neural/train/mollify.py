@@ -54,23 +54,23 @@ def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs
     at_p = ShadingPoint(uv=rep(uv), params=None if params is None else {k: rep(v) for k, v in params.items()})
     w_uniform = cone_jitter(wo, angle, pairs, generator)
     u = torch.rand(n * pairs, 2, generator=generator).to(wi.device)
-    fast = hasattr(reference, "eval_pdf")  # a ReferenceMaterial: value and density from one evaluation
-    if fast:
+    if hasattr(reference, "eval_pdf"):  # a ReferenceMaterial (finite unit samples): one evaluation per direction
         w_sampled, f_sampled, p_sampled = reference.sample(wi_p, u, at_p, with_value=True)
-    else:
+
+        def value_and_density(w):
+            return (f_sampled, p_sampled) if w is w_sampled else reference.eval_pdf(wi_p, w, at_p)
+    else:  # the contract alone: a non-finite sample takes the uniform direction
         w_sampled, _, _ = reference.sample(wi_p, u, at_p)
-    finite = torch.isfinite(w_sampled).all(-1, keepdim=True)
-    if not bool(finite.all()):  # a non-finite sample takes the uniform direction: evaluate it there
-        w_sampled, fast = torch.where(finite, w_sampled, w_uniform), False
+        w_sampled = torch.where(torch.isfinite(w_sampled).all(-1, keepdim=True), w_sampled, w_uniform)
+
+        def value_and_density(w):
+            return reference.eval(wi_p, w, at_p), reference.pdf(wi_p, w, at_p)
     axis = rep(wo)
     total = torch.zeros(n * pairs, 3, dtype=wi.dtype, device=wi.device)
     for w in (w_uniform, w_sampled):
         inside = (w * axis).sum(-1) >= cos_max - 1e-7
         # balance heuristic over one sample of each strategy: f / (p_uniform + p_reference)
-        if fast:
-            f, pdf = (f_sampled, p_sampled) if w is w_sampled else reference.eval_pdf(wi_p, w, at_p)
-        else:
-            f, pdf = reference.eval(wi_p, w, at_p), reference.pdf(wi_p, w, at_p)
+        f, pdf = value_and_density(w)
         density = inside.to(wi.dtype) / omega + pdf
         ok = inside & (density > 0)
         total = total + torch.where(ok[:, None], f / density.clamp_min(1e-30)[:, None], torch.zeros_like(f))
