@@ -66,6 +66,7 @@ from mtlx2neural.contract import (
 from mtlx2neural.model.latent import LatentPyramid
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
 from mtlx2neural.textures.surface_maps import ALPHA_CUTOFF, SurfacesBeside
+from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
@@ -247,6 +248,12 @@ def _initial_raw(reference, stack) -> torch.Tensor:
     return raw.T.reshape(len(CHANNELS), h, w).contiguous()
 
 
+def cosine_lr(start: float, end: float, step: int, steps: int) -> float:
+    """The learning rate of step ``step`` (0-based) of ``steps``: a half cosine from ``start`` (step 0) down
+    to ``end`` (step ``steps``)."""
+    return end + (start - end) * (1 + math.cos(math.pi * step / max(1, steps))) / 2
+
+
 def fit_analytic(reference, stack, iterations: int = 300, batch: int = 4096, seed: int = 0,
                  lr: float = 3e-2, max_samples: int = 16) -> AnalyticMaterial:
     """Fit an :class:`AnalyticMaterial` to ``reference`` on ``stack``'s grid with Adam.
@@ -267,24 +274,23 @@ def fit_analytic(reference, stack, iterations: int = 300, batch: int = 4096, see
             batched = init if tiles else init[None]
             src = batched if k == 0 else torch.nn.functional.adaptive_avg_pool2d(batched, lv.shape[-2:])
             lv.copy_(src if tiles else src[0])
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, iterations), eta_min=lr / 10)
+    opt = Adam(model.parameters(), lr=lr)
     levels = model.maps.num_levels
-    for _ in range(iterations):
+    for step in range(iterations):
         wi, wo = half_difference_pairs(batch, g)
         uv = draw_uv(batch, tiles, g)  # uniform in [0,1]^2, or over the trained tiles (true uv)
         level = sample_levels(batch, levels, generator=g)
         with torch.no_grad():
-            if stack.channels:
-                target = footprint_targets(reference, stack, wi, wo, uv, level, max_samples, g)
+            if stack.channels:  # every level's points in one call to the reference (its cost is per call)
+                target = footprint_targets(reference, stack, wi, wo, uv, level, max_samples, g, one_call=True)
             else:
                 target = reference.eval(wi, wo)
         pred = brdf(decode(model.maps.fetch(uv, level)), wi, wo)
         loss = log_l1(pred, target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        opt.param_groups[0]["lr"] = cosine_lr(lr, lr / 10, step, iterations)
         opt.step()
-        sched.step()
     model.final_loss = float(loss.detach()) if iterations else math.nan
     return model.train(False)
 

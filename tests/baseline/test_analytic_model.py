@@ -108,3 +108,18 @@ def test_usd_preview_surface_opens_and_references_the_baked_textures(tmp_path):
     n = np.asarray(normal) * 2 - 1
     assert np.allclose(np.linalg.norm(n, axis=-1), 1, atol=2e-3) and (n[..., 2] > 0).all()
     assert 1.0 < baked["ior"] < 3.0
+
+
+def test_cosine_lr_follows_torchs_cosine_annealing():
+    """The fit's schedule (:func:`cosine_lr`, closed form) gives the learning rates of
+    ``torch.optim.lr_scheduler.CosineAnnealingLR`` (``eta_min`` lr/10), which the fit used before it took the
+    project's own Adam; 1e-12 relative: the scheduler's recursive update rounds differently."""
+    from mtlx2neural.baseline.analytic_model import cosine_lr
+
+    steps, lr = 37, 3e-2
+    opt = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=lr / 10)
+    for step in range(steps + 1):
+        assert cosine_lr(lr, lr / 10, step, steps) == pytest.approx(opt.param_groups[0]["lr"], rel=1e-12)
+        opt.step()
+        sched.step()
