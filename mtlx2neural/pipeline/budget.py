@@ -88,7 +88,7 @@ def train_within_budget(src, cfg: TrainConfig, folder: Path, device: str, resume
     record = runs[decoder]
     if cfg.preview_iterations > 0:
         record = add_preview(src, folder, device, allow_missing_textures, record.resolution, cfg.seed,
-                             record, cfg.preview_iterations, application)
+                             record, cfg.preview_iterations, application, cfg.footprint_samples)
     else:
         (folder / BASELINE_FILE).unlink(missing_ok=True)
     record = dataclasses.replace(

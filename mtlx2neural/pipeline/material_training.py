@@ -269,7 +269,8 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
     train_seconds = time.time() - t0
     models = {"neural": model}
     if preview:  # a UDIM stack gives the baseline one map per tile too
-        analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations)
+        analytic, fit_seconds = fit_preview(ref, stack, folder, cfg.seed, cfg.preview_iterations,
+                                            cfg.footprint_samples)
         analytic.surface = surface
         models["analytic"] = analytic
     # three directional views and one under the sky (render.summary_views); a UDIM material's once per
@@ -415,12 +416,19 @@ its time."""
 PREVIEW_BATCH = 2048
 
 
-def fit_preview(ref, stack, folder: Path, seed: int = 0, iterations: int = PREVIEW_ITERATIONS):
+def fit_preview(ref, stack, folder: Path, seed: int = 0, iterations: int = PREVIEW_ITERATIONS,
+                footprint_points: int = TrainConfig.footprint_samples):
     """Fit the analytic baseline (Lambert + GGX, :func:`~mtlx2neural.baseline.analytic_model.fit_analytic`,
-    ``iterations`` Adam steps) to ``ref`` on ``stack``'s grid and save it as
-    ``folder/analytic_baseline.pt``; returns (model, seconds the fit took)."""
+    ``iterations`` Adam steps, targets averaged over ``footprint_points`` points at most, as the run's
+    ``footprint_samples``) to ``ref`` on ``stack``'s grid and save it as ``folder/analytic_baseline.pt``;
+    returns (model, seconds the fit took).
+
+    The fast preset's 8 points instead of 16 fit 1.3-1.8x faster at a preview HDR FLIP within 2 %
+    (chess ``M_Bishop_B`` at 64² 0.150 / 0.153, ``M_Queen_B`` 0.286 / 0.289, GlazedCeramic 0.162 / 0.163,
+    BrushedMetal 0.441 / 0.442, ``standard_surface_wood_tiled`` 0.288 / 0.287; 2026-12-06)."""
     t0 = time.time()
-    analytic = fit_analytic(ref, stack, iterations=iterations, batch=PREVIEW_BATCH, seed=seed)
+    analytic = fit_analytic(ref, stack, iterations=iterations, batch=PREVIEW_BATCH, seed=seed,
+                            max_samples=footprint_points)
     save_analytic(analytic, folder / BASELINE_FILE)
     return analytic, time.time() - t0
 
@@ -443,7 +451,8 @@ so its HDR FLIP against it is 0 (the layer leaves the Material's ``outputs:surfa
 
 def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, resolution, seed: int,
                 record: MaterialRecord, iterations: int = PREVIEW_ITERATIONS,
-                application: Application | None = None) -> MaterialRecord:
+                application: Application | None = None,
+                footprint_points: int = TrainConfig.footprint_samples) -> MaterialRecord:
     """Fit (``iterations`` steps), save and measure the preview baseline for a material trained without
     it (the chosen decoder of an error budget, :func:`~mtlx2neural.pipeline.budget.train_within_budget`);
     returns ``record`` with the fit's figures (with :data:`OWN_PREVIEW`'s and no fit for an input whose own
@@ -459,7 +468,7 @@ def add_preview(src, folder: Path, device: str, allow_missing_textures: bool, re
         ref = ReferenceMaterial(compiled)
         stack, _ = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
                                         resolution=tuple(resolution))
-    analytic, seconds = fit_preview(ref, stack, folder, seed, iterations)
+    analytic, seconds = fit_preview(ref, stack, folder, seed, iterations, footprint_points)
     analytic.surface = load_surface_maps(folder / SURFACE_FILE)  # the emission and opacity it is shown with
     tiles = list(stack.tiles) if is_udim_stack(stack) else None
     errors = summary_views(ref, {"analytic": analytic}, tuple(stack.resolution), tiles)["analytic"]

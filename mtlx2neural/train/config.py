@@ -90,8 +90,9 @@ class TrainConfig:
     takes one pair per footprint point)."""
     footprint_samples: int = 16
     """Cap on reference samples (a Latin hypercube over the footprint) per footprint-filtered target
-    (fast and standard: 8). Fewer points make each step cheaper and each target noisier, and keep less
-    of a sparse bright footprint's energy (BENCHMARKS.md, "Setting notes")."""
+    (fast and standard: 8), in training and in the fit of the UsdPreviewSurface fallback. Fewer points make
+    each step cheaper and each target noisier, and keep less of a sparse bright footprint's energy
+    (BENCHMARKS.md, "Setting notes")."""
     target_reuse: int = field(default=1, metadata={"metavar": "K"})
     """Steps each training row (its directions, point and reference target) is trained on: each step
     draws a K-th of the batch fresh and reuses the rest from the K - 1 steps before
