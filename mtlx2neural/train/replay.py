@@ -54,6 +54,13 @@ class RowReplay:
             self.oldest = (self.oldest + 1) % self.reuse
         return tuple(torch.cat(parts) for parts in zip(*self.ring))
 
+    def set_prefetch(self, prefetch: int) -> None:
+        """Draw the rows of ``prefetch`` requests per call from the next request on (rows drawn ahead for the
+        old setting are dropped)."""
+        if prefetch < 1:
+            raise ValueError(f"target prefetch {prefetch} must be at least 1")
+        self.prefetch, self.ahead = prefetch, {}
+
     def _fresh(self, draw: Callable[[int], Rows], n: int) -> Rows:
         """``draw(n)``'s worth of fresh rows: with prefetch p, the next p-th (strided) of one ``draw(p * n)``."""
         if self.prefetch == 1:

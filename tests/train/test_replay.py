@@ -112,6 +112,13 @@ def test_prefetch_draws_p_steps_at_once_and_serves_each_row_once():
         assert int((ids % 40 >= 32).sum()) == 2  # each step gets two of the draw's eight extra rows
     with pytest.raises(ValueError, match="prefetch"):
         RowReplay(8, 1, prefetch=0)
+    # a new setting applies from the next request: rows drawn ahead for the old one are dropped
+    replay, draw = RowReplay(8, 1, prefetch=1), Counter()
+    replay.batch(draw)
+    replay.set_prefetch(4)
+    assert [len(replay.batch(draw)[0]) for _ in range(5)] == [10] * 5 and draw.sizes == [8, 32, 32]
+    with pytest.raises(ValueError, match="prefetch"):
+        replay.set_prefetch(0)
     with pytest.raises(InputError, match="target_prefetch"):
         validate_config(preset("fast", target_prefetch=0))
 

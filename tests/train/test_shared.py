@@ -9,6 +9,7 @@ from materials import layered_spheres_material
 
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.shared import (
+    FLOOR_PREFETCH,
     SCENE_MIN_ROWS,
     SharedTrainer,
     latent_steps,
@@ -67,6 +68,30 @@ def test_one_network_every_material_its_own_latents(materials, tmp_path, monkeyp
     wi = torch.nn.functional.normalize(torch.rand(64, 3) + 0.05, dim=-1)
     for m in models:
         assert bool(torch.isfinite(m.eval(wi, wi.flip(1).abs())).all())
+
+
+def test_rows_drawn_ahead_once_the_mollification_is_at_its_floor(materials, tmp_path, monkeypatch):
+    """Each material draws its rows one step at a time while its mollification angle decays, then
+    FLOOR_PREFETCH steps' rows per call to the reference (the same rows' distribution at a lower cost)."""
+    import math
+
+    trainers = _trainers(materials, tmp_path)
+    shared = SharedTrainer(trainers)
+    monkeypatch.setattr(shared, "fit_latents", lambda trainer, steps: None)  # the joint phase only
+    draws = {id(t): [] for t in trainers}
+    for t in trainers:
+        real = t.draw_rows
+        monkeypatch.setattr(t, "draw_rows", lambda n, t=t, real=real: draws[id(t)].append((t.step, n)) or real(n))
+    shared.run(progress=False)
+    probe = trainers[0]
+    floor = next(s for s in range(probe.cfg.iterations) if (setattr(probe, "step", s) or
+                 probe.mollify_angle() <= math.radians(probe.cfg.mollify_min_degrees)))
+    assert 0 < floor < probe.cfg.iterations // 2
+    rows = probe.cfg.batch
+    for t in trainers:  # two materials: both in every joint step
+        expected = [(s, rows) for s in range(floor)]
+        expected += [(s, rows * FLOOR_PREFETCH) for s in range(floor, probe.cfg.iterations, FLOOR_PREFETCH)]
+        assert draws[id(t)] == expected
 
 
 def test_refuses_materials_of_another_shape(materials, tmp_path):
