@@ -19,6 +19,7 @@ from mtlx2neural.pipeline.convert import convert_asset
 from mtlx2neural.pipeline.inspection import inspect_asset
 from mtlx2neural.pipeline.material_training import held_out_error
 from mtlx2neural.pipeline.options import ConvertOptions
+from mtlx2neural.pipeline.scene_network import WARM_SCHEDULE
 from mtlx2neural.reference.material import ReferenceMaterial
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
 from mtlx2neural.train.config import preset
@@ -187,9 +188,10 @@ def test_a_scene_network_starts_from_the_universal_one(tmp_path, weights, monkey
     mixed.write_text(document(bodies[0], standard_surface("Plain", "SR_s", base_color=(0.5, 0.2, 0.1))))
     records = {r.material: r for r in convert_asset(mixed, dataclasses.replace(opts, out=str(tmp_path / "mixed")))}
     start = records["Plain"].network["universal"]
-    assert start["encoded"] == ["Painted1"] and "Plain" in start["own_encoder"] and start["joint_steps"] == 20
+    warm = round(WARM_SCHEDULE * 40)
+    assert start["encoded"] == ["Painted1"] and "Plain" in start["own_encoder"] and start["joint_steps"] == warm
     assert records["Painted1"].encoder["path"] == "universal" and records["Plain"].encoder is None
-    assert all(r.steps == 20 for r in records.values())
+    assert all(r.steps == warm for r in records.values())
 
 
 def _gltf(folder) -> Trainer:
