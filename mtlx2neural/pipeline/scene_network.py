@@ -112,7 +112,7 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     every material. ``report(k, record)`` is called as each record is written. ``network``: an earlier
     run's network, kept: each job fits its latents alone against it (:func:`add_to_network`). The joint
     training runs in this process; the measures of the trained materials (views, energy, preview fit, about
-    27 s per chess material on 2 cores) run in ``workers`` processes, as per-material jobs do."""
+    20-40 s per chess material on one core) run in ``workers`` processes, as per-material jobs do."""
     if not jobs:
         return []
     if network is not None:
