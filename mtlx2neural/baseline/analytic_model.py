@@ -66,7 +66,7 @@ from mtlx2neural.contract import (
 from mtlx2neural.model.latent import LatentPyramid
 from mtlx2neural.textures.footprint import footprint_targets, sample_levels
 from mtlx2neural.textures.surface_maps import ALPHA_CUTOFF, SurfacesBeside
-from mtlx2neural.train.adam import Adam
+from mtlx2neural.train.adam import Adam, cosine_lr
 from mtlx2neural.train.directions import half_difference_pairs
 from mtlx2neural.train.losses import log_l1
 from mtlx2neural.train.udim import draw_uv, is_udim_stack
@@ -246,12 +246,6 @@ def _initial_raw(reference, stack) -> torch.Tensor:
     raw[:, 4] = _logit(torch.tensor(0.1))
     raw[:, 5] = 0.0
     return raw.T.reshape(len(CHANNELS), h, w).contiguous()
-
-
-def cosine_lr(start: float, end: float, step: int, steps: int) -> float:
-    """The learning rate of step ``step`` (0-based) of ``steps``: a half cosine from ``start`` (step 0) down
-    to ``end`` (step ``steps``)."""
-    return end + (start - end) * (1 + math.cos(math.pi * step / max(1, steps))) / 2
 
 
 def fit_analytic(reference, stack, iterations: int = 300, batch: int = 4096, seed: int = 0,

@@ -20,7 +20,16 @@ either load into the other.
 
 from __future__ import annotations
 
+import math
+
 import torch
+
+
+def cosine_lr(start: float, end: float, step: int, steps: int) -> float:
+    """The learning rate of step ``step`` (0-based) of a ``steps``-step run: a half cosine from ``start`` at step 0
+    down to ``end`` at step ``steps`` (and after it), the schedule of every training loop of the project."""
+    t = min(1.0, step / max(1, steps))
+    return end + 0.5 * (start - end) * (1.0 + math.cos(math.pi * t))
 
 
 class Adam:

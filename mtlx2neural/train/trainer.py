@@ -39,7 +39,7 @@ from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.textures.parameter_stack import ParameterStack
 from mtlx2neural.textures.surface_maps import SurfaceMaps, dilate
-from mtlx2neural.train.adam import Adam
+from mtlx2neural.train.adam import Adam, cosine_lr
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
 from mtlx2neural.train.encoder_input import EncoderInput
@@ -71,8 +71,7 @@ class TrainingInterrupted(Exception):
 
 
 def _lr(cfg: TrainConfig, step: int) -> float:
-    t = min(1.0, step / max(1, cfg.iterations))
-    return cfg.lr_end + 0.5 * (cfg.lr_start - cfg.lr_end) * (1.0 + math.cos(math.pi * t))
+    return cosine_lr(cfg.lr_start, cfg.lr_end, step, cfg.iterations)
 
 
 def _atomic_save(obj, path: Path) -> None:

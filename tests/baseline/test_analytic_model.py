@@ -111,10 +111,10 @@ def test_usd_preview_surface_opens_and_references_the_baked_textures(tmp_path):
 
 
 def test_cosine_lr_follows_torchs_cosine_annealing():
-    """The fit's schedule (:func:`cosine_lr`, closed form) gives the learning rates of
+    """The fit's schedule (:func:`~mtlx2neural.train.adam.cosine_lr`, closed form) gives the learning rates of
     ``torch.optim.lr_scheduler.CosineAnnealingLR`` (``eta_min`` lr/10), which the fit used before it took the
     project's own Adam; 1e-12 relative: the scheduler's recursive update rounds differently."""
-    from mtlx2neural.baseline.analytic_model import cosine_lr
+    from mtlx2neural.train.adam import cosine_lr
 
     steps, lr = 37, 3e-2
     opt = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=lr)

@@ -3,6 +3,8 @@ own latents; the phases keep the sharing, the latent fine-tune leaves the networ
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from materials import layered_spheres_material
@@ -73,8 +75,6 @@ def test_one_network_every_material_its_own_latents(materials, tmp_path, monkeyp
 def test_rows_drawn_ahead_once_the_mollification_is_at_its_floor(materials, tmp_path, monkeypatch):
     """Each material draws its rows one step at a time while its mollification angle decays, then
     FLOOR_PREFETCH steps' rows per call to the reference (the same rows' distribution at a lower cost)."""
-    import math
-
     trainers = _trainers(materials, tmp_path)
     shared = SharedTrainer(trainers)
     monkeypatch.setattr(shared, "fit_latents", lambda trainer, steps: None)  # the joint phase only
