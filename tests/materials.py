@@ -138,3 +138,24 @@ def layered_spheres_material(name: str):
     ref = m2n.load_reference(Path(__file__).resolve().parents[1] / "samples" / "layered_spheres.usda",
                              f"/World/Looks/{name}")
     return ref, build_parameter_stack(ref.compiled, resolution=(1, 1))
+
+
+def layered_spheres_trainers(names, folder, **overrides):
+    """One :class:`~mtlx2neural.train.trainer.Trainer` per material of ``names`` (:func:`layered_spheres_material`),
+    the ``fast`` preset with ``overrides``, each in ``folder/<name>``: a picklable factory for a row process."""
+    from pathlib import Path
+
+    from mtlx2neural.train.config import preset
+    from mtlx2neural.train.trainer import Trainer
+
+    cfg = preset("fast", **overrides)
+    return [Trainer(*layered_spheres_material(n), cfg, Path(folder) / n) for n in names]
+
+
+def broken_row_factory(how: str):
+    """A row process's factory that fails: ``raise`` an error, or ``exit`` the process without an answer."""
+    import os
+
+    if how == "exit":
+        os._exit(3)
+    raise ValueError("this factory cannot prepare its materials")

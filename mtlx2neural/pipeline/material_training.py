@@ -222,26 +222,42 @@ def prepare_material(src, cfg: TrainConfig, folder: Path, device: str, allow_mis
     preview = preview and cfg.preview_iterations > 0 and not own_preview
     if not preview:  # a baseline of an earlier run would otherwise be exported as this run's fallback
         (folder / BASELINE_FILE).unlink(missing_ok=True)
-    geometry_note = None
-    if getattr(src, "measured", False):  # a MERL table: its own reference, uniform, nothing beside the BRDF
-        compiled, (ref, stack) = None, measured_reference(src, device)
-        stack_notes, surface = [], SurfaceMaps()
-        (folder / SURFACE_FILE).unlink(missing_ok=True)
-    else:
-        document = src.document
-        if canonical:
-            document = canonical_document(document, src.material)
-        compiled = compile_material(document, src.material, device=device,
-                                    allow_missing_textures=allow_missing_textures, application=application)
-        geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
-        stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
-                                                  resolution=resolution or latent_resolution(compiled, cfg))
-        ref = ReferenceMaterial(compiled if not canonical else original_program(src, compiled, device,
-                                                                                  allow_missing_textures, application))
-        surface = surface_maps(compiled, stack, cfg, src.name, folder)
+    compiled, ref, stack, stack_notes, geometry_note, surface = _build(src, cfg, device, allow_missing_textures,
+                                                                       resolution, application, canonical)
+    save_surface_maps(surface, folder)
     trainer = Trainer(ref, stack, cfg, folder, device=device, surface=surface)
     return MaterialSetup(src, cfg, folder, device, compiled, ref, stack, list(stack_notes), geometry_note, surface,
                          trainer, preview, t0, own_preview)
+
+
+def row_trainer(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,
+                resolution: tuple[int, int] | None = None, application: Application | None = None,
+                canonical: bool = False) -> Trainer:
+    """A :class:`Trainer` built as :func:`prepare_material` builds it, writing nothing (``folder`` is only its
+    name): one that draws training rows for the material in another process
+    (:class:`~mtlx2neural.train.row_process.RowProcess`)."""
+    compiled, ref, stack, _, _, surface = _build(src, cfg, device, allow_missing_textures, resolution, application,
+                                                 canonical)
+    return Trainer(ref, stack, cfg, folder, device=device, surface=surface)
+
+
+def _build(src, cfg, device, allow_missing_textures, resolution, application, canonical):
+    """``src``'s compiled program (None for a MERL table), reference, training stack, its notes, the geometry
+    note and its surface maps (not saved): :func:`prepare_material`'s work that writes nothing."""
+    if getattr(src, "measured", False):  # a MERL table: its own reference, uniform, nothing beside the BRDF
+        ref, stack = measured_reference(src, device)
+        return None, ref, stack, [], None, SurfaceMaps()
+    document = src.document
+    if canonical:
+        document = canonical_document(document, src.material)
+    compiled = compile_material(document, src.material, device=device,
+                                allow_missing_textures=allow_missing_textures, application=application)
+    geometry_note = bind_geometry(compiled, getattr(src, "stage_file", None), src.bound_prims)
+    stack, stack_notes = build_training_stack(compiled, getattr(src, "stage_file", None), src.bound_prims,
+                                              resolution=resolution or latent_resolution(compiled, cfg))
+    ref = ReferenceMaterial(compiled if not canonical else original_program(src, compiled, device,
+                                                                              allow_missing_textures, application))
+    return compiled, ref, stack, stack_notes, geometry_note, build_surface(compiled, stack, cfg, src.name)
 
 
 def original_program(src, canonical, device: str, allow_missing_textures: bool, application):
@@ -338,13 +354,20 @@ def finish_from_checkpoint(src, cfg: TrainConfig, folder: Path, device: str, all
     return finish_material(setup, model_from_checkpoint(ck, f, device), digest, extra)
 
 
-def surface_maps(compiled, stack, cfg: TrainConfig, name: str, folder: Path) -> SurfaceMaps:
-    """Build the emission and opacity maps on the latent grid (:mod:`mtlx2neural.textures.surface_maps`)
-    and save them as ``folder/surface_maps.pt`` (removed when there are none). A uniform BRDF with a
-    textured emission or opacity gets maps on its textures' grid (capped by ``cfg.max_resolution``); a UDIM
-    material with one is refused (``InputError``): its maps would need one pyramid per tile."""
+def save_surface_maps(maps: SurfaceMaps, folder: Path) -> None:
+    """Save ``maps`` as ``folder/surface_maps.pt``, or remove that file when there are none."""
     path = folder / SURFACE_FILE
     path.unlink(missing_ok=True)
+    if not maps.empty:
+        with atomic_path(path) as tmp:
+            torch.save(maps.state(), tmp)
+
+
+def build_surface(compiled, stack, cfg: TrainConfig, name: str) -> SurfaceMaps:
+    """The emission and opacity maps on the latent grid (:mod:`mtlx2neural.textures.surface_maps`). A
+    uniform BRDF with a textured emission or opacity gets maps on its textures' grid (capped by
+    ``cfg.max_resolution``); a UDIM material with one is refused (``InputError``): its maps would need one
+    pyramid per tile."""
     kinds = compiled.describe_surface()
     textured = "textured" in (kinds["emission"], kinds["opacity"])
     if textured and is_udim_stack(stack):
@@ -355,11 +378,7 @@ def surface_maps(compiled, stack, cfg: TrainConfig, name: str, folder: Path) -> 
         h, w, _ = texture_resolution(compiled)
         side = min(max(h, w), cfg.max_resolution or max(h, w))
         resolution, ratio = scaled_grid(h, w, side), (1.0, 1.0)
-    maps = build_surface_maps(compiled, resolution, ratio) if not is_udim_stack(stack) else SurfaceMaps()
-    if not maps.empty:
-        with atomic_path(path) as tmp:
-            torch.save(maps.state(), tmp)
-    return maps
+    return build_surface_maps(compiled, resolution, ratio) if not is_udim_stack(stack) else SurfaceMaps()
 
 
 ENERGY_WARNING = 0.9

@@ -7,7 +7,9 @@ stack, surface maps, trainer), the trainers are trained together
 (:class:`~mtlx2neural.train.shared.SharedTrainer`), and each material is then measured and recorded from
 its checkpoint in the worker pool, as a per-material run records it
 (:func:`~mtlx2neural.pipeline.material_training.finish_from_checkpoint`), its record's ``network`` naming
-the group.
+the group. On a CPU with two cores or more (and ``--workers`` other than 1), a second process draws the
+joint steps' training rows from the references while this one trains the networks
+(:mod:`~mtlx2neural.train.row_process`, :func:`row_process`).
 
 Reuse: each material's source hash is marked as a scene-mode hash (:func:`apply_scene_digests`), so a
 per-material result is never reused as part of a shared network (or the other way round). The network's
@@ -24,18 +26,22 @@ with nothing reusable, or with results of two different trainings, and ``--force
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import statistics
 import time
 from pathlib import Path
 
+import torch
+
 from mtlx2neural.errors import InputError
 from mtlx2neural.model.checkpoint import checkpoint_file, read_checkpoint
 from mtlx2neural.pipeline.devices import resolve_device
-from mtlx2neural.pipeline.material_training import prepare_material
+from mtlx2neural.pipeline.material_training import prepare_material, row_trainer
 from mtlx2neural.pipeline.quality import flag_reasons
-from mtlx2neural.pipeline.workers import run_jobs
+from mtlx2neural.pipeline.workers import available_cpus, parse_workers, run_jobs
+from mtlx2neural.train.row_process import RowProcess
 from mtlx2neural.train.shared import (
     ADDED_FRACTION,
     SharedTrainer,
@@ -119,39 +125,51 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
         return add_to_network(jobs, network, report, failed, workers)
     device = resolve_device(jobs[0].device)
     progress = jobs[0].progress
-    setups, kept = [], []
-    for k, job in enumerate(jobs):
-        cfg = _group_config(job, len(jobs))
+    out: list = [None] * len(jobs)
+    rows = row_process(jobs, device, workers)  # started first: its imports overlap the preparation here
+    threads = torch.get_num_threads()
+    try:
+        setups, kept = [], []
+        for k, job in enumerate(jobs):
+            cfg = _group_config(job, len(jobs))
+            try:
+                setups.append(prepare_material(job.source(), cfg, Path(job.folder), device,
+                                               job.allow_missing_textures, job.resolution,
+                                               application=job.application, canonical=job.encoder is not None))
+                kept.append(k)
+            except Exception as exc:  # noqa: BLE001 - that material's failure; the group trains without it
+                if failed is None:
+                    raise
+                failed(k, exc)
+        if not setups:
+            return out
+        start = warm_start(setups, [jobs[k] for k in kept])
+        shared = SharedTrainer([s.trainer for s in setups])
+        cfg = shared.cfg
+        if rows is not None:
+            rows.plan(kept, [s.trainer.cfg for s in setups], shared.requests())
+            shared.use_rows(rows)
+            torch.set_num_threads(max(1, available_cpus() - 1))  # the row process has a core
+        if progress:
+            print(f"--network scene: {len(setups)} materials share one decoder {cfg.decoder} and one sampler"
+                  f"{start.text if start else ''}; {cfg.iterations} joint steps x {cfg.batch} rows per material, "
+                  f"then {latent_steps(cfg.iterations)} latent steps per material"
+                  f"{'; training rows drawn in a second process' if rows is not None else ''}", flush=True)
         try:
-            setups.append(prepare_material(job.source(), cfg, Path(job.folder), device, job.allow_missing_textures,
-                                           job.resolution, application=job.application,
-                                           canonical=job.encoder is not None))
-            kept.append(k)
-        except Exception as exc:  # noqa: BLE001 - that material's failure; the group trains without it
+            models = shared.run(progress=progress)
+        except KeyboardInterrupt:
+            raise TrainingInterrupted(f"interrupted at joint step {shared.step}; --network scene does not resume: "
+                                      f"run the conversion again") from None
+        except Exception as exc:  # noqa: BLE001 - the shared network failed: so did every material of the group
             if failed is None:
                 raise
-            failed(k, exc)
-    out: list = [None] * len(jobs)
-    if not setups:
-        return out
-    start = warm_start(setups, [jobs[k] for k in kept])
-    shared = SharedTrainer([s.trainer for s in setups])
-    cfg = shared.cfg
-    if progress:
-        print(f"--network scene: {len(setups)} materials share one decoder {cfg.decoder} and one sampler"
-              f"{start.text if start else ''}; {cfg.iterations} joint steps x {cfg.batch} rows per material, then "
-              f"{latent_steps(cfg.iterations)} latent steps per material", flush=True)
-    try:
-        models = shared.run(progress=progress)
-    except KeyboardInterrupt:
-        raise TrainingInterrupted(f"interrupted at joint step {shared.step}; --network scene does not resume: "
-                                  f"run the conversion again") from None
-    except Exception as exc:  # noqa: BLE001 - the shared network failed: so did every material of the group
-        if failed is None:
-            raise
-        for k in kept:
-            failed(k, exc)
-        return out
+            for k in kept:
+                failed(k, exc)
+            return out
+    finally:
+        torch.set_num_threads(threads)
+        if rows is not None:
+            rows.close()
     group = "\0".join(sorted(jobs[k].digest for k in kept))
     info = {"id": hashlib.sha256(group.encode()).hexdigest()[:16],
             "materials": [jobs[k].name for k in kept], "joint_steps": cfg.iterations,
@@ -161,6 +179,29 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     _measure([(k, dataclasses.replace(jobs[k], cfg=_group_config(jobs[k], len(jobs)),
                                       trained=_record_fields(jobs[k], info, start))) for k in kept],
              out, report, failed, workers)
+    return out
+
+
+def row_process(jobs, device: str, workers) -> RowProcess | None:
+    """A :class:`~mtlx2neural.train.row_process.RowProcess` preparing ``jobs``' trainers as
+    :func:`run_scene_jobs` does (:func:`row_trainers`), when one helps: on the CPU, with two cores or more,
+    and ``workers`` other than 1 (which asks for everything in this process). None otherwise."""
+    if device != "cpu" or available_cpus() < 2 or parse_workers(workers) == 1:
+        return None
+    return RowProcess(functools.partial(row_trainers, jobs))
+
+
+def row_trainers(jobs) -> list:
+    """Each job's trainer as :func:`run_scene_jobs` prepares it (its group settings; on the CPU, writing
+    nothing: :func:`~mtlx2neural.pipeline.material_training.row_trainer`); None where that fails."""
+    out = []
+    for job in jobs:
+        try:
+            out.append(row_trainer(job.source(), _group_config(job, len(jobs)), Path(job.folder), "cpu",
+                                   job.allow_missing_textures, job.resolution, application=job.application,
+                                   canonical=job.encoder is not None))
+        except Exception:  # noqa: BLE001 - the parent fails that material itself, and never plans it
+            out.append(None)
     return out
 
 

@@ -17,6 +17,10 @@ for a per-material run, after tying their models' ``decoder`` and ``sampler`` to
    fits the network that ships.
 3. **Environment head**: fitted once on rows of every material (:func:`.environment_fit.fit_environment_head`).
 
+The rows of phases 1 and 2 never depend on the networks: :meth:`SharedTrainer.requests` lists every draw the
+run will make, so that a :class:`~.row_process.RowProcess` can draw them in another process
+(:meth:`SharedTrainer.use_rows`) while this one trains.
+
 Each trainer then saves its checkpoint as a per-material run does; every checkpoint holds the same
 decoder and sampler weights. The materials must share the network's shape (latent channels, frames,
 decoder size, heads): :class:`SharedTrainer` raises ``ValueError`` otherwise.
@@ -39,7 +43,8 @@ from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.environment_fit import fit_environment_head
 from mtlx2neural.train.replay import RowReplay
-from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr
+from mtlx2neural.train.row_process import RemoteReplay, Request, RowProcess
+from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr, at_mollify_floor
 
 SCENE_MIN_ROWS = 256
 """The fewest rows per material in a joint step (a smaller share leaves a material's batch too noisy)."""
@@ -112,17 +117,52 @@ class SharedTrainer:
         self.seconds: dict[str, float] = {}
         self.gen = torch.Generator().manual_seed(self.cfg.seed)  # the order materials take their steps in
         self._queue: list[int] = []
+        self.remote = False  # rows from a RowProcess (use_rows)
 
-    def _next_materials(self) -> list[Trainer]:
-        """The K materials of the next joint step: the next ones of a seeded shuffle of all M, reshuffled
-        when it runs out (a material never twice in one step)."""
+    def _next_indices(self) -> list[int]:
+        """The K materials of the next joint step (indices): the next ones of a seeded shuffle of all M,
+        reshuffled when it runs out (a material never twice in one step)."""
         k = min(MATERIALS_PER_STEP, len(self.trainers))
         if len(self._queue) < k:
             rest = set(self._queue)
             fresh = [i for i in torch.randperm(len(self.trainers), generator=self.gen).tolist() if i not in rest]
             self._queue += fresh
         picked, self._queue = self._queue[:k], self._queue[k:]
-        return [self.trainers[i] for i in picked]
+        return picked
+
+    def _next_materials(self) -> list[Trainer]:
+        return [self.trainers[i] for i in self._next_indices()]
+
+    def requests(self) -> list[Request]:
+        """Every ``step_loss`` call :meth:`run` will make from here, in order (:class:`.row_process.Request`):
+        each joint step's materials, with the prefetch :meth:`_prefetch_at_floor` gives them at that step,
+        then each material's latent fine-tune (:meth:`fit_latents`: a fresh replay at the floor's prefetch)."""
+        state, queued = self.gen.get_state(), list(self._queue)
+        try:
+            picks = [self._next_indices() for _ in range(self.step, self.cfg.iterations)]
+        finally:
+            self.gen.set_state(state)
+            self._queue = queued
+        start = {k: t.replay.prefetch for k, t in enumerate(self.trainers)}
+        out, seen = [], set()
+        for s, step_picks in zip(range(self.step, self.cfg.iterations), picks):
+            for k in step_picks:
+                t = self.trainers[k]
+                floor = max(t.cfg.target_prefetch, FLOOR_PREFETCH)
+                prefetch = floor if start[k] < floor and at_mollify_floor(t.cfg, s) else start[k]
+                out.append(Request(k, s, prefetch, fresh=k not in seen))
+                seen.add(k)
+        steps = latent_steps(self.cfg.iterations)
+        for k, t in enumerate(self.trainers):
+            prefetch = max(t.cfg.target_prefetch, FLOOR_PREFETCH)
+            out += [Request(k, self.cfg.iterations, prefetch, fresh=i == 0) for i in range(steps)]
+        return out
+
+    def use_rows(self, rows: RowProcess) -> None:
+        """Take every material's rows from ``rows`` (planned with :meth:`requests`) from now on."""
+        for k, t in enumerate(self.trainers):
+            t.replay = RemoteReplay(rows, k, t.device)
+        self.remote = True
 
     @property
     def model_count(self) -> int:
@@ -156,6 +196,8 @@ class SharedTrainer:
         """From the step at which a material's mollification angle reaches its floor (where it then stays),
         draw its rows :data:`FLOOR_PREFETCH` of its steps at a time: the same settings for every row drawn
         ahead, so the same distribution of rows, at a lower cost per row."""
+        if self.remote:  # planned in the requests
+            return
         for t in self.trainers:
             prefetch = max(t.cfg.target_prefetch, FLOOR_PREFETCH)
             if t.replay.prefetch < prefetch and t.mollify_angle() <= math.radians(t.cfg.mollify_min_degrees):
@@ -167,7 +209,8 @@ class SharedTrainer:
             return
         # the mollification stays at its floor from here on, so rows may be drawn ahead: FLOOR_PREFETCH steps
         cfg = trainer.cfg
-        trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, max(cfg.target_prefetch, FLOOR_PREFETCH))
+        if not self.remote:  # a row process has this fresh replay in its requests
+            trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, max(cfg.target_prefetch, FLOOR_PREFETCH))
         shared = _unique_parameters([trainer.model.decoder, trainer.model.sampler])
         for p in shared:
             p.requires_grad_(False)

@@ -74,6 +74,19 @@ def _lr(cfg: TrainConfig, step: int) -> float:
     return cosine_lr(cfg.lr_start, cfg.lr_end, step, cfg.iterations)
 
 
+def mollify_angle_at(cfg: TrainConfig, step: int) -> float:
+    """The mollification cone half-angle (radians) of ``step`` of ``cfg``'s schedule
+    (:meth:`Trainer.mollify_angle`)."""
+    t = min(1.0, step / max(1.0, cfg.iterations * cfg.mollify_fraction))
+    decay = 0.5 * (1.0 + math.cos(math.pi * t))
+    return math.radians(max(cfg.mollify_degrees * decay, cfg.mollify_min_degrees))
+
+
+def at_mollify_floor(cfg: TrainConfig, step: int) -> bool:
+    """Whether ``step``'s mollification angle is at its floor (``mollify_min_degrees``), where it then stays."""
+    return mollify_angle_at(cfg, step) <= math.radians(cfg.mollify_min_degrees)
+
+
 def _atomic_save(obj, path: Path) -> None:
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
@@ -172,10 +185,7 @@ class Trainer:
         ``0.5 * mollify_degrees * (1 + cos(pi * t))`` with t the share of that span done, never below
         ``mollify_min_degrees``. (The linear schedule it replaced, and the measurement, are in
         docs/history/paper-choices-2026-12-02.md.)"""
-        cfg = self.cfg
-        t = min(1.0, self.step / max(1.0, cfg.iterations * cfg.mollify_fraction))
-        decay = 0.5 * (1.0 + math.cos(math.pi * t))
-        return math.radians(max(cfg.mollify_degrees * decay, cfg.mollify_min_degrees))
+        return mollify_angle_at(self.cfg, self.step)
 
     def _targets(self, wi, wo, uv, level):
         """[N, 3] this step's targets (f * cos, linear RGB) at the rows: the material kind's
