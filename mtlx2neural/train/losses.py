@@ -47,7 +47,12 @@ def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.
     """Mean |log1p(pred/eps) - log1p(target/eps)| over all elements (inputs must be >= 0; negative
     values are clamped to 0). ``pred`` and ``target`` are cosine-weighted BRDF values f * cos [N, 3],
     linear RGB; ``eps`` is in the same units."""
-    return (torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)).abs().mean()
+    return log_l1_terms(pred, target, eps).mean()
+
+
+def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+    """:func:`log_l1` per element, [N, 3] (not averaged)."""
+    return (torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)).abs()
 
 
 def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
@@ -60,8 +65,13 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> t
     alike (a relative error), and ``eps`` (f * cos units, squared) keeps black predictions from
     dividing by zero. Inputs as :func:`log_l1`: cosine-weighted BRDF values f * cos [N, 3], linear RGB;
     negative values are clamped to 0."""
+    return relative_l2_terms(pred, target, eps).mean()
+
+
+def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+    """:func:`relative_l2` per element, [N, 3] (not averaged)."""
     pred = pred.clamp_min(0)
-    return ((pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)).mean()
+    return (pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)
 
 
 MIXED_RELATIVE_WEIGHT = 0.1
@@ -77,15 +87,23 @@ def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> 
     return log_l1(pred, target, eps) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
 
 
+def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+    """:func:`mixed_log_l1` per element, [N, 3] (not averaged)."""
+    return log_l1_terms(pred, target, eps) + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target)
+
+
 BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2, "log_l1+relative_l2": mixed_log_l1}
 """The decoder's losses by ``TrainConfig.brdf_loss`` name."""
+BRDF_LOSS_TERMS = {"log_l1": log_l1_terms, "relative_l2": relative_l2_terms, "log_l1+relative_l2": mixed_log_l1_terms}
+"""The same losses per element (``[N, 3]``, not averaged): for :func:`segment_losses`."""
 
 
-def brdf_loss_of(name: str, eps: float = EPS):
-    """The decoder's loss ``(pred, target) -> scalar`` named ``name`` (:data:`BRDF_LOSSES`), its log-L1 part
-    at the radiance scale ``eps`` (``TrainConfig.brdf_eps``); relative_l2 keeps its own :data:`EPS`."""
-    loss = BRDF_LOSSES[name]
-    return loss if loss is relative_l2 else functools.partial(loss, eps=eps)
+def brdf_loss_of(name: str, eps: float = EPS, terms: bool = False):
+    """The decoder's loss ``(pred, target) -> scalar`` named ``name`` (:data:`BRDF_LOSSES`; ``terms``: per
+    element, :data:`BRDF_LOSS_TERMS`), its log-L1 part at the radiance scale ``eps``
+    (``TrainConfig.brdf_eps``); relative_l2 keeps its own :data:`EPS`."""
+    loss = (BRDF_LOSS_TERMS if terms else BRDF_LOSSES)[name]
+    return loss if loss in (relative_l2, relative_l2_terms) else functools.partial(loss, eps=eps)
 
 
 def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -104,6 +122,15 @@ def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torc
     gradient); ``wi`` [N, 3] unit, local frame; ``u`` [N, 3] uniform random numbers in [0, 1). The
     gradient reaches the sampler's parameters only.
     """
+    lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
+    w = w / w.sum().clamp_min(1e-12)
+    q = sampler.pdf(wi, wo_s, lat_d)
+    return -(w * torch.log(q + KL_LOG_FLOOR)).sum()
+
+
+def _kl_rows(decoder, sampler, latent, wi, u):
+    """:func:`sampler_kl`'s rows: (detached latents, the sampled ``wo``, each row's weight f / r before the
+    normalisation), without gradients."""
     lat_d = latent.detach()
     with torch.no_grad():
         params_d = sampler(wi, lat_d)
@@ -114,9 +141,7 @@ def sampler_kl(decoder, sampler, latent: torch.Tensor, wi: torch.Tensor, u: torc
                    + KL_DEFENSIVE * wo_s[:, 2].clamp_min(0.0) / math.pi)
         ok = (wo_s[:, 2] > 0) & (density > 0) & torch.isfinite(density)
         w = torch.where(ok, decoder(lat_d, wi, wo_s).mean(-1) / density.clamp_min(1e-12), torch.zeros_like(density))
-        w = w / w.sum().clamp_min(1e-12)
-    q = sampler.pdf(wi, wo_s, lat_d)
-    return -(w * torch.log(q + KL_LOG_FLOOR)).sum()
+    return lat_d, wo_s, w
 
 
 OUTPUT_FLOOR = -9.0
@@ -136,8 +161,13 @@ def floor_penalty(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: floa
     float32 and every gradient is exactly 0: the near-mirror sample trained to black that way within 50
     steps (docs/history/energy-and-loss-2026-12-04.md). Below the floor the penalty's gradient wins and
     the raw output stays near it; a black value is still predicted as about 6e-6, far under log-L1's EPS."""
+    return floor_terms(raw, wo, floor).mean()
+
+
+def floor_terms(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float = OUTPUT_FLOOR) -> torch.Tensor:
+    """:func:`floor_penalty` per element, [N, 3] (not averaged)."""
     below = torch.relu(floor - raw).square()
-    return (below * (wo[:, 2:3] > 0)).mean() if wo is not None else below.mean()
+    return below * (wo[:, 2:3] > 0) if wo is not None else below
 
 
 def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1):
@@ -148,6 +178,20 @@ def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_lo
     raw = decoder.logits(latent, wi, wo)
     loss_brdf = brdf_loss(decoder.activate(raw, wo), target) + floor_penalty(raw, wo if decoder.analytic_cosine else None)
     return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
+
+
+def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, brdf_terms=log_l1_terms):
+    """:func:`brdf_and_sampler_losses` of ``segments`` equal consecutive parts of the rows at once (several
+    materials' batches through one shared decoder and sampler): ``(BRDF loss [S], sampler loss [S])``, each
+    part's as if it were a batch of its own (means over the part; the KL's weights normalised within it).
+    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`)."""
+    raw = decoder.logits(latent, wi, wo)
+    terms = brdf_terms(decoder.activate(raw, wo), target) + floor_terms(raw, wo if decoder.analytic_cosine else None)
+    lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
+    w = w.view(segments, -1)
+    w = w / w.sum(1, keepdim=True).clamp_min(1e-12)
+    q = sampler.pdf(wi, wo_s, lat_d).view(segments, -1)
+    return terms.view(segments, -1).mean(1), -(w * torch.log(q + KL_LOG_FLOOR)).sum(1)
 
 
 def albedo_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

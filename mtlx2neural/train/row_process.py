@@ -7,9 +7,10 @@ can draw them ahead while this one runs the networks' forward and backward passe
 networks then use one and the reference the other; torch's second thread gave the joint steps only
 about 9 % (the scene sample, 2026-12-06: 16.0 s with two threads, 17.4 s with one).
 
-The protocol is a fixed list of :class:`Request` s, one per ``step_loss`` call of the parent, in the
-order the parent makes them: which material, at which step of its schedule, with which prefetch
-(:class:`~.replay.RowReplay`), and whether that call starts a fresh replay (the latent fine-tune does).
+The protocol is a fixed list of :class:`Request` s, one per batch the parent trains on
+(``Trainer.step_rows``), in the order it takes them: which material, at which step of its schedule,
+with which prefetch (:class:`~.replay.RowReplay`), and whether that batch starts a fresh replay (the
+latent fine-tune does).
 :func:`serve_rows` answers them with one trainer per material, each drawing from its own generator, as
 an in-process :class:`~.replay.RowReplay` would; the child runs it and sends each answer through a
 bounded queue (numpy arrays), and :class:`RowProcess` hands them out in order, checking the material.
@@ -43,9 +44,9 @@ POLL_SECONDS = 1.0
 
 @dataclass(frozen=True)
 class Request:
-    """One ``step_loss`` call's rows: ``material`` (index into the trainers), the trainer's ``step`` when it
-    draws them (its mollification angle), the replay's ``prefetch`` from then on, and ``fresh``: a new
-    replay starts with this call (rows drawn ahead for the old one are dropped)."""
+    """One batch's rows (a ``Trainer.step_rows`` call): ``material`` (index into the trainers), the
+    trainer's ``step`` when it draws them (its mollification angle), the replay's ``prefetch`` from then
+    on, and ``fresh``: a new replay starts with this batch (rows drawn ahead for the old one are dropped)."""
 
     material: int
     step: int

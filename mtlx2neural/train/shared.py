@@ -9,7 +9,8 @@ for a per-material run, after tying their models' ``decoder`` and ``sampler`` to
    in turn from a seeded shuffle so that each gets the same share of the steps, draws each one's own
    batch (its trainer's ``cfg.batch`` rows: the caller sizes it, :func:`scene_batch`), sums their
    losses weighted 1/K, and takes one Adam step over every parameter (the shared networks', each
-   encoder's or latent pyramid's). A joint step so costs about what one material's step costs, whatever
+   encoder's or latent pyramid's). The K batches go through the shared networks in one pass
+   (:func:`~.losses.segment_losses`: each batch's losses as its own), which costs less than K passes. A joint step so costs about what one material's step costs, whatever
    the number of materials. Once a material's mollification angle is at its floor, its rows are drawn
    :data:`FLOOR_PREFETCH` of its steps at a time (:meth:`SharedTrainer._prefetch_at_floor`).
 2. **Latent fine-tune**: the shared networks frozen, each material's latents alone for
@@ -34,6 +35,7 @@ checkpoint then holds the group's weights byte for byte, so the network that shi
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 
@@ -42,6 +44,7 @@ import torch
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.environment_fit import fit_environment_head
+from mtlx2neural.train.losses import brdf_loss_of, segment_losses
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.row_process import RemoteReplay, Request, RowProcess
 from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr, at_mollify_floor
@@ -116,6 +119,9 @@ class SharedTrainer:
         self.history: list[dict] = []
         self.seconds: dict[str, float] = {}
         self.gen = torch.Generator().manual_seed(self.cfg.seed)  # the order materials take their steps in
+        losses = functools.partial(segment_losses, brdf_terms=brdf_loss_of(self.cfg.brdf_loss, self.cfg.brdf_eps,
+                                                                           terms=True))
+        self._segment_losses = torch.compile(losses) if self.cfg.compile else losses
         self._queue: list[int] = []
         self.remote = False  # rows from a RowProcess (use_rows)
 
@@ -134,7 +140,7 @@ class SharedTrainer:
         return [self.trainers[i] for i in self._next_indices()]
 
     def requests(self) -> list[Request]:
-        """Every ``step_loss`` call :meth:`run` will make from here, in order (:class:`.row_process.Request`):
+        """Every batch :meth:`run` will train on from here, in order (:class:`.row_process.Request`):
         each joint step's materials, with the prefetch :meth:`_prefetch_at_floor` gives them at that step,
         then each material's latent fine-tune (:meth:`fit_latents`: a fresh replay at the floor's prefetch)."""
         state, queued = self.gen.get_state(), list(self._queue)
@@ -174,11 +180,25 @@ class SharedTrainer:
         picked = self._next_materials()
         m = len(picked)
         self.opt.zero_grad(set_to_none=True)
-        parts = []
-        for t in picked:
-            loss, loss_brdf, loss_kl = t.step_loss()
+        batches = [t.step_rows() for t in picked]
+        if len({b.wi.shape[0] for b in batches}) == 1:  # one pass of the shared networks over every batch
+            cat = [torch.cat(parts) for parts in zip(*((b.latent, b.wi, b.wo, b.target, b.u_kl) for b in batches))]
+            brdf, kl = self._segment_losses(self.trainers[0].model.decoder, self.trainers[0].model.sampler, *cat,
+                                            segments=m)
+            loss = (brdf + kl).sum()
+            for t, b in zip(picked, batches):
+                if t.cfg.albedo_head:
+                    loss = loss + t.albedo_term(b)
             (loss / m).backward()
-            parts.append((loss_brdf.detach(), loss_kl.detach()))
+            parts = list(zip(brdf.detach(), kl.detach()))
+        else:  # batches of different sizes: one material at a time
+            parts = []
+            for t, b in zip(picked, batches):
+                loss_brdf, loss_kl = t._losses(t.model.decoder, t.model.sampler, b.latent, b.wi, b.wo, b.target,
+                                               b.u_kl)
+                loss = loss_brdf + loss_kl + (t.albedo_term(b) if t.cfg.albedo_head else 0.0)
+                (loss / m).backward()
+                parts.append((loss_brdf.detach(), loss_kl.detach()))
         for group in self.opt.param_groups:
             group["lr"] = _lr(self.cfg, self.step)
         grad_norm = float(torch.nn.utils.clip_grad_norm_(self.params, GRAD_CLIP))

@@ -66,6 +66,21 @@ SURFACE_REDRAWS = 8  # rounds of redrawing uv that fell where a cut-out has no s
 GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a lobe (with lobe_fraction > 0)
 
 
+@dataclasses.dataclass
+class StepRows:
+    """One step's batch (:meth:`Trainer.step_rows`): the rows of :meth:`Trainer.draw_rows` (``uv``, ``level``,
+    ``wi``, ``wo``, ``target``), their latent codes ``latent`` [N, latent_dim] (with the graph to the encoder
+    or the latent pyramid) and the sampler loss's uniform numbers ``u_kl`` [N, 3]."""
+
+    uv: torch.Tensor
+    level: torch.Tensor
+    wi: torch.Tensor
+    wo: torch.Tensor
+    target: torch.Tensor
+    latent: torch.Tensor
+    u_kl: torch.Tensor
+
+
 class TrainingInterrupted(Exception):
     """Raised after Ctrl-C once a checkpoint has been written."""
 
@@ -292,19 +307,27 @@ class Trainer:
     def step_loss(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """One batch's training loss (``(total, brdf, kl)``, scalars with graphs): fresh or replayed rows,
         the BRDF and sampler losses, and the albedo head's when it has one. No optimiser step."""
-        self._block_phase()
-        cfg, g, dev = self.cfg, self.gen, self.device
-        uv, level, wi, wo, target = self.replay.batch(self.draw_rows)
-        b = wi.shape[0]
-        latent = self._latent(uv, level)
-        u_kl = torch.rand(b, 3, generator=g).to(dev)
-        loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, latent, wi, wo, target, u_kl)
+        rows = self.step_rows()
+        loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, rows.latent, rows.wi, rows.wo,
+                                          rows.target, rows.u_kl)
         loss = loss_brdf + loss_kl
-        if cfg.albedo_head:
-            with torch.no_grad():
-                weight = self.albedo_targets(wi, uv, level)
-            loss = loss + albedo_loss(self.model.decoder.predict_albedo(latent, wi), weight)
+        if self.cfg.albedo_head:
+            loss = loss + self.albedo_term(rows)
         return loss, loss_brdf, loss_kl
+
+    def step_rows(self) -> StepRows:
+        """This step's rows (fresh or replayed) and their latents, before any loss (:meth:`step_loss`)."""
+        self._block_phase()
+        uv, level, wi, wo, target = self.replay.batch(self.draw_rows)
+        latent = self._latent(uv, level)
+        u_kl = torch.rand(wi.shape[0], 3, generator=self.gen).to(self.device)
+        return StepRows(uv, level, wi, wo, target, latent, u_kl)
+
+    def albedo_term(self, rows: StepRows) -> torch.Tensor:
+        """The albedo head's loss on ``rows`` (its targets drawn now, from the reference)."""
+        with torch.no_grad():
+            weight = self.albedo_targets(rows.wi, rows.uv, rows.level)
+        return albedo_loss(self.model.decoder.predict_albedo(rows.latent, rows.wi), weight)
 
     def step_record(self, loss_brdf, loss_kl, grad_norm: float) -> dict:
         """The curves' record of the step just taken."""

@@ -9,13 +9,16 @@ import torch
 
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.train.losses import (
+    BRDF_LOSSES,
     EPS,
     KL_DEFENSIVE,
     albedo_loss,
     brdf_and_sampler_losses,
+    brdf_loss_of,
     floor_penalty,
     log_l1,
     sampler_kl,
+    segment_losses,
 )
 
 
@@ -85,6 +88,30 @@ def test_brdf_and_sampler_losses_are_the_two_losses():
     assert torch.equal(loss_kl, sampler_kl(m.decoder, m.sampler, latent, wi, u))
     loss_brdf.backward()
     assert latent.grad is not None and float(latent.grad.abs().sum()) > 0  # the BRDF loss trains the latents
+
+
+def test_segment_losses_are_each_parts_own():
+    """Several materials' batches in one pass (the shared network's joint step): each part's BRDF and sampler
+    losses, and their gradients, as brdf_and_sampler_losses gives them for the part alone. Tolerance 1e-6
+    relative: the means and the KL's normalisation are summed in another order."""
+    m, latent, wi, wo, target, u = _batch(n=3 * 128, seed=6)
+    for name in BRDF_LOSSES:
+        brdf, kl = segment_losses(m.decoder, m.sampler, latent, wi, wo, target, u, segments=3,
+                                  brdf_terms=brdf_loss_of(name, 1e-3, terms=True))
+        (brdf.sum() + kl.sum()).backward()
+        together = latent.grad.clone()
+        latent.grad = None
+        for k in range(3):
+            part = slice(128 * k, 128 * (k + 1))
+            b, q = brdf_and_sampler_losses(m.decoder, m.sampler, latent[part], wi[part], wo[part], target[part],
+                                           u[part], brdf_loss=brdf_loss_of(name, 1e-3))
+            torch.testing.assert_close(brdf[k], b, rtol=1e-6, atol=0)
+            torch.testing.assert_close(kl[k], q, rtol=1e-6, atol=0)
+            (b + q).backward()
+        torch.testing.assert_close(together, latent.grad, rtol=1e-5, atol=1e-9)
+        latent.grad = None
+    # the parts differ, so a mix-up between them would show
+    assert len({round(float(x), 6) for x in brdf}) == 3
 
 
 def test_albedo_loss_is_the_mean_squared_error():

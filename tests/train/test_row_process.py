@@ -1,5 +1,5 @@
-"""Training rows drawn in a second process (``train.row_process``): the requests predict every ``step_loss``
-call of a joint training, the child answers them with the rows an in-process replay draws, and its failures
+"""Training rows drawn in a second process (``train.row_process``): the requests predict every batch
+of a joint training, the child answers them with the rows an in-process replay draws, and its failures
 reach the parent as errors (tiny CPU runs of two uniform materials)."""
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ def test_the_requests_are_the_calls_a_joint_training_makes(tmp_path, monkeypatch
     requests = shared.requests()
     calls = []
     for k, t in enumerate(trainers):
-        real = t.step_loss
-        monkeypatch.setattr(t, "step_loss", lambda k=k, t=t, real=real: calls.append((k, t.step, t.replay.prefetch))
+        real = t.step_rows  # every batch a joint step or a latent fine-tune trains on
+        monkeypatch.setattr(t, "step_rows", lambda k=k, t=t, real=real: calls.append((k, t.step, t.replay.prefetch))
                             or real())
     shared.run(progress=False)
     # the same materials, steps and prefetch, in the same order, joint steps and latent fine-tunes alike
