@@ -15,6 +15,7 @@ interrupts a running job once, which saves its checkpoint, and is ignored by an 
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import tempfile
@@ -107,6 +108,10 @@ class MaterialJob:
     ``folder``, and the job only measures and records it
     (:func:`~mtlx2neural.pipeline.material_training.finish_from_checkpoint`); the further record fields
     (``network``, ``encoder``, ``notes``)."""
+    part: str | None = None
+    """With ``trained``: measure only one part (``"energy"`` or ``"record"``:
+    :func:`~mtlx2neural.pipeline.material_training.finish_from_checkpoint`); the job then returns that part
+    and writes no record."""
 
     def source(self):
         """The :class:`~mtlx2neural.scene.MaterialSource` rebuilt from the XML (or the MERL file's path)."""
@@ -144,7 +149,8 @@ def _trained_seconds(network: dict) -> float:
 
 def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
     """Train one material (any runner calls this); returns its record (also in ``summary.json``), or
-    with ``job.ship`` a :class:`Shipped` that also carries the folder's files."""
+    with ``job.ship`` a :class:`Shipped` that also carries the folder's files (with ``job.part``: that part
+    of the measures, unwritten)."""
     listener = None
     if job.threads:
         torch.set_num_threads(job.threads)
@@ -166,7 +172,8 @@ def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
                 record = finish_from_checkpoint(src, job.cfg, folder, device, job.allow_missing_textures,
                                                 job.digest, job.resolution, _merged(extra, job.trained),
                                                 application=job.application, canonical=job.encoder is not None,
-                                                trained_seconds=_trained_seconds(job.trained["network"]))
+                                                trained_seconds=_trained_seconds(job.trained["network"]),
+                                                part=job.part)
             elif job.max_error is None:
                 _, record = train_material(src, job.cfg, folder, device, job.resume, job.progress,
                                            job.allow_missing_textures, job.digest, job.resolution, extra,
@@ -207,9 +214,17 @@ def _pool_sigint(signum, frame):
         raise KeyboardInterrupt
 
 
-def init_pool_worker(threads: int) -> None:
+def init_pool_worker(threads: int, nice: int = 0) -> None:
     """A spawned pool worker's initializer: Ctrl-C (SIGINT) or SIGTERM interrupts a running job only, which
-    saves its checkpoint; ``threads`` torch threads."""
+    saves its checkpoint; ``threads`` torch threads; ``nice``: a lower scheduling priority (POSIX ``nice``
+    increment; a pool started ahead of its jobs takes only the CPU its parent leaves)."""
     signal.signal(signal.SIGINT, _pool_sigint)
     signal.signal(signal.SIGTERM, _pool_sigint)
     torch.set_num_threads(threads)
+    if nice and hasattr(os, "nice"):
+        os.nice(nice)
+
+
+def pool_worker_started() -> bool:
+    """A no-op job: submitted once per worker of a pool started ahead of its jobs, so that each starts now."""
+    return True

@@ -80,7 +80,7 @@ from mtlx2neural.train.udim import build_training_stack, draw_uv, is_udim_stack
 from mtlx2neural.universal.canonical import canonical_document
 from mtlx2neural.universal.fit import LayoutMismatch, fit_universal
 from mtlx2neural.universal.weights import load_weights
-from mtlx2neural.verify.energy import energy_check
+from mtlx2neural.verify.energy import EnergyCheck, energy_check
 
 
 def held_out_error(ref, model, stack, n: int = 8192, seed: int = 12345, surface: SurfaceMaps | None = None) -> float:
@@ -274,9 +274,12 @@ def original_program(src, canonical, device: str, allow_missing_textures: bool, 
     return original
 
 
-def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None = None) -> MaterialRecord:
+def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None = None,
+                    energy: bool = True) -> MaterialRecord:
     """After training: fit the preview fallback, render and measure the views (and the scene), check the
-    energy, and write the material's record (``summary.json``), which it returns."""
+    energy, and write the material's record (``summary.json``), which it returns. ``energy=False``: no
+    energy check, and the record is returned unwritten (the check runs elsewhere: :func:`energy_of`; the
+    caller adds it with :func:`apply_energy`, then writes the record)."""
     src, cfg, folder, device = setup.src, setup.cfg, setup.folder, setup.device
     compiled, ref, stack, surface, trainer = setup.compiled, setup.ref, setup.stack, setup.surface, setup.trainer
     tiles, preview, t0 = setup.tiles, setup.preview, setup.t0
@@ -327,10 +330,12 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         record.application = {"frame": app.frame, "fps": app.fps, "time": app.time,
                                "nodes": list(compiled.reads_application)}
     record = dataclasses.replace(record, **extra)
-    record = with_energy(record, ref, model, stack, device, surface)
     flip_notes = sorted({f"view {e['view']}: {e['flip_note']}" for e in errors if e.get("flip_note")})
     if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
         record.warnings = [*record.warnings, *(f"HDR FLIP: {n}" for n in flip_notes)]
+    if not energy:
+        return record
+    record = with_energy(record, ref, model, stack, device, surface)
     write_record(folder, record)
     return record
 
@@ -339,19 +344,27 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
 
 def finish_from_checkpoint(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_textures: bool,
                            digest: str, resolution, extra: dict, application: Application | None = None,
-                           canonical: bool = False, trained_seconds: float = 0.0) -> MaterialRecord:
+                           canonical: bool = False, trained_seconds: float = 0.0, part: str | None = None):
     """Measure and record a material whose model is already trained and saved in ``folder``'s checkpoint
     (a ``--network scene`` group's, trained in another process): prepare it as its training did
     (:func:`prepare_material`, ``cfg`` the one it trained with), read the model, its step and its
     history from the checkpoint, then :func:`finish_material`. ``trained_seconds``: the training's wall
-    time (the record's ``train_seconds``; its ``seconds`` adds this material's measures)."""
+    time (the record's ``train_seconds``; its ``seconds`` adds this material's measures).
+
+    ``part`` splits the work in two, for two processes: ``"energy"`` returns the energy check alone
+    (:func:`energy_of`, nothing written), ``"record"`` the record without it, unwritten
+    (``finish_material(..., energy=False)``); None does both and writes the record."""
     f = checkpoint_file(folder)
     ck = read_checkpoint(f, device)
+    if part == "energy":
+        _, ref, stack, _, _, surface = _build(src, cfg, device, allow_missing_textures, resolution, application,
+                                              canonical)
+        return energy_of(ref, model_from_checkpoint(ck, f, device), stack, device, surface)
     setup = prepare_material(src, cfg, folder, device, allow_missing_textures, resolution,
                              application=application, canonical=canonical)
     setup.trainer.step, setup.trainer.history = ck["step"], list(ck["history"])
     setup.t0 = time.time() - trained_seconds
-    return finish_material(setup, model_from_checkpoint(ck, f, device), digest, extra)
+    return finish_material(setup, model_from_checkpoint(ck, f, device), digest, extra, energy=part != "record")
 
 
 def save_surface_maps(maps: SurfaceMaps, folder: Path) -> None:
@@ -396,12 +409,24 @@ def with_energy(record: MaterialRecord, ref, model, stack, device, surface: Surf
     more than :data:`ENERGY_WARNING_BRIGHT`.
     A cut-out (``surface`` with coverage below 1) is checked where it has surface, as it trains.
     A UDIM material is not checked (its levels are per tile): a note says so."""
+    return apply_energy(record, energy_of(ref, model, stack, device, surface))
+
+
+def energy_of(ref, model, stack, device, surface: SurfaceMaps | None = None) -> EnergyCheck | None:
+    """The energy check of :func:`with_energy` (None for a UDIM material)."""
     if is_udim_stack(stack):
-        return dataclasses.replace(record, notes=[*record.notes, "energy check: not measured for a UDIM material"])
+        return None
     native = stack.channels and stack.texel_ratio == (1.0, 1.0)
-    check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels), device=device,
-                         params_at=(lambda pts: stack.sample(pts, 0)) if native else None,
-                         coverage=surface.coverage_at if surface is not None and surface.partial else None)
+    return energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels), device=device,
+                        params_at=(lambda pts: stack.sample(pts, 0)) if native else None,
+                        coverage=surface.coverage_at if surface is not None and surface.partial else None)
+
+
+def apply_energy(record: MaterialRecord, check: EnergyCheck | None) -> MaterialRecord:
+    """``record`` with the energy check's figures and warnings (:func:`with_energy`; None: a UDIM material's
+    note)."""
+    if check is None:
+        return dataclasses.replace(record, notes=[*record.notes, "energy check: not measured for a UDIM material"])
     record = dataclasses.replace(record, energy=check.to_json())
     longer = train_longer(record.config.get("iterations") if record.config else None)
     if check.min_ratio < ENERGY_WARNING:

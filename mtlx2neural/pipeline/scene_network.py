@@ -36,11 +36,22 @@ from pathlib import Path
 import torch
 
 from mtlx2neural.errors import InputError
+from mtlx2neural.material_record import write_record
 from mtlx2neural.model.checkpoint import checkpoint_file, read_checkpoint
 from mtlx2neural.pipeline.devices import resolve_device
-from mtlx2neural.pipeline.material_training import prepare_material, row_trainer
+from mtlx2neural.pipeline.material_training import (
+    apply_energy,
+    prepare_material,
+    row_trainer,
+)
 from mtlx2neural.pipeline.quality import flag_reasons
-from mtlx2neural.pipeline.workers import available_cpus, parse_workers, run_jobs
+from mtlx2neural.pipeline.workers import (
+    WarmPool,
+    available_cpus,
+    default_workers,
+    parse_workers,
+    run_jobs,
+)
 from mtlx2neural.train.row_process import RowProcess
 from mtlx2neural.train.shared import (
     ADDED_FRACTION,
@@ -126,6 +137,17 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     device = resolve_device(jobs[0].device)
     progress = jobs[0].progress
     out: list = [None] * len(jobs)
+    pool = measure_pool(jobs, device, workers)
+    try:
+        _train_and_measure(jobs, device, progress, out, report, failed, workers, pool)
+    finally:
+        if pool is not None:
+            pool.close()
+    return out
+
+
+def _train_and_measure(jobs, device, progress, out, report, failed, workers, pool) -> None:
+    """:func:`run_scene_jobs`' training and measures, into ``out``."""
     rows = row_process(jobs, device, workers)  # started first: its imports overlap the preparation here
     threads = torch.get_num_threads()
     try:
@@ -142,7 +164,7 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
                     raise
                 failed(k, exc)
         if not setups:
-            return out
+            return
         start = warm_start(setups, [jobs[k] for k in kept])
         shared = SharedTrainer([s.trainer for s in setups])
         cfg = shared.cfg
@@ -165,7 +187,7 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
                 raise
             for k in kept:
                 failed(k, exc)
-            return out
+            return
     finally:
         torch.set_num_threads(threads)
         if rows is not None:
@@ -178,8 +200,7 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     del setups, models, shared  # the measures run from the saved checkpoints
     _measure([(k, dataclasses.replace(jobs[k], cfg=_group_config(jobs[k], len(jobs)),
                                       trained=_record_fields(jobs[k], info, start))) for k in kept],
-             out, report, failed, workers)
-    return out
+             out, report, failed, workers, pool)
 
 
 def row_process(jobs, device: str, workers) -> RowProcess | None:
@@ -205,19 +226,66 @@ def row_trainers(jobs) -> list:
     return out
 
 
-def _measure(trained: list[tuple], out: list, report, failed, workers) -> None:
+def _pool_size(jobs: int, device: str, workers) -> int:
+    """The processes of the local pool :func:`~mtlx2neural.pipeline.workers.run_jobs` would run ``jobs`` jobs
+    in (0: none, the jobs run in this process or in Ray)."""
+    n = parse_workers(workers)
+    if isinstance(n, str):
+        return 0
+    n = min(n or default_workers(jobs, device), jobs)
+    return n if n >= 2 else 0
+
+
+def measure_pool(jobs, device: str, workers) -> WarmPool | None:
+    """The measuring processes of ``jobs``' group (:func:`_measure`: two jobs per material), started now,
+    as its training starts (:class:`~mtlx2neural.pipeline.workers.WarmPool`); None when the measures will
+    not run in a local pool."""
+    n = _pool_size(2 * len(jobs), resolve_device(device), workers)
+    return WarmPool(n) if n else None
+
+
+def _measure(trained: list[tuple], out: list, report, failed, workers, pool: WarmPool | None = None) -> None:
     """Measure and record trained materials into ``out``, in ``workers`` processes
     (:func:`~mtlx2neural.pipeline.workers.run_jobs`; each reads its material's checkpoint), passing a failure to
-    ``failed``. ``trained``: (index into ``out``, its job as it was prepared for training, with ``trained``: its
+    ``failed``. In a local pool each material is two jobs, its record and its energy check
+    (``MaterialJob.part``), joined and written here as both arrive: three materials on two processes then
+    leave no process idle for a whole material's measures. ``trained``: (index into ``out``, its job as it was prepared for training, with ``trained``: its
     record fields)."""
     if not trained:
         return
     index = [k for k, _ in trained]
     finishing = [dataclasses.replace(job, resume=False) for _, job in trained]
-    records = run_jobs(finishing, workers, report=(lambda i, r: report(index[i], r)) if report else None,
-                       failed=(lambda i, exc: failed(index[i], exc)) if failed else None)
-    for k, record in zip(index, records):
-        out[k] = record
+    if not _pool_size(2 * len(finishing), resolve_device(finishing[0].device), workers):
+        records = run_jobs(finishing, workers, report=(lambda i, r: report(index[i], r)) if report else None,
+                           failed=(lambda i, exc: failed(index[i], exc)) if failed else None)
+        for k, record in zip(index, records):
+            out[k] = record
+        return
+    # a local pool: each material's record and its energy check as two jobs, so the pool's last job is short
+    parts = [dataclasses.replace(job, part="record") for job in finishing]
+    parts += [dataclasses.replace(job, part="energy") for job in finishing]
+    got: dict[int, dict] = {}
+    lost: set[int] = set()
+
+    def done(i: int, result) -> None:
+        k = index[i % len(index)]
+        if k in lost:
+            return
+        got.setdefault(k, {})[parts[i].part] = result
+        if len(got[k]) == 2:  # both parts: the record, checked and written
+            record = apply_energy(got[k]["record"], got[k]["energy"])
+            write_record(Path(parts[i].folder), record)
+            out[k] = record
+            if report:
+                report(k, record)
+
+    def fail(i: int, exc: BaseException) -> None:
+        k = index[i % len(index)]
+        if k not in lost:
+            lost.add(k)
+            failed(k, exc)
+
+    run_jobs(parts, workers, report=done, failed=fail if failed else None, pool=pool)
 
 
 WARM_SCHEDULE = 0.8

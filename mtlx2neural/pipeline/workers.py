@@ -42,7 +42,13 @@ import torch
 from mtlx2neural.errors import InputError, write_failure
 from mtlx2neural.material_record import MaterialRecord
 from mtlx2neural.pipeline.devices import resolve_device
-from mtlx2neural.pipeline.jobs import MaterialJob, Shipped, init_pool_worker, run_job
+from mtlx2neural.pipeline.jobs import (
+    MaterialJob,
+    Shipped,
+    init_pool_worker,
+    pool_worker_started,
+    run_job,
+)
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.trainer import TrainingInterrupted
 
@@ -121,8 +127,34 @@ def _settle(errors: list[tuple[int, BaseException]], failed: Failed | None, jobs
         failed(i, exc)
 
 
+WARM_NICE = 10
+"""The ``nice`` increment of a :class:`WarmPool`'s workers: their start-up takes the CPU its parent leaves."""
+
+
+class WarmPool:
+    """A local pool of ``n`` spawned workers started before its jobs are known (a ``--network scene`` run
+    starts its measuring processes as its training begins), so that their start-up (spawn, imports, about
+    2 s each) overlaps the parent's work. They run at ``nice`` :data:`WARM_NICE`. :func:`run_jobs` given it
+    (``pool=``) runs its jobs there, when it would use a pool of that size, and shuts it down; otherwise,
+    :meth:`close` it."""
+
+    def __init__(self, n: int):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.n, self.threads = n, max(1, available_cpus() // n)
+        with _thread_env(self.threads):
+            self.executor = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
+                                                initializer=init_pool_worker, initargs=(self.threads, WARM_NICE))
+            for _ in range(n):  # the executor starts a process per job while none is idle: all n now
+                self.executor.submit(pool_worker_started)
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=True, cancel_futures=True)
+
+
 def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
-             failed: Failed | None = None) -> list[MaterialRecord | None]:
+             failed: Failed | None = None, pool: WarmPool | None = None) -> list[MaterialRecord | None]:
     """Run every job of ``jobs`` with ``workers`` (see the module docstring); summaries in job order.
 
     When jobs fail (any ``Exception`` their training raises: a non-finite loss, out of
@@ -130,8 +162,17 @@ def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
     (their results are saved and cached). Then, with ``failed``, each failure is passed to
     it and its record is None; without, the first failure is raised. Ctrl-C stops every
     job at a checkpoint and raises :class:`~mtlx2neural.train.trainer.TrainingInterrupted`
-    (never a per-material failure).
+    (never a per-material failure). ``pool``: a :class:`WarmPool` to run a local pool's jobs in (closed here
+    either way).
     """
+    try:
+        return _run_jobs(jobs, workers, report, failed, pool)
+    finally:
+        if pool is not None:
+            pool.close()
+
+
+def _run_jobs(jobs, workers, report, failed, pool):
     workers = parse_workers(workers)
     if not jobs:
         return []
@@ -156,7 +197,7 @@ def run_jobs(jobs: list[MaterialJob], workers, report: Report | None = None,
                 report(i, out[-1])
         _settle(errors, failed, jobs)
         return out
-    return _run_pool(jobs, n, report, failed)
+    return _run_pool(jobs, n, report, failed, pool)
 
 
 class WorkerDied(RuntimeError):
@@ -164,7 +205,8 @@ class WorkerDied(RuntimeError):
     ``abort()``, a crash, a kill): that material's failure, never the others'."""
 
 
-def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[MaterialRecord | None]:
+def _run_pool(jobs, n: int, report, failed: Failed | None = None,
+              pool: WarmPool | None = None) -> list[MaterialRecord | None]:
     """Run ``jobs`` in a pool of ``n`` spawned processes. A process that dies breaks the pool and
     with it every job the pool still held, so those jobs run again, each in a process of its own
     (``n`` at a time): a job whose own process dies there is the one that killed its worker, and
@@ -178,7 +220,9 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[Materi
     bars = _PoolBars(jobs, ctx) if jobs[0].progress else None
     if bars:
         what = "measuring" if jobs[0].trained is not None else "training"  # a shared network's: trained already
-        print(f"{what} {len(jobs)} materials in {n} processes ({threads} torch thread(s) each, "
+        materials = len({j.folder for j in jobs})  # a material measured in parts is one material
+        print(f"{what} {materials} materials{f' ({len(jobs)} jobs)' if materials < len(jobs) else ''} in {n} "
+              f"processes ({threads} torch thread(s) each, "
               f"{', '.join(devices)})", flush=True)
     jobs = [dataclasses.replace(j, progress=False, threads=threads, device=devices[i % len(devices)],
                                 progress_queue=bars.queue if bars else None, index=i)
@@ -187,7 +231,9 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[Materi
     errors: list[tuple[int, BaseException]] = []
     try:
         with _thread_env(threads):
-            broken = _pool_round(jobs, list(range(len(jobs))), n, threads, ctx, results, errors, report)
+            warm = pool.executor if pool is not None and (pool.n, pool.threads) == (n, threads) else None
+            broken = _pool_round(jobs, list(range(len(jobs))), n, threads, ctx, results, errors, report,
+                                 executor=warm)
             if broken:
                 if jobs[0].progress or bars:
                     print(f"a worker process died; training {len(broken)} material(s) it held again, each in a "
@@ -205,14 +251,17 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None) -> list[Materi
     return results
 
 
-def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolated: bool = False) -> list[int]:
+def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolated: bool = False,
+                executor=None) -> list[int]:
     """Run ``jobs[i]`` for ``i`` in ``indices`` in one pool of ``n`` processes (``isolated``: one pool
-    per job); fills ``results``/``errors``; returns the indices whose pool broke under them."""
+    per job; ``executor``: that pool, started already); fills ``results``/``errors``; returns the indices
+    whose pool broke under them."""
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    pools = [ProcessPoolExecutor(n, mp_context=ctx, initializer=init_pool_worker, initargs=(threads,))
-             for _ in (indices if isolated else [None])]
+    pools = [executor] if executor is not None else [
+        ProcessPoolExecutor(n, mp_context=ctx, initializer=init_pool_worker, initargs=(threads,))
+        for _ in (indices if isolated else [None])]
     broken = []
     try:
         futures = {pools[k if isolated else 0].submit(run_job, jobs[i]): i for k, i in enumerate(indices)}

@@ -10,12 +10,12 @@ for a per-material run, after tying their models' ``decoder`` and ``sampler`` to
    batch (its trainer's ``cfg.batch`` rows: the caller sizes it, :func:`scene_batch`), sums their
    losses weighted 1/K, and takes one Adam step over every parameter (the shared networks', each
    encoder's or latent pyramid's). The K batches go through the shared networks in one pass
-   (:func:`~.losses.segment_losses`: each batch's losses as its own), which costs less than K passes. A joint step so costs about what one material's step costs, whatever
-   the number of materials. Once a material's mollification angle is at its floor, its rows are drawn
+   (:func:`~.losses.segment_losses`: each batch's losses as its own), which costs less than K passes.
+   A joint step so costs about what one material's step costs, whatever the number of materials. Once a material's mollification angle is at its floor, its rows are drawn
    :data:`FLOOR_PREFETCH` of its steps at a time (:meth:`SharedTrainer._prefetch_at_floor`).
 2. **Latent fine-tune**: the shared networks frozen, each material's latents alone for
    ``latent_steps`` steps (Adam at ``lr_end``), so a material whose codes the joint phase left rough
-   fits the network that ships.
+   fits the network that ships. Every material's batch of a step goes through the networks in one pass.
 3. **Environment head**: fitted once on rows of every material (:func:`.environment_fit.fit_environment_head`).
 
 The rows of phases 1 and 2 never depend on the networks: :meth:`SharedTrainer.requests` lists every draw the
@@ -142,7 +142,8 @@ class SharedTrainer:
     def requests(self) -> list[Request]:
         """Every batch :meth:`run` will train on from here, in order (:class:`.row_process.Request`):
         each joint step's materials, with the prefetch :meth:`_prefetch_at_floor` gives them at that step,
-        then each material's latent fine-tune (:meth:`fit_latents`: a fresh replay at the floor's prefetch)."""
+        then the latent fine-tune's steps, every material in each (:meth:`fit_latents`: a fresh replay at the
+        floor's prefetch)."""
         state, queued = self.gen.get_state(), list(self._queue)
         try:
             picks = [self._next_indices() for _ in range(self.step, self.cfg.iterations)]
@@ -158,10 +159,9 @@ class SharedTrainer:
                 prefetch = floor if start[k] < floor and at_mollify_floor(t.cfg, s) else start[k]
                 out.append(Request(k, s, prefetch, fresh=k not in seen))
                 seen.add(k)
-        steps = latent_steps(self.cfg.iterations)
-        for k, t in enumerate(self.trainers):
-            prefetch = max(t.cfg.target_prefetch, FLOOR_PREFETCH)
-            out += [Request(k, self.cfg.iterations, prefetch, fresh=i == 0) for i in range(steps)]
+        for i in range(latent_steps(self.cfg.iterations)):  # every material in each step of the fine-tune
+            out += [Request(k, self.cfg.iterations, max(t.cfg.target_prefetch, FLOOR_PREFETCH), fresh=i == 0)
+                    for k, t in enumerate(self.trainers)]
         return out
 
     def use_rows(self, rows: RowProcess) -> None:
@@ -180,25 +180,9 @@ class SharedTrainer:
         picked = self._next_materials()
         m = len(picked)
         self.opt.zero_grad(set_to_none=True)
-        batches = [t.step_rows() for t in picked]
-        if len({b.wi.shape[0] for b in batches}) == 1:  # one pass of the shared networks over every batch
-            cat = [torch.cat(parts) for parts in zip(*((b.latent, b.wi, b.wo, b.target, b.u_kl) for b in batches))]
-            brdf, kl = self._segment_losses(self.trainers[0].model.decoder, self.trainers[0].model.sampler, *cat,
-                                            segments=m)
-            loss = (brdf + kl).sum()
-            for t, b in zip(picked, batches):
-                if t.cfg.albedo_head:
-                    loss = loss + t.albedo_term(b)
-            (loss / m).backward()
-            parts = list(zip(brdf.detach(), kl.detach()))
-        else:  # batches of different sizes: one material at a time
-            parts = []
-            for t, b in zip(picked, batches):
-                loss_brdf, loss_kl = t._losses(t.model.decoder, t.model.sampler, b.latent, b.wi, b.wo, b.target,
-                                               b.u_kl)
-                loss = loss_brdf + loss_kl + (t.albedo_term(b) if t.cfg.albedo_head else 0.0)
-                (loss / m).backward()
-                parts.append((loss_brdf.detach(), loss_kl.detach()))
+        parts = self._losses_of(picked)
+        (sum(loss for loss, _, _ in parts) / m).backward()
+        parts = [(brdf.detach(), kl.detach()) for _, brdf, kl in parts]
         for group in self.opt.param_groups:
             group["lr"] = _lr(self.cfg, self.step)
         grad_norm = float(torch.nn.utils.clip_grad_norm_(self.params, GRAD_CLIP))
@@ -212,6 +196,25 @@ class SharedTrainer:
         return {"step": self.step, "loss_brdf": float(sum(lb for lb, _ in parts)) / m,
                 "loss_kl": float(sum(lk for _, lk in parts)) / m, "grad_norm": grad_norm}
 
+    def _losses_of(self, trainers: list[Trainer]) -> list[tuple]:
+        """Each trainer's ``(total, brdf, kl)`` loss on its next batch (:meth:`Trainer.step_rows`), as its
+        ``step_loss`` gives it; batches of one size go through the shared networks in one pass
+        (:func:`~.losses.segment_losses`)."""
+        batches = [t.step_rows() for t in trainers]
+        if len({b.wi.shape[0] for b in batches}) == 1:
+            cat = [torch.cat(parts) for parts in zip(*((b.latent, b.wi, b.wo, b.target, b.u_kl) for b in batches))]
+            lead = trainers[0].model
+            brdf, kl = self._segment_losses(lead.decoder, lead.sampler, *cat, segments=len(batches))
+            out = list(zip(brdf + kl, brdf, kl))
+        else:  # batches of different sizes: one at a time
+            out = []
+            for t, b in zip(trainers, batches):
+                loss_brdf, loss_kl = t._losses(t.model.decoder, t.model.sampler, b.latent, b.wi, b.wo, b.target,
+                                               b.u_kl)
+                out.append((loss_brdf + loss_kl, loss_brdf, loss_kl))
+        return [(loss + t.albedo_term(b), brdf, kl) if t.cfg.albedo_head else (loss, brdf, kl)
+                for t, b, (loss, brdf, kl) in zip(trainers, batches, out)]
+
     def _prefetch_at_floor(self) -> None:
         """From the step at which a material's mollification angle reaches its floor (where it then stays),
         draw its rows :data:`FLOOR_PREFETCH` of its steps at a time: the same settings for every row drawn
@@ -223,27 +226,31 @@ class SharedTrainer:
             if t.replay.prefetch < prefetch and t.mollify_angle() <= math.radians(t.cfg.mollify_min_degrees):
                 t.replay.set_prefetch(prefetch)
 
-    def fit_latents(self, trainer: Trainer, steps: int) -> None:
-        """The latent fine-tune of one material: its latents alone, the shared networks frozen."""
+    def fit_latents(self, steps: int) -> None:
+        """The latent fine-tune: every material's latents, the shared networks frozen, ``steps`` steps. Each
+        material's loss gives gradients to its own latents only, and Adam updates each parameter on its own,
+        so training them together is the fine-tune of each alone; one pass of the networks per step
+        (:meth:`_losses_of`) costs less than one per material."""
         if steps <= 0:
             return
-        # the mollification stays at its floor from here on, so rows may be drawn ahead: FLOOR_PREFETCH steps
-        cfg = trainer.cfg
-        if not self.remote:  # a row process has this fresh replay in its requests
-            trainer.replay = RowReplay(cfg.batch, cfg.target_reuse, max(cfg.target_prefetch, FLOOR_PREFETCH))
-        shared = _unique_parameters([trainer.model.decoder, trainer.model.sampler])
+        for t in self.trainers:  # the mollification stays at its floor from here on: rows drawn ahead
+            if not self.remote:  # a row process has these fresh replays in its requests
+                cfg = t.cfg
+                t.replay = RowReplay(cfg.batch, cfg.target_reuse, max(cfg.target_prefetch, FLOOR_PREFETCH))
+        shared = _unique_parameters([t.model.decoder for t in self.trainers] + [t.model.sampler for t in self.trainers])
         for p in shared:
             p.requires_grad_(False)
         try:
-            opt = Adam(trainer.model.latents.parameters(), lr=self.cfg.lr_end, betas=(0.9, 0.999),
-                                   eps=1e-7)
+            opt = Adam(_unique_parameters(t.model.latents for t in self.trainers), lr=self.cfg.lr_end,
+                       betas=(0.9, 0.999), eps=1e-7)
             for _ in range(steps):
-                loss, _, _ = trainer.step_loss()
+                parts = self._losses_of(self.trainers)
                 opt.zero_grad(set_to_none=True)
-                loss.backward()
+                sum(loss for loss, _, _ in parts).backward()
                 opt.step()
-                if not math.isfinite(loss.item()):
-                    raise FloatingPointError(f"{trainer.out_dir.name}: non-finite loss in the latent fine-tune")
+                for t, (loss, _, _) in zip(self.trainers, parts):
+                    if not math.isfinite(loss.item()):
+                        raise FloatingPointError(f"{t.out_dir.name}: non-finite loss in the latent fine-tune")
         finally:
             for p in shared:
                 p.requires_grad_(True)
@@ -277,7 +284,7 @@ class SharedTrainer:
         t1 = time.time()
         for t in self.trainers:
             t.finish()
-            self.fit_latents(t, latent_steps(cfg.iterations))
+        self.fit_latents(latent_steps(cfg.iterations))
         self.seconds["latents"] = round(time.time() - t1, 2)
         t2 = time.time()
         if cfg.environment_steps > 0:

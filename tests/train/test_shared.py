@@ -41,23 +41,27 @@ def test_one_network_every_material_its_own_latents(materials, tmp_path, monkeyp
     trainers = _trainers(materials, tmp_path)
     shared = SharedTrainer(trainers)
     # the latent fine-tune must not move the shared network: snapshot it when that phase starts
-    snapshots = []
+    snapshots, moved = [], []
     real = shared.fit_latents
 
-    def fit_latents(trainer, steps):
-        snapshots.append({k: v.clone() for k, v in trainer.model.decoder.state_dict().items()})
-        real(trainer, steps)
-        snapshots.append({k: v.clone() for k, v in trainer.model.decoder.state_dict().items()})
+    def fit_latents(steps):
+        decoder = trainers[0].model.decoder
+        latents = [t.model.latents.levels[0].detach().clone() for t in trainers]
+        snapshots.append({k: v.clone() for k, v in decoder.state_dict().items()})
+        real(steps)
+        snapshots.append({k: v.clone() for k, v in decoder.state_dict().items()})
+        moved.extend(not torch.equal(before, t.model.latents.levels[0]) for before, t in zip(latents, trainers))
 
     monkeypatch.setattr(shared, "fit_latents", fit_latents)
     models = shared.run(progress=False)
     a, b = models
     assert a.decoder is b.decoder and a.sampler is b.sampler
     assert a.latents is not b.latents and not torch.equal(a.latents.levels[0], b.latents.levels[0])
-    # the fine-tune of each material: the network bit-identical before and after (environment head aside:
+    # the latent fine-tune: the network bit-identical before and after (environment head aside:
     # it is fitted afterwards)
     for before, after in zip(snapshots[::2], snapshots[1::2]):
         assert all(torch.equal(before[k], after[k]) for k in before)
+    assert len(snapshots) == 2 and moved == [True, True]  # one fine-tune of every material's latents
     # the joint phase trained: the mean loss fell (measured ~0.6x over 80 steps; bound 0.9x)
     first, last = shared.history[0]["loss_brdf"], shared.history[-1]["loss_brdf"]
     assert last < 0.9 * first, (first, last)
@@ -77,7 +81,7 @@ def test_rows_drawn_ahead_once_the_mollification_is_at_its_floor(materials, tmp_
     FLOOR_PREFETCH steps' rows per call to the reference (the same rows' distribution at a lower cost)."""
     trainers = _trainers(materials, tmp_path)
     shared = SharedTrainer(trainers)
-    monkeypatch.setattr(shared, "fit_latents", lambda trainer, steps: None)  # the joint phase only
+    monkeypatch.setattr(shared, "fit_latents", lambda steps: None)  # the joint phase only
     draws = {id(t): [] for t in trainers}
     for t in trainers:
         real = t.draw_rows
