@@ -150,6 +150,8 @@ def _train_and_measure(jobs, device, progress, out, report, failed, workers, poo
     """:func:`run_scene_jobs`' training and measures, into ``out``."""
     rows = row_process(jobs, device, workers)  # started first: its imports overlap the preparation here
     threads = torch.get_num_threads()
+    if rows is not None:  # the row process has a core from now on (more threads than cores: OpenMP collapses)
+        torch.set_num_threads(max(1, available_cpus() - 1))
     try:
         setups, kept = [], []
         for k, job in enumerate(jobs):
@@ -171,7 +173,6 @@ def _train_and_measure(jobs, device, progress, out, report, failed, workers, poo
         if rows is not None:
             rows.plan(kept, [s.trainer.cfg for s in setups], shared.requests())
             shared.use_rows(rows)
-            torch.set_num_threads(max(1, available_cpus() - 1))  # the row process has a core
         if progress:
             print(f"--network scene: {len(setups)} materials share one decoder {cfg.decoder} and one sampler"
                   f"{start.text if start else ''}; {cfg.iterations} joint steps x {cfg.batch} rows per material, "
