@@ -34,7 +34,6 @@ import dataclasses
 import importlib.util
 import os
 from collections.abc import Callable
-from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -50,23 +49,8 @@ from mtlx2neural.pipeline.jobs import (
     run_job,
 )
 from mtlx2neural.progress import progress_bar
+from mtlx2neural.train.row_process import spawn_threads
 from mtlx2neural.train.trainer import TrainingInterrupted
-
-
-@contextmanager
-def _thread_env(threads: int):
-    """``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` = ``threads`` while spawned workers start."""
-    keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-    old = {k: os.environ.get(k) for k in keys}
-    os.environ.update({k: str(threads) for k in keys})
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def available_cpus() -> int:
@@ -143,7 +127,7 @@ class WarmPool:
         from concurrent.futures import ProcessPoolExecutor
 
         self.n, self.threads = n, max(1, available_cpus() // n)
-        with _thread_env(self.threads):
+        with spawn_threads(self.threads):
             self.executor = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
                                                 initializer=init_pool_worker, initargs=(self.threads, WARM_NICE))
             for _ in range(n):  # the executor starts a process per job while none is idle: all n now
@@ -230,7 +214,7 @@ def _run_pool(jobs, n: int, report, failed: Failed | None = None,
     results: list[MaterialRecord | None] = [None] * len(jobs)
     errors: list[tuple[int, BaseException]] = []
     try:
-        with _thread_env(threads):
+        with spawn_threads(threads):
             warm = pool.executor if pool is not None and (pool.n, pool.threads) == (n, threads) else None
             broken = _pool_round(jobs, list(range(len(jobs))), n, threads, ctx, results, errors, report,
                                  executor=warm)

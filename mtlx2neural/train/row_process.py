@@ -30,6 +30,7 @@ import queue
 import signal
 import traceback
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
@@ -40,6 +41,23 @@ QUEUE_ROWS = 64
 """Answers the child may draw ahead of the parent (each a step's rows of one material: tens of kB)."""
 POLL_SECONDS = 1.0
 """How often a waiting parent checks that the child is alive."""
+
+
+@contextmanager
+def spawn_threads(threads: int):
+    """``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` = ``threads`` while processes spawned in it start (their OpenMP
+    runtime reads them once)."""
+    keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    old = {k: os.environ.get(k) for k in keys}
+    os.environ.update({k: str(threads) for k in keys})
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 @dataclass(frozen=True)
@@ -105,19 +123,10 @@ class RowProcess:
         self._queue = ctx.Queue(maxsize=QUEUE_ROWS)
         self._left: collections.deque[Request] = collections.deque()
         self._planned = False
-        keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-        old = {k: os.environ.get(k) for k in keys}
-        os.environ.update({k: "1" for k in keys})  # one thread from the start: the other core is the parent's
-        try:
+        with spawn_threads(1):  # one thread from the start: the other core is the parent's
             self._proc = ctx.Process(target=_serve, args=(factory, child_conn, self._queue), daemon=True,
                                      name="mtlx2neural-rows")
             self._proc.start()
-        finally:
-            for k, v in old.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
         child_conn.close()
 
     def plan(self, indices: list[int], cfgs: list, requests: list[Request]) -> None:
