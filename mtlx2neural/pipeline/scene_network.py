@@ -128,8 +128,9 @@ def run_scene_jobs(jobs, report=None, failed=None, network: TrainedNetwork | Non
     ``failed(k, exc)`` (None: raised) and left out of the group; a failure of the joint training fails
     every material. ``report(k, record)`` is called as each record is written. ``network``: an earlier
     run's network, kept: each job fits its latents alone against it (:func:`add_to_network`). The joint
-    training runs in this process; the measures of the trained materials (views, energy, preview fit, about
-    20-40 s per chess material on one core) run in ``workers`` processes, as per-material jobs do."""
+    training runs in this process (its rows drawn in a second one: :func:`row_process`); the measures of the
+    trained materials (views, energy, preview fit, about 20-40 s per chess material on one core) run in
+    ``workers`` processes started with the training (:func:`measure_pool`), two jobs per material (:func:`_measure`)."""
     if not jobs:
         return []
     if network is not None:
@@ -250,8 +251,9 @@ def _measure(trained: list[tuple], out: list, report, failed, workers, pool: War
     (:func:`~mtlx2neural.pipeline.workers.run_jobs`; each reads its material's checkpoint), passing a failure to
     ``failed``. In a local pool each material is two jobs, its record and its energy check
     (``MaterialJob.part``), joined and written here as both arrive: three materials on two processes then
-    leave no process idle for a whole material's measures. ``trained``: (index into ``out``, its job as it was prepared for training, with ``trained``: its
-    record fields)."""
+    leave no process idle for a whole material's measures. ``trained``: (index into ``out``, its job as it was
+    prepared for training, with ``trained``: its record fields). ``pool``: the processes to measure in, started
+    already (:func:`measure_pool`)."""
     if not trained:
         return
     index = [k for k, _ in trained]
