@@ -236,8 +236,8 @@ def row_trainer(src, cfg: TrainConfig, folder: Path, device: str, allow_missing_
     """A :class:`Trainer` built as :func:`prepare_material` builds it, writing nothing (``folder`` is only its
     name): one that draws training rows for the material in another process
     (:class:`~mtlx2neural.train.row_process.RowProcess`)."""
-    compiled, ref, stack, _, _, surface = _build(src, cfg, device, allow_missing_textures, resolution, application,
-                                                 canonical)
+    _, ref, stack, _, _, surface = _build(src, cfg, device, allow_missing_textures, resolution, application,
+                                          canonical)
     return Trainer(ref, stack, cfg, folder, device=device, surface=surface)
 
 

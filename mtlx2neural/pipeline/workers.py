@@ -124,12 +124,10 @@ class WarmPool:
 
     def __init__(self, n: int):
         import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
 
         self.n, self.threads = n, max(1, available_cpus() // n)
         with spawn_threads(self.threads):
-            self.executor = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
-                                                initializer=init_pool_worker, initargs=(self.threads, WARM_NICE))
+            self.executor = _executor(n, self.threads, multiprocessing.get_context("spawn"), WARM_NICE)
             for _ in range(n):  # the executor starts a process per job while none is idle: all n now
                 self.executor.submit(pool_worker_started)
 
@@ -240,12 +238,11 @@ def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolate
     """Run ``jobs[i]`` for ``i`` in ``indices`` in one pool of ``n`` processes (``isolated``: one pool
     per job; ``executor``: that pool, started already); fills ``results``/``errors``; returns the indices
     whose pool broke under them."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    pools = [executor] if executor is not None else [
-        ProcessPoolExecutor(n, mp_context=ctx, initializer=init_pool_worker, initargs=(threads,))
-        for _ in (indices if isolated else [None])]
+    pools = [executor] if executor is not None else [_executor(n, threads, ctx)
+                                                     for _ in (indices if isolated else [None])]
     broken = []
     try:
         futures = {pools[k if isolated else 0].submit(run_job, jobs[i]): i for k, i in enumerate(indices)}
@@ -270,6 +267,14 @@ def _pool_round(jobs, indices, n, threads, ctx, results, errors, report, isolate
         for ex in pools:
             ex.shutdown(wait=True)
     return sorted(broken)
+
+
+def _executor(n: int, threads: int, ctx, nice: int = 0):
+    """A pool of ``n`` ``ctx`` processes, each with ``threads`` torch threads at ``nice``
+    (:func:`~mtlx2neural.pipeline.jobs.init_pool_worker`)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(n, mp_context=ctx, initializer=init_pool_worker, initargs=(threads, nice))
 
 
 def _interrupt_workers(ex) -> None:

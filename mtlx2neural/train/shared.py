@@ -11,8 +11,9 @@ for a per-material run, after tying their models' ``decoder`` and ``sampler`` to
    losses weighted 1/K, and takes one Adam step over every parameter (the shared networks', each
    encoder's or latent pyramid's). The K batches go through the shared networks in one pass
    (:func:`~.losses.segment_losses`: each batch's losses as its own), which costs less than K passes.
-   A joint step so costs about what one material's step costs, whatever the number of materials. Once a material's mollification angle is at its floor, its rows are drawn
-   :data:`FLOOR_PREFETCH` of its steps at a time (:meth:`SharedTrainer._prefetch_at_floor`).
+   A joint step so costs about what one material's step costs, whatever the number of materials. Once
+   a material's mollification angle is at its floor, its rows are drawn :data:`FLOOR_PREFETCH` of its
+   steps at a time (:meth:`SharedTrainer._prefetch_at_floor`).
 2. **Latent fine-tune**: the shared networks frozen, each material's latents alone for
    ``latent_steps`` steps (Adam at ``lr_end``), so a material whose codes the joint phase left rough
    fits the network that ships. Every material's batch of a step goes through the networks in one pass.
@@ -78,6 +79,12 @@ def scene_batch(batch: int, materials: int) -> int:
     """Rows per material in a joint step: the preset's batch split between the materials of a step
     (:data:`MATERIALS_PER_STEP` at most), at least :data:`SCENE_MIN_ROWS`."""
     return max(SCENE_MIN_ROWS, batch // max(1, min(materials, MATERIALS_PER_STEP)))
+
+
+def floor_prefetch(cfg) -> int:
+    """The prefetch of a material's rows once its mollification angle is at its floor (:data:`FLOOR_PREFETCH`,
+    or its own ``target_prefetch`` when larger)."""
+    return max(cfg.target_prefetch, FLOOR_PREFETCH)
 
 
 def latent_steps(iterations: int) -> int:
@@ -155,12 +162,12 @@ class SharedTrainer:
         for s, step_picks in zip(range(self.step, self.cfg.iterations), picks):
             for k in step_picks:
                 t = self.trainers[k]
-                floor = max(t.cfg.target_prefetch, FLOOR_PREFETCH)
+                floor = floor_prefetch(t.cfg)
                 prefetch = floor if start[k] < floor and at_mollify_floor(t.cfg, s) else start[k]
                 out.append(Request(k, s, prefetch, fresh=k not in seen))
                 seen.add(k)
         for i in range(latent_steps(self.cfg.iterations)):  # every material in each step of the fine-tune
-            out += [Request(k, self.cfg.iterations, max(t.cfg.target_prefetch, FLOOR_PREFETCH), fresh=i == 0)
+            out += [Request(k, self.cfg.iterations, floor_prefetch(t.cfg), fresh=i == 0)
                     for k, t in enumerate(self.trainers)]
         return out
 
@@ -222,8 +229,8 @@ class SharedTrainer:
         if self.remote:  # planned in the requests
             return
         for t in self.trainers:
-            prefetch = max(t.cfg.target_prefetch, FLOOR_PREFETCH)
-            if t.replay.prefetch < prefetch and t.mollify_angle() <= math.radians(t.cfg.mollify_min_degrees):
+            prefetch = floor_prefetch(t.cfg)
+            if t.replay.prefetch < prefetch and at_mollify_floor(t.cfg, t.step):
                 t.replay.set_prefetch(prefetch)
 
     def fit_latents(self, steps: int) -> None:
@@ -233,11 +240,12 @@ class SharedTrainer:
         (:meth:`_losses_of`) costs less than one per material."""
         if steps <= 0:
             return
-        for t in self.trainers:  # the mollification stays at its floor from here on: rows drawn ahead
-            if not self.remote:  # a row process has these fresh replays in its requests
+        if not self.remote:  # a row process has these fresh replays in its requests
+            for t in self.trainers:  # the mollification stays at its floor from here on: rows drawn ahead
                 cfg = t.cfg
-                t.replay = RowReplay(cfg.batch, cfg.target_reuse, max(cfg.target_prefetch, FLOOR_PREFETCH))
-        shared = _unique_parameters([t.model.decoder for t in self.trainers] + [t.model.sampler for t in self.trainers])
+                t.replay = RowReplay(cfg.batch, cfg.target_reuse, floor_prefetch(cfg))
+        lead = self.trainers[0].model  # every trainer's decoder and sampler are the lead's
+        shared = _unique_parameters([lead.decoder, lead.sampler])
         for p in shared:
             p.requires_grad_(False)
         try:
