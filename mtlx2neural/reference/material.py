@@ -226,6 +226,27 @@ class ReferenceMaterial:
         u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
         p = self._point(at, uv, params)
         tree = self._tree(n, p.uv, p.params)
+        return self._sample_tree(tree, wi, u, with_value)
+
+    def sample_and_eval_pdf(self, wi: torch.Tensor, u: torch.Tensor, wo: torch.Tensor, at=None):
+        """``(sample(wi, u, at, with_value=True), eval_pdf(wi, wo, at))`` from one evaluation of the
+        material's parameters and lobes: the same values, bit for bit, for less than the two calls (the
+        mollified training targets ask for both at every footprint point,
+        :func:`~mtlx2neural.train.mollify.cone_mean`). ``wo`` [N,3] (local frame, any length) is the second
+        direction, evaluated beside the sampled one; inputs otherwise as for :meth:`sample`."""
+        wi_s = prepare_direction("wi", wi, self.dtype, self.device)
+        n = wi_s.shape[0]
+        u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
+        p = self._point(at)
+        tree = self._tree(n, p.uv, p.params)
+        sampled = self._sample_tree(tree, wi_s, u, True)
+        wi_e, wo_e = self._directions(wi, wo)
+        response, _ = tree.eval(wi_e, wo_e)
+        return sampled, (_value(response, above_horizon(wi_e, wo_e)), self._density(tree, wi_e, wo_e))
+
+    def _sample_tree(self, tree, wi, u, with_value: bool):
+        """:meth:`sample` from a built tree (``wi`` and ``u`` prepared)."""
+        n = wi.shape[0]
         lobes, probs = self._selection(tree, wi)
         if not lobes:
             wo = cosine_sample(u[:, :2])

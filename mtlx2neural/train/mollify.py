@@ -54,11 +54,12 @@ def cone_mean(reference, wi: torch.Tensor, wo: torch.Tensor, angle: float, pairs
     at_p = ShadingPoint(uv=rep(uv), params=None if params is None else {k: rep(v) for k, v in params.items()})
     w_uniform = cone_jitter(wo, angle, pairs, generator)
     u = torch.rand(n * pairs, 2, generator=generator).to(wi.device)
-    if hasattr(reference, "eval_pdf"):  # a ReferenceMaterial (finite unit samples): one evaluation per direction
-        w_sampled, f_sampled, p_sampled = reference.sample(wi_p, u, at_p, with_value=True)
+    if hasattr(reference, "sample_and_eval_pdf"):  # a ReferenceMaterial: both directions from one evaluation
+        (w_sampled, f_sampled, p_sampled), (f_uniform, p_uniform) = reference.sample_and_eval_pdf(
+            wi_p, u, w_uniform, at_p)
 
         def value_and_density(w):
-            return (f_sampled, p_sampled) if w is w_sampled else reference.eval_pdf(wi_p, w, at_p)
+            return (f_sampled, p_sampled) if w is w_sampled else (f_uniform, p_uniform)
     else:  # the contract alone: a non-finite sample takes the uniform direction
         w_sampled, _, _ = reference.sample(wi_p, u, at_p)
         w_sampled = torch.where(torch.isfinite(w_sampled).all(-1, keepdim=True), w_sampled, w_uniform)

@@ -94,8 +94,8 @@ class _Contract:
 
 
 def test_cone_mean_fast_path_equals_the_contract(carpaint):
-    """cone_mean takes the reference's value and density from one evaluation (``eval_pdf``, ``sample(...,
-    with_value=True)``): bit for bit what separate eval and pdf calls give, so the estimate is the same."""
+    """cone_mean takes the reference's value and density at both directions of a pair from one evaluation
+    (``sample_and_eval_pdf``; ``eval_pdf``, ``sample(..., with_value=True)``): bit for bit what separate eval and pdf calls give, so the estimate is the same."""
     g = torch.Generator().manual_seed(3)
     wi = torch.nn.functional.normalize(torch.randn(4096, 3, generator=g).abs() + torch.tensor([0.0, 0.0, 0.2]), dim=-1)
     wo = wi * torch.tensor([-1.0, -1.0, 1.0]) + 0.05 * torch.randn(4096, 3, generator=g)
@@ -104,8 +104,12 @@ def test_cone_mean_fast_path_equals_the_contract(carpaint):
     assert float(fast.mean()) > 0.01 and fast.equal(plain)
     f, pdf = carpaint.eval_pdf(wi, wo)
     assert f.equal(carpaint.eval(wi, wo)) and pdf.equal(carpaint.pdf(wi, wo))
-    w, value, density = carpaint.sample(wi, torch.rand(4096, 2, generator=g), with_value=True)
+    u = torch.rand(4096, 2, generator=g)
+    w, value, density = carpaint.sample(wi, u, with_value=True)
     assert value.equal(carpaint.eval(wi, w)) and density.equal(carpaint.pdf(wi, w))
+    # Both at once, from one evaluation of the lobes: the same tensors as the two calls.
+    (w2, value2, density2), (f2, pdf2) = carpaint.sample_and_eval_pdf(wi, u, wo)
+    assert w2.equal(w) and value2.equal(value) and density2.equal(density) and f2.equal(f) and pdf2.equal(pdf)
 
 
 def test_lobe_directions_gather_around_the_coat(carpaint):
