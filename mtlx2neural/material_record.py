@@ -117,7 +117,8 @@ class MaterialRecord:
     energy: dict | None = None
     """The energy check (:func:`mtlx2neural.verify.energy.energy_check`): ``min_ratio`` and ``by_level``,
     the neural model's directional albedo over the reference's per MIP level (1 keeps the energy),
-    with the settings it was measured with; None when not measured (a UDIM material)."""
+    ``by_view`` the same per view angle averaged over the levels (absent from older records), with the
+    settings it was measured with; None when not measured (a UDIM material)."""
     quality: dict | None = None
     """The run's quality gate (:mod:`mtlx2neural.pipeline.quality`): ``flagged``, ``reasons`` (in words) and
     ``policy`` (``ConvertOptions.flagged``: what the layer does with a flagged material); None before the

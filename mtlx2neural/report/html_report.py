@@ -138,7 +138,8 @@ def _load_reference(record: MaterialRecord, folder: Path):
 
 def energy_table(record: MaterialRecord) -> str:
     """HTML of the conversion's energy check (the record's ``energy``): per MIP level, the reference's and
-    the neural model's mean directional albedo (luminance) and their ratio."""
+    the neural model's mean directional albedo (luminance) and their ratio; then each view angle's ratio
+    averaged over the levels (records made before it was measured have none)."""
     energy = record.energy
     if not energy:
         return '<p class="note">Not measured at conversion (a UDIM material, or a record without it).</p>'
@@ -149,7 +150,18 @@ def energy_table(record: MaterialRecord) -> str:
             f'{", ".join(f"{d:g}" for d in energy["view_degrees"])} degrees): the neural model against the '
             f'reference filtered over each level\'s footprint. Lowest ratio {energy["min_ratio"]:.2f}; under 0.9 '
             f'the neural material renders visibly darker.</p><table><tr><th class="l">MIP level</th><th>reference'
-            f'</th><th>neural</th><th>neural / reference</th></tr>{rows}</table>')
+            f'</th><th>neural</th><th>neural / reference</th></tr>{rows}</table>{_energy_by_view(energy)}')
+
+
+def _energy_by_view(energy: dict) -> str:
+    """A note with each view angle's energy ratio (the record's ``by_view``), or nothing."""
+    ratios = energy.get("by_view")
+    if not ratios:
+        return ""
+    views = ", ".join(f"{d:g}°: {q:.2f}" for d, q in zip(energy["view_degrees"], ratios))
+    return (f'<p class="note">By view angle from the normal, neural / reference averaged over the levels: {views}. '
+            f'The level ratios pool the views, so a model too dark at one angle and too bright at another can '
+            f'still keep a level ratio near 1.</p>')
 
 
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,

@@ -82,6 +82,19 @@ class EnergyCheck:
         return max(kept) if kept else float("nan")
 
     @property
+    def by_view(self) -> dict[float, float]:
+        """{view angle in degrees: that view's ratio averaged over the levels} (levels without a ratio left
+        out). The level ratios pool every view, so a model too dark at the normal and too bright at grazing
+        can keep a level ratio near 1: this shows which way each view goes (the textured GlazedCeramic with
+        ``fast``: 0.89-0.96 up to 60 degrees, 0.96-1.21 at 80; docs/history/energy-levers-2026-12-06.md)."""
+        out = {}
+        for d in self.view_degrees:
+            vals = [lv.ratio_by_view.get(d, float("nan")) for lv in self.levels]
+            vals = [v for v in vals if math.isfinite(v)]
+            out[d] = sum(vals) / len(vals) if vals else float("nan")
+        return out
+
+    @property
     def brightest_level(self) -> int | None:
         kept = [lv for lv in self.levels if math.isfinite(lv.ratio)]
         return max(kept, key=lambda lv: lv.ratio).level if kept else None
@@ -93,8 +106,10 @@ class EnergyCheck:
 
     def to_json(self) -> dict:
         """``{"min_ratio", "max_ratio", "by_level": [ratio per level], "reference_by_level",
-        "model_by_level", "texels", "samples", "view_degrees"}``."""
+        "model_by_level", "by_view": [ratio per view angle, as ``view_degrees``, averaged over the levels:
+        :attr:`by_view`], "texels", "samples", "view_degrees"}``."""
         return {"min_ratio": self.min_ratio, "max_ratio": self.max_ratio, "by_level": [lv.ratio for lv in self.levels],
+                "by_view": list(self.by_view.values()),
                 "reference_by_level": [lv.reference for lv in self.levels],
                 "model_by_level": [lv.model for lv in self.levels],
                 "texels": self.texels, "samples": self.samples, "view_degrees": list(self.view_degrees)}

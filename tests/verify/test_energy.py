@@ -90,6 +90,36 @@ def test_a_darker_model_is_caught_at_every_level(rough_metal):
     assert len(data["by_level"]) == 3 and data["min_ratio"] == chk.min_ratio
 
 
+class GrazingBright:
+    """A material that reflects ``scale`` times another's BRDF where the viewer is more than 72.5 degrees
+    from the normal (wi.z < 0.3) and the same BRDF elsewhere, sampled as that one is."""
+
+    def __init__(self, material, scale: float):
+        self.material, self.scale = material, scale
+
+    def eval(self, wi, wo, at=None):
+        grazing = (wi[:, 2:3] < 0.3).to(wi.dtype)
+        return (1.0 + (self.scale - 1.0) * grazing) * self.material.eval(wi, wo, at)
+
+    def sample(self, wi, u, at=None):
+        return self.material.sample(wi, u, at)
+
+    def pdf(self, wi, wo, at=None):
+        return self.material.pdf(wi, wo, at)
+
+
+def test_the_views_show_what_the_levels_pool(rough_metal):
+    """A model 1.5x too bright at the 80-degree view only: that view's ratio is 1.5 and the others 1, each
+    within 0.07 (the Monte Carlo noise of the self-check above), while every level's ratio, which pools the
+    four views, stays within 1.0-1.3; the record's JSON lists the views' ratios in ``view_degrees``' order."""
+    chk = energy_check(rough_metal, GrazingBright(rough_metal, 1.5), (16, 16), 3, texels=32, seed=1)
+    views = chk.by_view
+    assert set(views) == {0.0, 30.0, 60.0, 80.0}
+    assert abs(views[80.0] - 1.5) < 0.07 and all(abs(views[d] - 1.0) < 0.07 for d in (0.0, 30.0, 60.0))
+    assert all(1.0 < lv.ratio < 1.3 for lv in chk.levels)
+    assert chk.to_json()["by_view"] == [views[d] for d in chk.view_degrees]
+
+
 def test_a_black_reference_has_no_ratio(rough_metal):
     black = Scaled(rough_metal, 0.0)
     chk = energy_check(black, rough_metal, (16, 16), 1, texels=8, seed=3)
