@@ -196,20 +196,22 @@ class ReferenceMaterial:
         p = self._point(at, uv, params)
         return self._density(self._tree(wi.shape[0], p.uv, p.params), wi, wo)
 
-    def _density(self, tree, wi, wo):
-        """:meth:`pdf` from a built tree."""
-        lobes, probs = self._selection(tree, wi)
+    def _density(self, tree, wi, wo, selection=None):
+        """:meth:`pdf` from a built tree (``selection``: its :meth:`_selection` at ``wi``, if already made)."""
+        lobes, probs = selection if selection is not None else self._selection(tree, wi)
         return zero_below_horizon(self._mixture_pdf(lobes, probs, wi, wo), wi, wo)
+
+    def _eval_pdf_tree(self, tree, wi, wo, selection=None):
+        """:meth:`eval_pdf` from a built tree (``wi``, ``wo`` prepared; ``selection`` as for :meth:`_density`)."""
+        response, _ = tree.eval(wi, wo)
+        return _value(response, above_horizon(wi, wo)), self._density(tree, wi, wo, selection)
 
     def eval_pdf(self, wi: torch.Tensor, wo: torch.Tensor, at=None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(eval(wi, wo, at), pdf(wi, wo, at))`` from one evaluation of the material's parameters and lobes:
-        the same values, bit for bit, for about half the cost of the two calls (the mollified training
-        targets ask for both at every point, :func:`~mtlx2neural.train.mollify.cone_mean`)."""
+        the same values, bit for bit, for about half the cost of the two calls."""
         wi, wo = self._directions(wi, wo)
         p = self._point(at)
-        tree = self._tree(wi.shape[0], p.uv, p.params)
-        response, _ = tree.eval(wi, wo)
-        return _value(response, above_horizon(wi, wo)), self._density(tree, wi, wo)
+        return self._eval_pdf_tree(self._tree(wi.shape[0], p.uv, p.params), wi, wo)
 
     def sample(self, wi: torch.Tensor, u: torch.Tensor, at=None, *, uv=None, params: dict | None = None,
                with_value: bool = False):
@@ -230,24 +232,21 @@ class ReferenceMaterial:
 
     def sample_and_eval_pdf(self, wi: torch.Tensor, u: torch.Tensor, wo: torch.Tensor, at=None):
         """``(sample(wi, u, at, with_value=True), eval_pdf(wi, wo, at))`` from one evaluation of the
-        material's parameters and lobes: the same values, bit for bit, for less than the two calls (the
-        mollified training targets ask for both at every footprint point,
+        material's parameters, lobes and lobe selection: the same values, bit for bit, for less than the two
+        calls (the mollified training targets ask for both at every footprint point,
         :func:`~mtlx2neural.train.mollify.cone_mean`). ``wo`` [N,3] (local frame, any length) is the second
         direction, evaluated beside the sampled one; inputs otherwise as for :meth:`sample`."""
-        wi_s = prepare_direction("wi", wi, self.dtype, self.device)
-        n = wi_s.shape[0]
-        u = prepare_values("u", u, self.dtype, self.device, rows=n, width=(2, 3))
+        wi, wo = self._directions(wi, wo)
+        u = prepare_values("u", u, self.dtype, self.device, rows=wi.shape[0], width=(2, 3))
         p = self._point(at)
-        tree = self._tree(n, p.uv, p.params)
-        sampled = self._sample_tree(tree, wi_s, u, True)
-        wi_e, wo_e = self._directions(wi, wo)
-        response, _ = tree.eval(wi_e, wo_e)
-        return sampled, (_value(response, above_horizon(wi_e, wo_e)), self._density(tree, wi_e, wo_e))
+        tree = self._tree(wi.shape[0], p.uv, p.params)
+        selection = self._selection(tree, wi)
+        return self._sample_tree(tree, wi, u, True, selection), self._eval_pdf_tree(tree, wi, wo, selection)
 
-    def _sample_tree(self, tree, wi, u, with_value: bool):
-        """:meth:`sample` from a built tree (``wi`` and ``u`` prepared)."""
+    def _sample_tree(self, tree, wi, u, with_value: bool, selection=None):
+        """:meth:`sample` from a built tree (``wi`` and ``u`` prepared; ``selection`` as for :meth:`_density`)."""
         n = wi.shape[0]
-        lobes, probs = self._selection(tree, wi)
+        lobes, probs = selection if selection is not None else self._selection(tree, wi)
         if not lobes:
             wo = cosine_sample(u[:, :2])
         else:

@@ -95,7 +95,8 @@ class _Contract:
 
 def test_cone_mean_fast_path_equals_the_contract(carpaint):
     """cone_mean takes the reference's value and density at both directions of a pair from one evaluation
-    (``sample_and_eval_pdf``; ``eval_pdf``, ``sample(..., with_value=True)``): bit for bit what separate eval and pdf calls give, so the estimate is the same."""
+    (``sample_and_eval_pdf``; also ``eval_pdf``, ``sample(..., with_value=True)``): bit for bit what separate
+    eval and pdf calls give, so the estimate is the same."""
     g = torch.Generator().manual_seed(3)
     wi = torch.nn.functional.normalize(torch.randn(4096, 3, generator=g).abs() + torch.tensor([0.0, 0.0, 0.2]), dim=-1)
     wo = wi * torch.tensor([-1.0, -1.0, 1.0]) + 0.05 * torch.randn(4096, 3, generator=g)
