@@ -57,13 +57,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from mtlx2neural.codegen.materialx_node import generation_context, load_node_document
 from mtlx2neural.errors import Mtlx2NeuralError
 from mtlx2neural.graph.library import standard_library
-from mtlx2neural.render.lighting import uv_to_direction
-from mtlx2neural.render.prefiltered import irradiance_coefficients, sh9
+from mtlx2neural.render.prefiltered import IRRADIANCE_SIZE, irradiance_image
 
 TIMEOUT = 300.0
 LIGHTING_KEYS = ("lights", "environment", "irradiance", "environment_samples")
@@ -125,18 +123,12 @@ def environment_for_torch(image: np.ndarray) -> np.ndarray:
     return np.roll(image, image.shape[1] // 2, axis=1)
 
 
-def irradiance_map(radiance: np.ndarray, height: int = 32, width: int = 64) -> np.ndarray:
+def irradiance_map(radiance: np.ndarray, height: int = IRRADIANCE_SIZE[0], width: int = IRRADIANCE_SIZE[1]) -> np.ndarray:
     """The cosine-convolved irradiance divided by pi of a lat-long ``radiance`` map [H, W, 3]
-    (what MaterialX's FIS mode reads from its irradiance map for diffuse lobes), [height, width, 3],
-    from the map's order-2 spherical-harmonic projection (:func:`~mtlx2neural.render.prefiltered.irradiance_coefficients`,
-    exact for the cosine lobe up to the ~1% of its energy above order 2; MaterialX's lat-long directions are
-    the torch renderer's)."""
-    coefficients = irradiance_coefficients(radiance)
-    v, u = torch.meshgrid((torch.arange(height, dtype=torch.float64) + 0.5) / height,
-                          (torch.arange(width, dtype=torch.float64) + 0.5) / width, indexing="ij")
-    n = uv_to_direction(torch.stack([u, v], -1).reshape(-1, 2))
-    irr = (sh9(n) @ coefficients).reshape(height, width, 3)
-    return irr.clamp_min(0.0).numpy().astype(np.float32)
+    (what MaterialX's FIS mode reads from its irradiance map for diffuse lobes), [height, width, 3]
+    float32, by direct quadrature (:func:`~mtlx2neural.render.prefiltered.irradiance_image`: the torch
+    twin reads the same image; MaterialX's lat-long directions are the torch renderer's)."""
+    return irradiance_image(radiance, height, width).numpy().astype(np.float32)
 
 
 def write_exr(path, image: np.ndarray) -> None:

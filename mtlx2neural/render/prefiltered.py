@@ -19,7 +19,7 @@ prefiltered copy of the environment at the level whose texels cover the directio
 :data:`LOD_BIAS` levels coarser). The MaterialX
 node (``codegen/templates/neural_bsdf.glsl.in``) does the same with the viewer's MIP chain; this module is
 its torch twin, for ``render --env-mode prefiltered`` and for the measurements. E_diff is the map's irradiance /
-pi along the diffuse lobe's axis, from the map's order-2 spherical harmonics (:func:`irradiance_coefficients`),
+pi along the diffuse lobe's axis, from the map convolved with the clamped cosine (:func:`irradiance_image`),
 what the node reads from the viewer's irradiance map (a 16-direction lattice over the cosine lobe instead showed
 the sky's horizon as a band: HDR FLIP 0.108 against 0.073 on the sample Plastic).
 
@@ -60,31 +60,65 @@ def lattice(samples: int, device=None) -> torch.Tensor:
     return torch.frac(0.5 + j * torch.tensor(LATTICE, dtype=torch.float64, device=device)).float()
 
 
-SH_BAND_COSINE = (math.pi,) + (2.0 * math.pi / 3.0,) * 3 + (math.pi / 4.0,) * 5
-"""The clamped cosine's convolution factor per spherical-harmonic band 0, 1, 2 (Ramamoorthi and Hanrahan)."""
+IRRADIANCE_SIZE = (64, 128)
+"""Rows and columns of the irradiance map (:func:`irradiance_image`): what the torch twin reads and what
+``glsl_render.irradiance_map`` writes for the MaterialX viewer, bilinear in both."""
+IRRADIANCE_SOURCE_WIDTH = 128
+"""The radiance map is averaged down to at most this width (solid-angle weighted) before the cosine
+convolution: the clamped cosine is smooth, so coarser texels change the result by far less than 1 %."""
 
 
-def sh9(d: torch.Tensor) -> torch.Tensor:
-    """[N, 9] the real spherical harmonics of bands 0-2 at unit directions ``d`` [N, 3] (any frame)."""
-    x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    c0, c1 = 0.5 / math.sqrt(math.pi), math.sqrt(3.0 / (4.0 * math.pi))
-    c2, c20, c22 = 0.5 * math.sqrt(15.0 / math.pi), 0.25 * math.sqrt(5.0 / math.pi), 0.25 * math.sqrt(15.0 / math.pi)
-    return torch.stack([torch.full_like(x, c0), c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z, c20 * (3 * z * z - 1),
-                        c2 * x * z, c22 * (x * x - y * y)], -1)
+def irradiance_image(image, height: int = IRRADIANCE_SIZE[0], width: int = IRRADIANCE_SIZE[1]) -> torch.Tensor:
+    """[height, width, 3] float32: a lat-long radiance map's ([H, W, 3], :class:`.lighting.EnvironmentMap`'s
+    layout) irradiance / pi on a surface facing each texel centre's direction, by direct quadrature: the
+    texels' radiance times max(0, n . d) times their exact solid angle, normalised by the same sum over
+    the clamped cosine alone (pi analytically), so that a constant map gives its radiance exactly.
 
-
-def irradiance_coefficients(image) -> torch.Tensor:
-    """[9, 3] float64: a lat-long radiance map's ([H, W, 3], :class:`.lighting.EnvironmentMap`'s layout) order-2
-    projection convolved with the clamped cosine and divided by pi, so that ``sh9(n) @ coefficients`` is the
-    irradiance / pi on a surface facing n (exact up to the ~1 % of a cosine lobe's energy above band 2)."""
-    img = torch.as_tensor(image, dtype=torch.float64)[..., :3]
+    Direct quadrature, not the usual order-2 spherical harmonics: their truncation gives a surface facing
+    away from a small bright source (the sky's sun) about 6 % of the sun's peak irradiance, where the
+    answer is 0 (a visibly bright band across a sphere's dark side)."""
+    img = torch.as_tensor(image, dtype=torch.float32)[..., :3]
+    while img.shape[1] > IRRADIANCE_SOURCE_WIDTH and img.shape[0] % 2 == 0 and img.shape[1] % 2 == 0:
+        img = halve(img)
     h, w = img.shape[:2]
-    v, u = torch.meshgrid((torch.arange(h, dtype=torch.float64) + 0.5) / h,
-                          (torch.arange(w, dtype=torch.float64) + 0.5) / w, indexing="ij")
-    d = uv_to_direction(torch.stack([u, v], -1).reshape(-1, 2))
-    area = (row_solid_angles(h).double()[:, None] * (2.0 * math.pi / w)).expand(h, w).reshape(-1, 1)  # exact per texel
-    coefficients = sh9(d).T @ (img.reshape(-1, 3) * area)
-    return coefficients * torch.tensor(SH_BAND_COSINE, dtype=torch.float64)[:, None] / math.pi
+    d_src = _texel_directions(h, w)
+    area = (row_solid_angles(h)[:, None] * (2.0 * math.pi / w)).expand(h, w).reshape(-1)
+    n = _texel_directions(height, width)
+    kernel = (n @ d_src.T).clamp_min(0.0) * area  # [height * width, h * w]
+    irr = (kernel @ img.reshape(-1, 3)) / kernel.sum(1, keepdim=True).clamp_min(1e-12)
+    return irr.reshape(height, width, 3)
+
+
+def _texel_directions(height: int, width: int) -> torch.Tensor:
+    """[height * width, 3] unit directions of a lat-long map's texel centres (row-major)."""
+    v, u = torch.meshgrid((torch.arange(height, dtype=torch.float64) + 0.5) / height,
+                          (torch.arange(width, dtype=torch.float64) + 0.5) / width, indexing="ij")
+    return uv_to_direction(torch.stack([u, v], -1).reshape(-1, 2)).float()
+
+
+def halve(level: torch.Tensor) -> torch.Tensor:
+    """A lat-long map [H, W, 3] (H, W even) at half its size, each texel the solid-angle weighted mean of the
+    2 x 2 below (rows weighted by their exact solid angle), so the map's integral is kept exactly."""
+    rows = row_solid_angles(level.shape[0])[:, None, None]
+    weighted = (level * rows).view(level.shape[0] // 2, 2, level.shape[1] // 2, 2, 3).sum((1, 3))
+    norm = 2.0 * rows.view(-1, 2, 1, 1).sum(1)  # two texels per row
+    return weighted / norm.clamp_min(1e-12)
+
+
+def bilinear(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """[N, 3] bilinear lookup of a lat-long map [H, W, 3] at ``uv`` [N, 2] (texel centres at half-integers),
+    wrapping in longitude and clamped at the poles."""
+    h, w = img.shape[:2]
+    x = uv[:, 0] * w - 0.5
+    y = (uv[:, 1] * h - 0.5).clamp(0.0, h - 1.0)
+    x0, y0 = torch.floor(x), torch.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.long(), y0.long()
+    x1, y1 = (x0 + 1) % w, (y0 + 1).clamp(max=h - 1)
+    x0 = x0 % w
+    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
 
 
 def row_solid_angles(height: int) -> torch.Tensor:
@@ -100,14 +134,11 @@ class EnvironmentPyramid:
 
     def __init__(self, env: EnvironmentMap):
         self.env = env
-        self.irradiance_sh = irradiance_coefficients(env.image)
+        self.irradiance_map = irradiance_image(env.image)
         level = env.image
         self.levels = [level]
         while level.shape[0] % 2 == 0 and level.shape[1] % 2 == 0 and level.shape[1] // 2 >= MIN_WIDTH:
-            rows = row_solid_angles(level.shape[0])[:, None, None]
-            weighted = (level * rows).view(level.shape[0] // 2, 2, level.shape[1] // 2, 2, 3).sum((1, 3))
-            norm = 2.0 * rows.view(-1, 2, 1, 1).sum(1)  # two texels per row
-            level = weighted / norm.clamp_min(1e-12)
+            level = halve(level)
             self.levels.append(level)
 
     def level_of(self, d: torch.Tensor, solid_angle: torch.Tensor) -> torch.Tensor:
@@ -119,24 +150,11 @@ class EnvironmentPyramid:
         lod = 0.5 * torch.log2((solid_angle / texel).clamp_min(1e-30)) + LOD_BIAS
         return lod.clamp(0.0, len(self.levels) - 1.0)
 
-    def _bilinear(self, k: int, uv: torch.Tensor) -> torch.Tensor:
-        img = self.levels[k]
-        h, w = img.shape[:2]
-        x = uv[:, 0] * w - 0.5
-        y = (uv[:, 1] * h - 0.5).clamp(0.0, h - 1.0)
-        x0, y0 = torch.floor(x), torch.floor(y)
-        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        x0, y0 = x0.long(), y0.long()
-        x1, y1 = (x0 + 1) % w, (y0 + 1).clamp(max=h - 1)
-        x0 = x0 % w
-        top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-        bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-        return top * (1 - fy) + bottom * fy
-
     def irradiance(self, d: torch.Tensor) -> torch.Tensor:
-        """[N,3] irradiance / pi on surfaces facing unit world directions ``d`` [N,3] (order-2 spherical
-        harmonics, as a viewer's irradiance map holds it; ``glsl_render.irradiance_map`` writes the same)."""
-        return (sh9(d.double()) @ self.irradiance_sh).clamp_min(0.0).to(d.dtype)
+        """[N,3] irradiance / pi on surfaces facing unit world directions ``d`` [N,3]: a bilinear lookup of
+        :func:`irradiance_image`, as the MaterialX node reads the viewer's irradiance map
+        (``glsl_render.irradiance_map`` writes the same image)."""
+        return bilinear(self.irradiance_map, direction_to_uv(d.float())).to(d.dtype)
 
     def lookup(self, d: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
         """Radiance [N,3] along unit world directions ``d`` [N,3] at fractional levels ``lod`` [N]."""
@@ -147,9 +165,9 @@ class EnvironmentPyramid:
         for k in torch.unique(k0).tolist():
             rows = (k0 == k).nonzero()[:, 0]
             f = (lod[rows] - k)[:, None]
-            value = self._bilinear(k, uv[rows])
+            value = bilinear(self.levels[k], uv[rows])
             if k + 1 < len(self.levels):
-                value = value * (1 - f) + self._bilinear(k + 1, uv[rows]) * f
+                value = value * (1 - f) + bilinear(self.levels[k + 1], uv[rows]) * f
             out[rows] = value
         return out
 
@@ -173,8 +191,8 @@ def lobe_means(pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, params: pro
                samples: int = DEFAULT_SAMPLES) -> torch.Tensor:
     """[N, 2, 3]: E_spec and E_diff (module docstring) at the points whose shading frames are
     ``basis`` = (tangent, bitangent, normal) [N,3] each in world space, viewer ``wi`` [N,3] local. E_diff is the
-    map's irradiance / pi along the diffuse lobe's axis (order-2 spherical harmonics: the cosine lobe's mean,
-    up to the lobe's part below the horizon), as the MaterialX node reads the viewer's irradiance map."""
+    map's irradiance / pi along the diffuse lobe's axis (:meth:`EnvironmentPyramid.irradiance`: the cosine
+    lobe's mean, up to the lobe's part below the horizon), as the MaterialX node reads the viewer's irradiance map."""
     n, s = wi.shape[0], samples
     u = lattice(s, wi.device).to(wi.dtype).repeat(n, 1)
     rep = proxy.ProxyParams(*(v.repeat_interleave(s, 0) for v in (params.alpha, params.rho, params.slope_spec,
