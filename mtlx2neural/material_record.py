@@ -102,6 +102,13 @@ class MaterialRecord:
     """HDR FLIP of each analytic view (tile by tile for a UDIM material)."""
     flip_views: list[str] = field(default_factory=list)
     """How each analytic view was made, in the order of ``flip_per_view`` (per tile)."""
+    flip_viewer: float | None = None
+    """HDR FLIP of the environment view shaded as a viewer shades it: the model's prefiltered environment path
+    (the MaterialX node's and ``shadeEnvironment``'s default) against the reference's render
+    (:func:`mtlx2neural.render.summary_views.viewer_view`); not part of ``flip_mean``. None for a model
+    without an environment head, a UDIM material, or an older record."""
+    flip_viewer_view: str = ""
+    """How ``flip_viewer`` was made."""
     relmse_mean: float = float("nan")
     """Mean relative MSE over the analytic views."""
     flip_per_tile: dict[str, float] | None = None

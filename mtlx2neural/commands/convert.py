@@ -104,7 +104,8 @@ def print_summaries(summaries) -> None:
         print(f"{s.material}: {how}, decoder {s.decoder}, held-out log-L1 {s.held_out_log_l1:.4f}, "
               f"HDR FLIP {s.flip_mean:.4f} "
               + (f"(UDIM tiles {s.flip_per_tile})" if s.flip_per_tile else f"(views {s.flip_per_view})")
-              + (f", in scene {s.flip_in_scene:.4f}" if s.flip_in_scene is not None else ""))
+              + (f", in scene {s.flip_in_scene:.4f}" if s.flip_in_scene is not None else "")
+              + (f", viewer (prefiltered sky) {s.flip_viewer:.4f}" if s.flip_viewer is not None else ""))
         if s.budget:
             tried = ", ".join(f"{k} {v:.4f}" for k, v in s.budget["flip_by_decoder"].items())
             where = " in scene" if s.budget["metric"] == "flip_in_scene" else ""

@@ -54,12 +54,18 @@ from mtlx2neural.model.checkpoint import (
 from mtlx2neural.pipeline.devices import device_name
 from mtlx2neural.pipeline.in_scene_measure import measure_in_scene
 from mtlx2neural.pipeline.plan import latent_resolution, scaled_grid
+from mtlx2neural.pipeline.quality import viewer_warning
 from mtlx2neural.reference import ReferenceMaterial
 from mtlx2neural.reference.measured import MeasuredMaterial, load_measured
 from mtlx2neural.render.flip_probe import FlipProbe
 from mtlx2neural.render.renderer import save_png
 from mtlx2neural.render.summary_views import describe as describe_views
-from mtlx2neural.render.summary_views import summary_views, views_per_tile
+from mtlx2neural.render.summary_views import (
+    describe_viewer,
+    summary_views,
+    viewer_view,
+    views_per_tile,
+)
 from mtlx2neural.textures.footprint import footprint_targets
 from mtlx2neural.textures.parameter_stack import (
     ParameterStack,
@@ -303,6 +309,11 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         save_png(folder / f"{name}_reference.png", e["reference"])
         save_png(folder / f"{name}_neural.png", e["neural"])
         save_png(folder / f"{name}_flip.png", e["flip_map"], linear=False)
+    viewer = None if tiles else viewer_view(ref, model, tuple(stack.resolution))
+    if viewer is not None:  # the environment view as a viewer shades it (the node's prefiltered path)
+        save_png(folder / "viewer_reference.png", viewer["reference"])
+        save_png(folder / "viewer_neural.png", viewer["image"])
+        save_png(folder / "viewer_flip.png", viewer["flip_map"], linear=False)
     extra = {**(extra or {}), **(OWN_PREVIEW if setup.own_preview else {})}
     record = MaterialRecord(
         material=src.name, mtlx_material=src.material, source=src.source_file, source_hash=digest,
@@ -316,6 +327,8 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
         flip_mean=round(float(sum(e["flip"] for e in errors) / len(errors)), 4),
         surface={**surface.describe(), "refused": list(compiled.surface.refused) if compiled else []},
         relmse_mean=round(float(sum(e["relmse"] for e in errors) / len(errors)), 5),
+        flip_viewer=None if viewer is None else round(viewer["flip"], 4),
+        flip_viewer_view=describe_viewer() if viewer is not None else "",
         **in_scene,
         notes=list(extra.pop("notes", [])) + list(stack.notes) + list(stack_notes)
         + ([geometry_note] if geometry_note else []))
@@ -333,6 +346,9 @@ def finish_material(setup: MaterialSetup, model, digest: str, extra: dict | None
     flip_notes = sorted({f"view {e['view']}: {e['flip_note']}" for e in errors if e.get("flip_note")})
     if flip_notes:  # a black reference view (cut-out, unlit): the figure is defined, not the usual one
         record.warnings = [*record.warnings, *(f"HDR FLIP: {n}" for n in flip_notes)]
+    viewer_note = viewer_warning(record)
+    if viewer_note:
+        record.warnings = [*record.warnings, viewer_note]
     if not energy:
         return record
     record = with_energy(record, ref, model, stack, device, surface)

@@ -37,8 +37,22 @@ FLIP_RELATIVE = 3.0
 FLIP_FLOOR = 0.2
 """Below this FLIP a material is never flagged for being worse than its scene's median (the worst sample
 that converts well, the BrushedMetal, is at 0.17 with `fast`)."""
+VIEWER_FLIP_HIGH = FLIP_HIGH
+"""The record warns (it does not flag: path tracers shade the BRDF, which the gate judges) when the
+environment view shaded by the prefiltered path a viewer uses (``record.flip_viewer``) is above this."""
 POLICIES = ("original", "neural", "skip")
 """``ConvertOptions.flagged`` choices (module docstring)."""
+
+
+def viewer_warning(record) -> str | None:
+    """The record's warning when its viewer figure (``record.flip_viewer``) is above :data:`VIEWER_FLIP_HIGH`,
+    in words, with the same view's figure for the BRDF sampled (the last of ``flip_per_view``); else None."""
+    flip = record.flip_viewer
+    if flip is None or not math.isfinite(flip) or flip <= VIEWER_FLIP_HIGH:
+        return None
+    sampled = f", against {record.flip_per_view[-1]:.3f} for the BRDF sampled" if record.flip_per_view else ""
+    return (f"viewer: the prefiltered environment path (the MaterialX node's default) reaches HDR FLIP {flip:.3f} "
+            f"under the sky{sampled}; set the node's env_prefiltered to false for the sampled path")
 
 
 def flag_reasons(record, scene_median: float | None) -> list[str]:

@@ -14,13 +14,29 @@ Four renders of the unit sphere, each compared with the reference's render of th
 
 The mean over the four is the figure: a lost highlight and a lost reflection both raise it.
 :func:`describe` says how it was made, in the material's record (``flip_views``).
+
+The environment view above measures the model's BRDF, as a path tracer shades it. A viewer shades an
+environment differently: the MaterialX node and the Slang module's ``shadeEnvironment`` read the model's
+prefiltered environment path (:mod:`.prefiltered`, the node's default with an environment head), whose
+split-sum factorisation has its own error. :func:`viewer_view` measures that path on the same view against
+a reference render of more passes: the record's ``flip_viewer``, beside the figure, not in its mean (the
+mean stays the BRDF's measure, comparable with older records).
 """
 
 from __future__ import annotations
 
+from mtlx2neural.render.geometry import Camera, Sphere
 from mtlx2neural.render.lighting import EnvironmentMap
 from mtlx2neural.render.mixture_sampler import MixtureSampler
-from mtlx2neural.render.renderer import VIEWS, View, compare_many
+from mtlx2neural.render.prefiltered import PrefilteredEnvironment, has_environment_head
+from mtlx2neural.render.renderer import (
+    VIEWS,
+    View,
+    compare_many,
+    image_errors,
+    render_scene,
+    sample_footprint_scale,
+)
 from mtlx2neural.render.udim_view import compare_tiles
 
 ENVIRONMENT_VIEW = View(30.0, 20.0)
@@ -32,6 +48,15 @@ ENVIRONMENT_SPP = 32
 """Passes of the environment view (each a light sample and a BSDF sample, MIS-combined)."""
 RES = 96
 """Pixels along each side of every view."""
+VIEWER_SPP = 16
+"""Jittered passes of the viewer view's prefiltered render (:func:`viewer_view`): it draws no random
+directions, so the passes only filter the pixel."""
+VIEWER_REFERENCE_SPP = 128
+"""Passes of the viewer view's reference render. A Lambertian shaded exactly reads HDR FLIP 0.11 against
+8 passes, 0.059 against 32 and 0.042 against 128 (48² px): the reference's noise, which the environment
+view's common random numbers cancel, counts in full against a noise-free image."""
+CAMERA_DISTANCE = 4.0
+"""The perspective camera's distance from the sphere's centre (:func:`~.renderer.compare_many`'s default)."""
 
 
 def _environment_light() -> EnvironmentMap:
@@ -69,6 +94,36 @@ def summary_views(reference, models: dict, texels: tuple[int, int], tiles=None, 
             rows += env_rows
         out[label] = rows
     return out
+
+
+def viewer_view(reference, model, texels: tuple[int, int], res: int = RES, spp: int = VIEWER_SPP,
+                reference_spp: int = VIEWER_REFERENCE_SPP, seed: int = 0) -> dict | None:
+    """The environment view shaded as a viewer shades it: ``model`` under the sky by its prefiltered
+    environment path (:class:`~.prefiltered.PrefilteredEnvironment`, ``spp`` jittered passes), against
+    ``reference`` in the same view at ``reference_spp`` passes (light and BSDF samples by MIS, the
+    reference's sampler: the prefiltered image has no noise, so the reference's own counts in full).
+    Returns ``{"image", "reference", "flip", "relmse", "flip_map", ...}`` (:func:`~.renderer.image_errors`),
+    or None when ``model`` has no environment head (a viewer then samples its BRDF, as the environment
+    view does). Both read the latents at the level of detail of ``reference_spp`` passes."""
+    if not has_environment_head(model):
+        return None
+    v = ENVIRONMENT_VIEW
+    camera, sky = Camera(v.azimuth, v.elevation, CAMERA_DISTANCE), _environment_light()
+    footprint = sample_footprint_scale(reference_spp)
+    target = render_scene(reference, Sphere(), camera, [sky], res, reference_spp, texels, seed=seed,
+                          sampler=reference, footprint=footprint)
+    image = render_scene(model, Sphere(), camera, [PrefilteredEnvironment(sky)], res, spp, texels, seed=seed,
+                         footprint=footprint)
+    return {"image": image, "reference": target, **image_errors(target, image)}
+
+
+def describe_viewer() -> str:
+    """How :func:`viewer_view` was made (the record's ``flip_viewer_view``)."""
+    v = ENVIRONMENT_VIEW
+    return (f"viewer: the environment view (azimuth {v.azimuth:g}, elevation {v.elevation:g}, procedural sky, "
+            f"{RES}^2 px) shaded by the prefiltered environment path (the MaterialX node's default: the learned "
+            f"sampler's lobes over the sky's filtered levels), {VIEWER_SPP} spp, against the reference at "
+            f"{VIEWER_REFERENCE_SPP} spp (light and BSDF samples, MIS)")
 
 
 def views_per_tile() -> int:

@@ -164,6 +164,27 @@ def _energy_by_view(energy: dict) -> str:
             f'still keep a level ratio near 1.</p>')
 
 
+def viewer_section(record, folder: Path, out: Path, p: str) -> str:
+    """The record's viewer figure (``flip_viewer``: the environment view shaded by the prefiltered path a viewer
+    uses) with the conversion's images of it, copied into ``out`` as ``<p>viewer_*.png``; nothing for a record
+    without one."""
+    if record.flip_viewer is None:
+        return ""
+    figs = []
+    for kind, caption in (("reference", "reference"), ("neural", f"prefiltered, FLIP {record.flip_viewer:.4f}"),
+                          ("flip", "FLIP map")):
+        src = folder / f"viewer_{kind}.png"
+        if src.is_file():
+            (out / f"{p}viewer_{kind}.png").write_bytes(src.read_bytes())
+            figs.append(f'<figure><img src="{p}viewer_{kind}.png" alt="viewer {kind}"><figcaption>viewer: {caption}'
+                        f"</figcaption></figure>")
+    sampled = record.flip_per_view[-1] if record.flip_per_view else None
+    return (f'<h3>As a viewer shades it</h3><p class="note">{html.escape(record.flip_viewer_view)}. HDR FLIP '
+            f'{record.flip_viewer:.4f}, against {_num(sampled)} for the same view with the BRDF sampled (the '
+            f'views above): what a MaterialX viewer shows under an environment, where a path tracer shows the '
+            f'latter.</p><div class="grid">{"".join(figs)}</div>')
+
+
 def material_section(layer: Path, prim: str, out: Path, index: int, analytic_iterations: int, res: int,
                      spp: int, seed: int, texels_at=None, train_sizes: bool = False) -> tuple[str, dict]:
     """HTML of one material's report (images written into ``out``) and its numbers. ``texels_at``: the
@@ -208,7 +229,7 @@ def material_section(layer: Path, prim: str, out: Path, index: int, analytic_ite
     latents, latent_bytes = latent_figures(neural, tiles, out, p)
     weight_bytes = weights.stat().st_size
     e = html.escape
-    numbers = {"material": prim, "flip": flip, "cost": cost, "energy": record.energy, "latent_bytes": latent_bytes,
+    numbers = {"material": prim, "flip": flip, "flip_viewer": record.flip_viewer, "cost": cost, "energy": record.energy, "latent_bytes": latent_bytes,
                "weight_bytes": weight_bytes, "analytic_fit_seconds": round(fit_seconds, 2),
                "analytic_final_loss": analytic.final_loss, "udim_tiles": tiles}
     cost_rows = "".join(cost_row(r) for r in cost["rows"])
@@ -225,6 +246,7 @@ final log-L1 {analytic.final_loss:.4f}{' (first tile)' if tiles else ''}.</p>
 <p class="note">Orthographic sphere, one directional light per view, {res}x{res} px, {spp} spp; FLIP is HDR FLIP
 against the reference render{'; each trained UDIM tile on the sphere (its uv shifted to the tile), mean over tiles and views' if tiles else ''}.</p>
 <div class="grid">{''.join(rows)}</div>
+{viewer_section(record, folder, out, p)}
 <h3>Error versus cost</h3>
 <p class="note">{e(cost["how"])}</p>
 <table><tr><th class="l">model</th><th>mean HDR FLIP</th><th>evals/s ({e(cost["harness"])})</th><th class="l">note</th></tr>

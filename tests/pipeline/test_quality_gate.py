@@ -10,7 +10,14 @@ from pathlib import Path
 import pytest
 
 from mtlx2neural.material_record import MaterialRecord, read_record
-from mtlx2neural.pipeline.quality import ENERGY_LOW, FLIP_HIGH, flag_reasons, judge
+from mtlx2neural.pipeline.quality import (
+    ENERGY_LOW,
+    FLIP_HIGH,
+    VIEWER_FLIP_HIGH,
+    flag_reasons,
+    judge,
+    viewer_warning,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 MIRROR = ROOT / "samples" / "mirror" / "polished_metal.usda"
@@ -24,6 +31,19 @@ def record(name: str, flip: float, low: float | None = 1.0, high: float | None =
 def test_a_black_model_is_flagged_for_its_energy():
     reasons = flag_reasons(record("Gold", 0.2, low=0.0, high=0.0), None)
     assert len(reasons) == 1 and "keeps 0% of the reference's directional albedo" in reasons[0]
+
+
+def test_a_poor_viewer_path_warns_but_does_not_flag():
+    """The prefiltered environment path is what a viewer shows, not what a path tracer shades: a poor one is a
+    warning naming the node's option, and the gate, which judges the BRDF, still passes the material."""
+    poor = record("Coat", 0.05)
+    poor.flip_per_view, poor.flip_viewer = [0.01, 0.02, 0.01, 0.08], VIEWER_FLIP_HIGH + 0.01
+    note = viewer_warning(poor)
+    assert note is not None and "0.310" in note and "0.080" in note and "env_prefiltered" in note
+    assert flag_reasons(poor, None) == []
+    poor.flip_viewer = VIEWER_FLIP_HIGH  # the limit itself passes, as the gate's limits do
+    assert viewer_warning(poor) is None
+    assert viewer_warning(record("NoHead", 0.05)) is None  # no figure (no environment head, UDIM, older record)
 
 
 def test_limits_are_strict_and_a_good_material_passes():
