@@ -87,7 +87,7 @@ from mtlx2neural.scene.dependencies import input_files
 from mtlx2neural.staging import Staging
 from mtlx2neural.version import __version__
 
-SECTIONS = ("Renders", "Error versus cost", "Polar plots", "Energy", "Training curves", "Latent textures", "Memory")
+SECTIONS = ("Renders", "As a viewer shades it", "Error versus cost", "Polar plots", "Energy", "Training curves", "Latent textures", "Memory")
 
 
 # ----------------------------------------------------------------------------- the report
@@ -166,10 +166,12 @@ def _energy_by_view(energy: dict) -> str:
 
 def viewer_section(record, folder: Path, out: Path, p: str) -> str:
     """The record's viewer figure (``flip_viewer``: the environment view shaded by the prefiltered path a viewer
-    uses) with the conversion's images of it, copied into ``out`` as ``<p>viewer_*.png``; nothing for a record
+    uses) with the conversion's images of it, copied into ``out`` as ``<p>viewer_*.png``; a note for a record
     without one."""
     if record.flip_viewer is None:
-        return ""
+        return ('<h3>As a viewer shades it</h3><p class="note">Not measured: the model has no environment head (a '
+                'viewer samples its BRDF, as the views above do), it is a UDIM material, or the conversion predates '
+                'the figure.</p>')
     figs = []
     for kind, caption in (("reference", "reference"), ("neural", f"prefiltered, FLIP {record.flip_viewer:.4f}"),
                           ("flip", "FLIP map")):

@@ -51,7 +51,9 @@ def test_report_has_every_section_and_its_images(report):
     assert [h for h in re.findall(r"<h3>(.*?)</h3>", page)] == list(SECTIONS)
     assert "/World/Looks/Plastic" in page
     images = re.findall(r'<img src="([^"]+)"', page)
-    assert len(images) == 3 * 5 + 2  # 3 views x (reference, analytic, neural, 2 FLIP maps) + 2 latent EXRs
+    # 3 views x (reference, analytic, neural, 2 FLIP maps), the viewer figure's reference, render and FLIP map,
+    # and 2 latent EXRs
+    assert len(images) == 3 * 5 + 3 + 2
     scene = re.findall(r'<img class="scene" src="([^"]+)"', page)  # the USD stage's scene section
     assert len(scene) == 5  # reference, neural, preview, 2 FLIP maps
     for name in images + scene:

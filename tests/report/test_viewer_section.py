@@ -25,6 +25,7 @@ def test_the_viewer_figure_is_shown_beside_the_sampled_view(tmp_path):
     assert html.count("<figure>") == 3
 
 
-def test_records_without_a_viewer_figure_show_nothing(tmp_path):
+def test_records_without_a_viewer_figure_say_so(tmp_path):
     # a model without an environment head, a UDIM material, or a record from before the figure
-    assert viewer_section(MaterialRecord("M", "/World/Looks/M", "", "0" * 64), tmp_path, tmp_path, "m0_") == ""
+    html = viewer_section(MaterialRecord("M", "/World/Looks/M", "", "0" * 64), tmp_path, tmp_path, "m0_")
+    assert "Not measured" in html and "<img" not in html and not list(tmp_path.iterdir())
