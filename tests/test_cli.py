@@ -323,7 +323,7 @@ def test_every_preset_is_a_choice_and_overrides_apply(capsys):
     assert options_of(args).train_config() == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
     # standard is fast for longer: the same sampling and schedule shapes, 8x the steps (and the
     # preview fallback's fit at its full 200 steps instead of fast's 100, FLIP probes 5x sparser, the
-    # environment head fitted for 1000 steps instead of 300).
+    # environment head fitted for 2000 steps instead of 1000).
     assert PRESETS["standard"].preview_iterations == 2 * PRESETS["fast"].preview_iterations
     assert PRESETS["standard"].probe_every == 5 * PRESETS["fast"].probe_every
     assert PRESETS["standard"].environment_steps > PRESETS["fast"].environment_steps > 0

@@ -28,6 +28,8 @@ from mtlx2neural.codegen.paths import runtime_path, template
 from mtlx2neural.codegen.weight_layout import coopvec_blob, fp16_blob
 
 OPS = {"eval": 0, "pdf": 1, "sample": 2, "albedo": 3, "lobes": 4, "environment": 5}
+ROW = 9
+"""Floats per query in the harness's output (the three lobes' reflectance is the widest result)."""
 _lock = threading.Lock()
 _devices: dict[tuple, object] = {}
 
@@ -157,18 +159,18 @@ class CpuMaterial:
         return out_buffer(self.dev, n)
 
     def run(self, op: str, latent, wi, wo=None, u=None) -> np.ndarray:
-        """[N, 8] float32 results: eval/albedo in [:, :3]; pdf in [:, 0]; sample: wo [:, :3],
-        weight [:, 3:6], pdf [:, 6]."""
+        """[N, 9] float32 results: eval/albedo in [:, :3]; pdf in [:, 0]; sample: wo [:, :3],
+        weight [:, 3:6], pdf [:, 6]; lobes: the three lobes' reflectance."""
         n = int(wi.shape[0])
         wo = np.zeros((n, 3), np.float32) if wo is None else wo
         u = np.zeros((n, 2), np.float32) if u is None else u
-        out = self._out(8 * n)
+        out = self._out(ROW * n)
         with _lock:
             self.kernel.dispatch(thread_count=[max(n, 1), 1, 1], vars={
                 "gLatent": self._buf(latent), "gWi": self._buf(wi), "gWo": self._buf(wo), "gU": self._buf(u),
                 "gWeights": self.weights, "gOut": out, "gCount": n, "gOp": OPS[op],
                 "gTexels": self._dummy, "gLevels": self._dummy4, "gNumLevels": 0})
-            return out.to_numpy().view(np.float32)[: 8 * n].reshape(n, 8).copy()
+            return out.to_numpy().view(np.float32)[: ROW * n].reshape(n, ROW).copy()
 
     def eval(self, latent, wi, wo):
         return self.run("eval", latent, wi, wo)[:, :3]
@@ -184,8 +186,8 @@ class CpuMaterial:
         return self.run("albedo", latent, wi)[:, :3]
 
     def lobe_reflectance(self, latent, wi):
-        """[N, 2, 3]: the specular and diffuse lobes' reflectance from the environment head (zero without one)."""
-        return self.run("lobes", latent, wi)[:, :6].reshape(-1, 2, 3)
+        """[N, 3, 3]: the sharp, specular and diffuse lobes' reflectance from the environment head (zero without one)."""
+        return self.run("lobes", latent, wi)[:, :9].reshape(-1, 3, 3)
 
     def shade_environment(self, latent, wi):
         """[N, 3] ``shadeEnvironment`` under the harness's linear probe, L(d) = 1 + (0.3, 0.5, -0.2) . d

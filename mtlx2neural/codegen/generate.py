@@ -60,6 +60,7 @@ from mtlx2neural.codegen.weight_layout import (
     stream32,
 )
 from mtlx2neural.formats.latent_codec import binding_comment, codec_of
+from mtlx2neural.formats.weights import ENVIRONMENT_OUTPUTS
 
 
 def identifier(name: str) -> str:
@@ -180,19 +181,19 @@ def _network_functions(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec, layo
 
 def _environment_head(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec) -> str:
     """The environment head in the module (its weights as constants, in access order): ``<p>_lobes32`` and
-    ``<p>_lobes16<W>`` give the reflectance of the proxy's specular and diffuse lobes at ``wi``, from the
+    ``<p>_lobes16<W>`` give the reflectance of the sharp lobe and the proxy's specular and diffuse lobes at ``wi``, from the
     albedo head's inputs; zero without a head. Every FP16 variant evaluates it from the constants
     (``<p>_Env16``): it runs once per shading point, so it has no buffer or cooperative form."""
     p, c = ctx.p, ctx.c
-    head = f"NMLatent<{c}> lat, float3 wi, out float3 cSpec, out float3 cDiff"
-    zero = "{ cSpec = float3(0.0); cDiff = float3(0.0); }"
+    head = f"NMLatent<{c}> lat, float3 wi, out float3 cSharp, out float3 cSpec, out float3 cDiff"
+    zero = "{ cSharp = float3(0.0); cSpec = float3(0.0); cDiff = float3(0.0); }"
     if not spec32.environment:
         return "\n".join([f"public struct {p}_Env16 : INMWeights16 {{ public half2 w2(int i) {{ return half2(half(0.0)); }} }}",
                           f"public void {p}_lobes32({head}) {zero}",
                           f"public void {p}_lobes16<W : INMWeights16>(W w, {head}) {zero}"])
     k = 3 * max(ctx.frames, 1) + c
-    ret = ("    cSpec = float3(nmOutputActivation(y[0]), nmOutputActivation(y[1]), nmOutputActivation(y[2]));\n"
-           "    cDiff = float3(nmOutputActivation(y[3]), nmOutputActivation(y[4]), nmOutputActivation(y[5]));")
+    ret = "\n".join(f"    {name} = float3({', '.join(f'nmOutputActivation(y[{3 * k + i}])' for i in range(3))});"
+                    for k, name in enumerate(("cSharp", "cSpec", "cDiff")))
     v32, _ = stream32(spec32.environment)
     v16, _ = stream16(spec16.environment)
     out = ["// environment head, FP32, per neuron: bias, weights",
@@ -203,7 +204,7 @@ def _environment_head(ctx: _Ctx, spec32: NetworkSpec, spec16: NetworkSpec) -> st
            f"public struct {p}_Env16 : INMWeights16 {{ public half2 w2(int i) {{ return {p}_ENV16[i]; }} }}", ""]
     body, cur = emit_mlp(describe("environment", spec32.environment), Stream32(f"{p}_Env32()"), SLANG, "x")
     out += [f"public void {p}_lobes32({head})", "{", f"    float x[{k}]; {p}_albedoInputs({p}_Frame32(), lat, wi, x);",
-            *body, f"    float y[6] = {cur};", ret, "}", ""]
+            *body, f"    float y[{ENVIRONMENT_OUTPUTS}] = {cur};", ret, "}", ""]
     body16, _ = emit_mlp(describe("environment", spec16.environment), Stream16("w"), SLANG, "xh")
     out += [f"public void {p}_lobes16<W : INMWeights16>(W w, {head})", "{",
             f"    float x[{k}]; {p}_albedoInputs({p}_Frame16(), lat, wi, x);",

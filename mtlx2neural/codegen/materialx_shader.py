@@ -42,6 +42,7 @@ from mtlx2neural.codegen.network_emitter import (
 from mtlx2neural.codegen.paths import template
 from mtlx2neural.codegen.spec import NetworkSpec
 from mtlx2neural.errors import InputError
+from mtlx2neural.model.proxy import SHARP_SOLID_ANGLE
 
 LANGUAGES = {
     # target -> (template, type names, sampler type, the networks' syntax)
@@ -173,18 +174,20 @@ def _network_functions(spec: NetworkSpec, lang: str, p: str, P: str) -> str:
     out += ["// Sampler network: [wi, latent] -> the proxy's 9 raw parameters.",
             f"void {p}_sampler({P}_Point s, {vec3} wi, out float y[9])", "{", *body,
             *[f"    y[{i}] = {v};" for i, v in enumerate(y)], "}", ""]
-    out += ["// Environment head: [wi in each frame (t, b, n), latent] -> the reflectance of the sampler's",
-            "// specular and diffuse lobes, exp(min(y, 30) - 3) each (0 without an environment head).",
-            f"void {p}_lobeReflectance({P}_Point s, {vec3} wi, out {vec3} cSpec, out {vec3} cDiff)", "{"]
+    out += ["// Environment head: [wi in each frame (t, b, n), latent] -> the reflectance of the sharp lobe and",
+            "// the sampler's specular and diffuse lobes, exp(min(y, 30) - 3) each (0 without an environment head).",
+            f"void {p}_lobeReflectance({P}_Point s, {vec3} wi, out {vec3} cSharp, out {vec3} cSpec, out {vec3} cDiff)",
+            "{"]
     if spec.environment:
         wi_lines = [f"    float wit{k} = dot(wi, s.t[{k}]), wib{k} = dot(wi, s.b[{k}]), win{k} = dot(wi, s.n[{k}]);"
                     for k in range(slots)]
         body, y = emit_mlp(describe("environment", spec.environment), Literal(f"{p}_relu", "e"), syntax,
                            [f"wi{axis}{k}" for k in range(slots) for axis in "tbn"] + [f"s.lat[{i}]" for i in range(c)])
-        out += [*wi_lines, *body, f"    cSpec = {vec3}({', '.join(f'{p}_act({v})' for v in y[:3])});",
-                f"    cDiff = {vec3}({', '.join(f'{p}_act({v})' for v in y[3:])});"]
+        out += [*wi_lines, *body, f"    cSharp = {vec3}({', '.join(f'{p}_act({v})' for v in y[:3])});",
+                f"    cSpec = {vec3}({', '.join(f'{p}_act({v})' for v in y[3:6])});",
+                f"    cDiff = {vec3}({', '.join(f'{p}_act({v})' for v in y[6:])});"]
     else:
-        out += [f"    cSpec = {vec3}(0.0);", f"    cDiff = {vec3}(0.0);"]
+        out += [f"    cSharp = {vec3}(0.0);", f"    cSpec = {vec3}(0.0);", f"    cDiff = {vec3}(0.0);"]
     out.append("}")
     return "\n".join(out)
 
@@ -271,5 +274,6 @@ def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str,
         "latent_args": ", ".join(f"latent{g}" for g in range(layout.groups)),
         "seed": int(seed), "has_environment_head": "true" if spec.environment else "false",
         "environment_head": "yes" if spec.environment else "no",
+        "sharp_solid_angle": repr(float(SHARP_SOLID_ANGLE)),
     }
     return Template(template(LANGUAGES[target][0])).substitute(subs)

@@ -21,7 +21,12 @@ import numpy as np
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.fp16 import to_fp16
-from mtlx2neural.formats.weights import analytic_cosine_of, read_weights
+from mtlx2neural.formats.weights import (
+    ENVIRONMENT_OUTPUTS,
+    analytic_cosine_of,
+    read_weights,
+    upgrade_environment_head,
+)
 from mtlx2neural.textures.surface_maps import (
     ALPHA_CUTOFF,
     SurfaceMaps,
@@ -116,10 +121,12 @@ def spec_from_state(state: dict, analytic_cosine: bool = True) -> NetworkSpec:
         raise InputError(f"the decoder must output 3 values and the sampler 9, got {decoder[-1].shape[0]} "
                          f"and {sampler[-1].shape[0]}")
     albedo = _layers(state, "decoder.albedo.") or None
-    environment = _layers(state, "decoder.environment.") or None
-    if environment and (environment[0].shape[1] != 3 * max(frames, 1) + c or environment[-1].shape[0] != 6):
+    environment = _layers(upgrade_environment_head(dict(state)), "decoder.environment.") or None
+    if environment and (environment[0].shape[1] != 3 * max(frames, 1) + c
+                        or environment[-1].shape[0] != ENVIRONMENT_OUTPUTS):
         raise InputError(f"the environment head reads {environment[0].shape[1]} values and outputs "
-                         f"{environment[-1].shape[0]}; it must read {3 * max(frames, 1) + c} and output 6")
+                         f"{environment[-1].shape[0]}; it must read {3 * max(frames, 1) + c} and output "
+                         f"{ENVIRONMENT_OUTPUTS}")
     return NetworkSpec(c, frames, frame, decoder, sampler, albedo, analytic_cosine=bool(analytic_cosine),
                        environment=environment)
 

@@ -35,6 +35,14 @@ from mtlx2neural.formats.latent_codec import architecture_entries
 OUTPUT_OFFSET = 3.0
 """The decoder's output activation is exp(x - OUTPUT_OFFSET); the manifest records it for the shaders."""
 
+ENVIRONMENT_OUTPUTS = 9
+"""The environment head's outputs: the reflectance (RGB) of the sharp, the specular and the diffuse lobe."""
+LEGACY_ENVIRONMENT_OUTPUTS = 6
+"""An environment head written before the sharp lobe: the specular and the diffuse lobe only."""
+SILENT_LOGIT = -100.0
+"""The raw output that :func:`upgrade_environment_head` gives the sharp lobe of a legacy head: exp(-103) is
+0 in FP16 and about 1e-45 in FP32, so that lobe carries nothing and the shading is the legacy one."""
+
 FORMAT = "mtlx2neural-weights"
 VERSION = 1
 ALIGN = 16
@@ -42,6 +50,27 @@ LAYOUT = "row_major_fp16"
 PREFIXES = ("decoder.frame_layer.", "decoder.net.", "decoder.albedo.", "sampler.net.", "decoder.environment.")
 # The decoder's output activation token (USD ``neural:outputActivation``) -> whether the cosine is analytic.
 OUTPUT_ACTIVATIONS = {"exp_minus_3_cos": True, "exp_minus_3": False}
+
+
+def upgrade_environment_head(state: dict, prefix: str = "decoder.environment.") -> dict:
+    """``state`` (a state dict of tensors or arrays, changed in place and returned) with a legacy environment head of
+    :data:`LEGACY_ENVIRONMENT_OUTPUTS` outputs grown to :data:`ENVIRONMENT_OUTPUTS`: three new first outputs,
+    the sharp lobe's, with zero weights and bias :data:`SILENT_LOGIT`, so every consumer reads three lobes and
+    the legacy model shades as before. Other states are returned unchanged."""
+    layers = sorted(int(k[len(prefix):].split(".")[0]) for k in state if k.startswith(prefix) and k.endswith(".weight"))
+    if not layers:
+        return state
+    w_key, b_key = f"{prefix}{layers[-1]}.weight", f"{prefix}{layers[-1]}.bias"
+    w, b = state[w_key], state[b_key]
+    if w.shape[0] != LEGACY_ENVIRONMENT_OUTPUTS:
+        return state
+    if isinstance(w, np.ndarray):  # the shader generators' arrays
+        state[w_key] = np.concatenate([np.zeros((3, w.shape[1]), w.dtype), w])
+        state[b_key] = np.concatenate([np.full(3, SILENT_LOGIT, b.dtype), b])
+    else:
+        state[w_key] = torch.cat([w.new_zeros(3, w.shape[1]), w])
+        state[b_key] = torch.cat([b.new_full((3,), SILENT_LOGIT), b])
+    return state
 
 
 def output_activation_token(analytic_cosine: bool) -> str:
@@ -103,8 +132,9 @@ def architecture(model) -> dict:
         "sampler_output": "alpha_x, alpha_y, rho, slope_spec (2), slope_diffuse (2), logit_spec, logit_diffuse",
         "proxy_type": "tilted_cosine_aniso_ggx",
         **({"environment_input": "as the albedo head: [wi in the frames, latent]",
-            "environment_output": "rgb_spec, rgb_diffuse = exp(min(x, 30) - output_offset): the reflectance of "
-                                  "the sampler's specular and diffuse lobe"} if dec.environment is not None else {}),
+            "environment_output": "rgb_sharp, rgb_spec, rgb_diffuse = exp(min(x, 30) - output_offset): the "
+                                  "reflectance of the sharp lobe (GGX alpha 0.005 about the specular lobe's mean "
+                                  "normal) and of the sampler's specular and diffuse lobe"} if dec.environment is not None else {}),
         "latent_resolution": [int(lat.levels[0].shape[-1]), int(lat.levels[0].shape[-2])],  # width, height
         "levels": int(lat.num_levels),
         # UDIM materials only: the trained tiles, in the order of the latents' leading axis

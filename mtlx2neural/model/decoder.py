@@ -35,13 +35,16 @@ error 0.05-0.21 against 0.03-0.07) and the BRDF trains worse with them (HDR FLIP
 0.11-0.28), so the separate head is kept.
 
 ``environment_head`` adds the prefiltered-lighting head (:mod:`mtlx2neural.render.prefiltered`): a
-small MLP of the albedo head's shape from (``wi`` in the learned frames, latent) to 6 numbers through
-exp(x - 3): the reflectance carried by the learned sampler's specular lobe (RGB) and by its diffuse
-lobe (RGB). Lobe k's reflectance is c_k(wi) = integral of f * cos(wo) * r_k(wo) over wo, with r_k the
-lobe's responsibility w_k p_k / p in the sampler's mixture; the two add up to the directional albedo.
-Under distant light, outgoing radiance ~= c_spec E_spec + c_diff E_diff, with E_k the incident
-radiance averaged over lobe k's density (exact when f * cos is proportional to each lobe's share of
-the sampler's density). It is fitted after the BRDF, against the reference (``train.environment_fit``).
+small MLP of the albedo head's shape from (``wi`` in the learned frames, latent) to 9 numbers through
+exp(x - 3): the reflectance (RGB each) carried by the sharp lobe (:func:`~mtlx2neural.model.proxy.sharp_params`),
+the learned sampler's specular lobe and its diffuse lobe. Lobe k's reflectance is c_k(wi) = integral of
+f * cos(wo) * r_k(wo) over wo, with r_k the lobe's responsibility w_k p_k / p in the mixture of the sharp
+lobe (weight :data:`~mtlx2neural.model.proxy.SHARP_WEIGHT`) and the sampler's two; the three add up to the
+directional albedo. Under distant light, outgoing radiance ~= sum of c_k E_k, with E_k the incident
+radiance averaged over lobe k's density (exact when f * cos is proportional to each lobe's share of the
+mixture). It is fitted after the BRDF, against the reference (``train.environment_fit``). A head of
+6 outputs (no sharp lobe, written before it existed) reads as one whose sharp lobe carries nothing
+(:func:`mtlx2neural.formats.weights.upgrade_environment_head`).
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from mtlx2neural.formats.weights import OUTPUT_OFFSET
+from mtlx2neural.formats.weights import ENVIRONMENT_OUTPUTS, OUTPUT_OFFSET
 from mtlx2neural.model.mlp import mlp, parse_hidden
 
 NO_FRAME_LATENT_LAYER = 0
@@ -79,7 +82,7 @@ class BrdfDecoder(nn.Module):
         ``NeuralMaterial`` calls it after building its other networks, so their initial weights (drawn
         from torch's global generator) are the same with or without it."""
         per_dir = 3 * max(self.frames, 1)
-        self.environment = mlp(per_dir + self.latent_dim, (self.hidden[-1],), 6)
+        self.environment = mlp(per_dir + self.latent_dim, (self.hidden[-1],), ENVIRONMENT_OUTPUTS)
 
     def shading_frames(self, latent: torch.Tensor):
         """(t, b, n), each [N, frames, 3], from the latent [N, latent_dim]."""
@@ -128,10 +131,10 @@ class BrdfDecoder(nn.Module):
         return torch.exp(self.albedo(x).clamp(max=30.0) - OUTPUT_OFFSET)
 
     def predict_lobe_reflectance(self, latent: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
-        """[N, 2, 3]: the reflectance (linear RGB, no unit: f * cos integrated over wo) that the learned
-        sampler's specular (index 0) and diffuse (index 1) lobes carry at ``wi`` (local frame), from the
-        environment head (module docstring). RuntimeError without one."""
+        """[N, 3, 3]: the reflectance (linear RGB, no unit: f * cos integrated over wo) that the sharp lobe
+        (index 0), the learned sampler's specular lobe (1) and its diffuse lobe (2) carry at ``wi`` (local
+        frame), from the environment head (module docstring). RuntimeError without one."""
         if self.environment is None:
             raise RuntimeError("this decoder was built without an environment head")
         x = torch.cat([*self._directions(latent, wi), latent], -1)
-        return torch.exp(self.environment(x).clamp(max=30.0) - OUTPUT_OFFSET).view(-1, 2, 3)
+        return torch.exp(self.environment(x).clamp(max=30.0) - OUTPUT_OFFSET).view(-1, 3, 3)

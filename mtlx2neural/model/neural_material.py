@@ -148,10 +148,10 @@ class NeuralMaterial(SurfacesBeside, nn.Module):
         return estimate_albedo(self, self._wi(wi), at, samples, seed)
 
     def environment_lobes(self, wi, at=None):
-        """The learned sampler's lobes and the reflectance each carries, for prefiltered environment
-        lighting (:mod:`mtlx2neural.render.prefiltered`): (``wi`` checked [N,3], :class:`.proxy.ProxyParams`,
-        reflectance [N, 2, 3] of the specular and the diffuse lobe, linear RGB, 0 where wi is at or below
-        the horizon). RuntimeError when the model has no environment head."""
+        """The learned sampler's lobes and the reflectance each lobe of the environment path carries, for
+        prefiltered environment lighting (:mod:`mtlx2neural.render.prefiltered`): (``wi`` checked [N,3],
+        :class:`.proxy.ProxyParams`, reflectance [N, 3, 3] of the sharp, the specular and the diffuse lobe,
+        linear RGB, 0 where wi is at or below the horizon). RuntimeError when the model has no environment head."""
         wi = self._wi(wi)
         lat = self._latent_at(wi.shape[0], at)
         c = self.decoder.predict_lobe_reflectance(lat, wi)

@@ -1,17 +1,20 @@
-"""Prefiltered environment lighting: shade distant light from the learned sampler's lobes, no noise.
+"""Prefiltered environment lighting: shade distant light from the model's lobes, no noise.
 
 A neural material with an environment head (:mod:`mtlx2neural.model.decoder`) shades an environment as
 
-    L_out(wi) = c_spec(wi) E_spec + c_diff(wi) E_diff,
+    L_out(wi) = c_sharp(wi) E_sharp + c_spec(wi) E_spec + c_diff(wi) E_diff,
 
-with c_k the reflectance that lobe k of the learned sampler carries (linear RGB, fitted against the
-reference: ``train.environment_fit``) and E_k the incident radiance averaged over lobe k's density
-(:mod:`mtlx2neural.model.proxy`: the anisotropic GGX lobe reflected about ``wi``, the tilted cosine lobe).
+with c_k the reflectance that lobe k carries (linear RGB, fitted against the reference:
+``train.environment_fit``) and E_k the incident radiance averaged over lobe k's density
+(:mod:`mtlx2neural.model.proxy`: the sharp lobe, the learned sampler's anisotropic GGX lobe reflected
+about ``wi``, its tilted cosine lobe).
 A lobe direction below the geometric horizon reads the environment at its mirror image above it
 (z -> -z): the material reflects nothing from below, and a grazing lobe then still averages all its
 lookups (the few directions left above the horizon alone flicker on a bright source; the mirror images
 lie near the horizon, where the grazing lobe's reflection looks).
 
+E_sharp is one filtered lookup along the sharp lobe's centre (:func:`~mtlx2neural.model.proxy.sharp_direction`)
+over :data:`~mtlx2neural.model.proxy.SHARP_SOLID_ANGLE`: a near-mirror reflection of the environment.
 E_spec is a deterministic quadrature, the same at every pixel (no per-pixel random numbers, so no
 sparkle): ``samples`` directions of the specular lobe from a rank-1 lattice (the R2 sequence), each read from a
 prefiltered copy of the environment at the level whose texels cover the direction's share of the lobe
@@ -189,7 +192,7 @@ def _lobe_mean(pyramid: EnvironmentPyramid, basis, wo: torch.Tensor, pdf: torch.
 
 def lobe_means(pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, params: proxy.ProxyParams,
                samples: int = DEFAULT_SAMPLES) -> torch.Tensor:
-    """[N, 2, 3]: E_spec and E_diff (module docstring) at the points whose shading frames are
+    """[N, 3, 3]: E_sharp, E_spec and E_diff (module docstring) at the points whose shading frames are
     ``basis`` = (tangent, bitangent, normal) [N,3] each in world space, viewer ``wi`` [N,3] local. E_diff is the
     map's irradiance / pi along the diffuse lobe's axis (:meth:`EnvironmentPyramid.irradiance`: the cosine
     lobe's mean, up to the lobe's part below the horizon), as the MaterialX node reads the viewer's irradiance map."""
@@ -201,10 +204,13 @@ def lobe_means(pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, params: pro
     spec = proxy.sample_specular(wi_r, rep, u)
     spec = spec / spec.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     e_spec = _lobe_mean(pyramid, basis, spec.view(n, s, 3), proxy.pdf_specular(wi_r, spec, rep).view(n, s), s)
+    sharp = proxy.sharp_direction(wi, params)
+    sharp = sharp / sharp.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    e_sharp = _lobe_mean(pyramid, basis, sharp[:, None], torch.full_like(sharp[:, :1], 1.0 / proxy.SHARP_SOLID_ANGLE), 1)
     t, b, nrm = basis
     axis = proxy.slope_axis(params.slope_diff)
     e_diff = pyramid.irradiance(axis[:, :1] * t + axis[:, 1:2] * b + axis[:, 2:] * nrm)
-    return torch.stack([e_spec, e_diff.to(e_spec.dtype)], 1)
+    return torch.stack([e_sharp, e_spec, e_diff.to(e_spec.dtype)], 1)
 
 
 def prefiltered_radiance(material, pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, at=None,

@@ -121,8 +121,8 @@ def describe_viewer() -> str:
     """How :func:`viewer_view` was made (the record's ``flip_viewer_view``)."""
     v = ENVIRONMENT_VIEW
     return (f"viewer: the environment view (azimuth {v.azimuth:g}, elevation {v.elevation:g}, procedural sky, "
-            f"{RES}^2 px) shaded by the prefiltered environment path (the MaterialX node's default: the learned "
-            f"sampler's lobes over the sky's filtered levels), {VIEWER_SPP} spp, against the reference at "
+            f"{RES}^2 px) shaded by the prefiltered environment path (the MaterialX node's default: a sharp lobe "
+            f"and the learned sampler's two over the sky's filtered levels), {VIEWER_SPP} spp, against the reference at "
             f"{VIEWER_REFERENCE_SPP} spp (light and BSDF samples, MIS)")
 
 

@@ -109,9 +109,10 @@ class TrainConfig:
     """Train the optional albedo head (L2 against one-sample Monte Carlo estimates)."""
     environment_fraction: float = 0.0
     """Adam steps fitting the environment head after the BRDF (``train.environment_fit``), as a share of
-    ``iterations`` (:attr:`environment_steps`): the reflectance of each lobe of the learned sampler, which
-    prefiltered environment lighting shades with (``render --env-mode prefiltered``, the MaterialX node's
-    default). 0: no head; viewers then sample the environment with the decoder."""
+    ``iterations`` (:attr:`environment_steps`): the reflectance of a sharp near-mirror lobe and of each lobe
+    of the learned sampler, which prefiltered environment lighting shades with (``render --env-mode
+    prefiltered``, the MaterialX node's default). 0: no head; viewers then sample the environment with the
+    decoder."""
     environment_batch: int = field(default=1024, metadata={"metavar": "N"})
     """Rows per environment-head step (one reference direction each)."""
     checkpoint_every: int = 500
@@ -145,7 +146,7 @@ class TrainConfig:
 
 _FAST = TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
                     mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, preview_iterations=100,
-                    probe_every=100, footprint_samples=8, environment_fraction=0.3)
+                    probe_every=100, footprint_samples=8, environment_fraction=1.0)
 
 PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
@@ -165,10 +166,11 @@ PRESETS = {
     # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
-    # Every preset fits the environment head (prefiltered environment lighting): 300 steps in fast, about a
-    # tenth of the BRDF's time; standard 1000, balanced 2000, paper 6000 (docs/history/environment-lighting-2026-12-05.md).
+    # Every preset fits the environment head (prefiltered environment lighting): 1000 steps in fast (300 left
+    # the three-lobe head under-fitted: the sample Plastic's prefiltered render 0.063 against 0.057 at 1000,
+    # docs/history/environment-lighting-2026-12-06.md); standard 2000, balanced 2000, paper 6000.
     "standard": dataclasses.replace(_FAST, iterations=8000, preview_iterations=200, probe_every=500,
-                                    environment_fraction=0.125),
+                                    environment_fraction=0.25),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
                             lobe_fraction=0.1, probe_every=2000, environment_fraction=0.1, environment_batch=4096),

@@ -1,20 +1,26 @@
-"""Fit the environment head: how much of the reflected light each lobe of the learned sampler carries.
+"""Fit the environment head: how much of the reflected light each lobe of the environment path carries.
 
 Prefiltered environment lighting (:mod:`mtlx2neural.render.prefiltered`) shades distant light as
-c_spec(wi) E_spec + c_diff(wi) E_diff: E_k the incident radiance averaged over lobe k of the learned
-sampler's mixture p = w_spec p_spec + w_diff p_diff, and c_k the reflectance that lobe carries,
+sum of c_k(wi) E_k over three lobes: the sharp lobe (:func:`~mtlx2neural.model.proxy.sharp_params`) and
+the learned sampler's specular and diffuse lobes. E_k is the incident radiance averaged over lobe k, and
+c_k the reflectance that lobe carries in the mixture p = W p_sharp + (1 - W) p_sampler
+(W = :data:`~mtlx2neural.model.proxy.SHARP_WEIGHT`),
 
     c_k(wi) = integral over wo of f(wi, wo) cos(wo) r_k(wo),   r_k = w_k p_k / p,
 
-so c_spec + c_diff is the directional albedo, and a constant environment L gives albedo x L exactly.
+so the c_k add up to the directional albedo, and a constant environment L gives albedo x L exactly. The
+sharp lobe takes what lies in its narrow cone (a coat's near-delta peak), which the sampler's one specular
+lobe, fitted to sample a coat and its base together, would spread over its own width (the sample CarPaint's
+sun reflection: torch twin HDR FLIP 0.149 with two lobes, 0.107 with three).
 This module fits the decoder's environment head to c_k after the BRDF and the sampler are trained
 (they, and the latents, stay frozen). The targets come from the **reference**, not from the neural
 BRDF, so the prefiltered path's error is measured on its own:
 
 - rows: uv and MIP level drawn as the BRDF's rows (``train.targets``), ``wi`` uniform in solid angle
   over the upper hemisphere;
-- one direction per row, from the learned sampler or the reference's own sampler (half each), with
-  the combined density q = (p + p_ref) / 2, so a lobe sharper than the learned one is still found;
+- one direction per row, from the learned sampler, the reference's own sampler or the sharp lobe (a third
+  each), with the combined density q = (p_sampler + p_ref + p_sharp) / 3, so a lobe sharper than the learned
+  one is still found, and the sharp lobe's narrow cone gets rows of its own;
 - one-sample estimates y_k = f_ref(wi, wo) cos(wo) r_k(wo) / q(wo) (the footprint-filtered,
   unmollified reference at textured rows), unbiased for c_k;
 - the relative squared error (c - y)^2 / (sg(c)^2 + eps) of neural radiance caching, whose
@@ -32,6 +38,7 @@ import math
 import torch
 
 from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.formats.weights import SILENT_LOGIT
 from mtlx2neural.model import proxy
 from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.udim import draw_uv
@@ -58,26 +65,48 @@ def uniform_hemisphere(n: int, generator: torch.Generator, device) -> torch.Tens
 
 
 def lobe_targets(reference, targets, model, lat, uv, level, wi, generator) -> torch.Tensor:
-    """[N, 2, 3] one-sample estimates of (c_spec, c_diff) at the rows (module docstring), from the
+    """[N, 3, 3] one-sample estimates of (c_sharp, c_spec, c_diff) at the rows (module docstring), from the
     reference ``reference`` filtered as ``targets`` (a ``train.targets`` object) filters it; ``lat`` the
     rows' latents (``model.latents.fetch(uv, level)``), read by ``model``'s sampler."""
     dev, n = wi.device, wi.shape[0]
     params = model.sampler(wi, lat)
+    sharp = proxy.sharp_params(params)
     u = torch.rand(n, 3, generator=generator).to(dev)
     at = ShadingPoint(uv=targets.lobe_uv(uv))
     wo_ref, _, _ = reference.sample(wi, u[:, :2], at)
     wo_own = proxy.sample(wi, params, u[:, :2])
-    use_ref = (u[:, 2] < 0.5) & torch.isfinite(wo_ref).all(-1)
-    wo = torch.where(use_ref[:, None], torch.nan_to_num(wo_ref), wo_own)
+    wo_sharp = proxy.sample_specular(wi, sharp, u[:, :2])
+    use_ref = (u[:, 2] < 1.0 / 3.0) & torch.isfinite(wo_ref).all(-1)
+    wo = torch.where(use_ref[:, None], torch.nan_to_num(wo_ref), torch.where((u[:, 2] < 2.0 / 3.0)[:, None], wo_own, wo_sharp))
     wo = wo / wo.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     p_spec = params.w_spec[:, 0] * proxy.pdf_specular(wi, wo, params)
     p_own = p_spec + (1.0 - params.w_spec[:, 0]) * proxy.pdf_diffuse(wo, params.slope_diff)
-    q = 0.5 * (p_own + reference.pdf(wi, wo, at))
+    p_sharp_lobe = proxy.pdf_specular(wi, wo, sharp)
+    q = (p_own + reference.pdf(wi, wo, at) + p_sharp_lobe) / 3.0
     f = targets.brdf(wi, wo, uv, level, 0.0)
     ok = (wo[:, 2] > 0) & (q > 0) & torch.isfinite(f).all(-1)
     y = torch.where(ok[:, None], f / q.clamp_min(1e-30)[:, None], torch.zeros_like(f))
-    r_spec = torch.where(p_own > 0, p_spec / p_own.clamp_min(1e-30), torch.zeros_like(p_own))[:, None]
-    return torch.stack([y * r_spec, y * (1.0 - r_spec)], 1)
+    # responsibilities in the three-lobe mixture (the draws' density q is the sampler's and the reference's)
+    p_sharp = proxy.SHARP_WEIGHT * p_sharp_lobe
+    p_all = p_sharp + (1.0 - proxy.SHARP_WEIGHT) * p_own
+    live = p_all > 0
+    r_sharp = torch.where(live, p_sharp / p_all.clamp_min(1e-30), torch.zeros_like(p_all))[:, None]
+    r_spec = torch.where(live, (1.0 - proxy.SHARP_WEIGHT) * p_spec / p_all.clamp_min(1e-30),
+                         torch.zeros_like(p_all))[:, None]
+    return torch.stack([y * r_sharp, y * r_spec, y * (1.0 - r_sharp - r_spec).clamp_min(0.0)], 1)
+
+
+def wake_silent_sharp_lobe(head) -> bool:
+    """Before a head is fitted again: the sharp lobe's outputs of a head upgraded from one without it
+    (:func:`~mtlx2neural.formats.weights.upgrade_environment_head`, exp(-103): no gradient reaches them) start
+    from the specular lobe's, at a tenth of its reflectance. Returns whether they were silent."""
+    last = head[-1]
+    with torch.no_grad():
+        if not bool((last.bias[:3] <= SILENT_LOGIT).all()):
+            return False
+        last.weight[:3] = last.weight[3:6]
+        last.bias[:3] = last.bias[3:6] - math.log(10.0)
+    return True
 
 
 def _rows_ahead(trainers, per: int, steps: int) -> list[tuple[torch.Tensor, ...]]:
@@ -113,6 +142,7 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     if head is None:
         raise RuntimeError("the model has no environment head to fit")
     per = batch if len(trainers) == 1 else max(64, batch // len(trainers))
+    wake_silent_sharp_lobe(head)
     opt = Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     history, ahead = [], []
     for step in range(1, steps + 1):

@@ -46,7 +46,7 @@ from mtlx2neural.universal.weights import (
 DEFAULT_STEPS = 6000
 DEFAULT_SIZE = 512
 DEFAULT_LR = 2e-3
-ENVIRONMENT_FRACTION = 0.1  # of the steps: the environment head fitted last (fast: 0.3 of 1000)
+ENVIRONMENT_FRACTION = 0.1  # of the steps: the environment head fitted last (fast: 1.0 of 1000)
 INPUTS = ("normalized", "raw")
 
 

@@ -366,8 +366,9 @@ def test_albedo_head_model(frames, tmp_path_factory):
 def test_environment_head_and_shade_environment(tmp_path_factory):
     """The environment head's generated code (FP32 against torch, FP16 against the emulation) and
     NMMaterial.shadeEnvironment under the harness's linear probe against the same algorithm in torch:
-    c_spec times the probe averaged over the specular lobe's 16 lattice directions (mirrored above the
-    horizon), plus c_diff times its irradiance along the diffuse lobe's axis."""
+    c_sharp times the probe along wi mirrored about the specular lobe's mean microfacet normal, plus c_spec
+    times the probe averaged over the specular lobe's 16 lattice directions (mirrored above the horizon),
+    plus c_diff times its irradiance along the diffuse lobe's axis."""
     from mtlx2neural.model import proxy
 
     m = make_model(seed=11, environment=True)
@@ -379,11 +380,11 @@ def test_environment_head_and_shade_environment(tmp_path_factory):
     with torch.no_grad():
         c64 = m64.decoder.predict_lobe_reflectance(lat.double(), wi.double()).numpy()
     cm = compiled("Env", src, spec, "FP32", tmp_path_factory)
-    assert rel(cm.lobe_reflectance(L, WI).reshape(-1, 6), c64.reshape(-1, 6), 1e-3).max() <= 1e-5
+    assert rel(cm.lobe_reflectance(L, WI).reshape(-1, 9), c64.reshape(-1, 9), 1e-3).max() <= 1e-5
     c16 = compiled("Env", src, spec, "FP16", tmp_path_factory)
     s16 = spec.fp16()
     emulated = emulate.output_activation(emulate.mlp16(s16.environment, emulate.decoder_inputs(s16, L, WI)))
-    check_bulk("Env FP16 lobe reflectance vs emulation", rel(c16.lobe_reflectance(L, WI).reshape(-1, 6), emulated,
+    check_bulk("Env FP16 lobe reflectance vs emulation", rel(c16.lobe_reflectance(L, WI).reshape(-1, 9), emulated,
                                                              1e-3), 1e-5, 0.999, 2.0 ** -7)
     # shadeEnvironment, in torch (float64): the lattice is the R2 points of NMMaterial.albedo.
     g, grad = np.array([0.7548776662466927, 0.5698402909980532]), torch.tensor([0.3, 0.5, -0.2], dtype=torch.float64)
@@ -398,7 +399,11 @@ def test_environment_head_and_shade_environment(tmp_path_factory):
             acc, used = acc + ok * (1 + d @ grad), used + ok
         axis = torch.nn.functional.normalize(torch.cat([-p.slope_diff, torch.ones_like(p.slope_diff[:, :1])], -1), dim=-1)
         e_spec, e_diff = acc / used.clamp_min(1), 1 + (2.0 / 3.0) * (axis @ grad)
-        want = c64[:, 0] * e_spec[:, None].numpy() + c64[:, 1] * e_diff[:, None].numpy()
+        sharp = proxy.sharp_direction(wi.double(), p)
+        sharp = torch.nn.functional.normalize(torch.cat([sharp[:, :2], sharp[:, 2:].abs()], -1), dim=-1)
+        e_sharp = 1 + sharp @ grad
+        want = (c64[:, 0] * e_sharp[:, None].numpy() + c64[:, 1] * e_spec[:, None].numpy()
+                + c64[:, 2] * e_diff[:, None].numpy())
         want = np.where(wi[:, 2:].numpy() > 0, want, 0.0)
     got = cm.shade_environment(L, WI)
     # 1e-5 for 99 % and 1e-4 at most: the FP32 shader against float64 through the proxy's sampling and a

@@ -116,3 +116,28 @@ def test_checkpoint_from_before_the_analytic_cosine_keeps_its_learned_cosine(tmp
         new.load_state_dict(old.state_dict())
         # Same weights, so the two differ by exactly the factor wo.z (float32 rounding: 1e-6 relative).
         torch.testing.assert_close(new.eval(wi, wo, uv), old.eval(wi, wo, uv) * wo[:, 2:3], rtol=1e-6, atol=0)
+
+
+def test_a_checkpoint_from_before_the_sharp_lobe_shades_as_it_did(tmp_path):
+    """An environment head of 6 outputs (the sampler's specular and diffuse lobes only) loads as a head of 9
+    whose sharp lobe carries nothing: every consumer reads three lobes, and the other two are unchanged."""
+    from mtlx2neural.codegen.spec import spec_from_state
+
+    torch.manual_seed(4)
+    model = NeuralMaterial((4, 4), in_dim=2, latent_dim=8, frames=2, decoder="2x16", environment_head=True)
+    state = {k: v.clone() for k, v in model.state_dict().items()}
+    last = max(int(k.split(".")[2]) for k in state if k.startswith("decoder.environment.") and k.endswith(".weight"))
+    for kind in ("weight", "bias"):  # the legacy head: the last 6 outputs of today's
+        state[f"decoder.environment.{last}.{kind}"] = state[f"decoder.environment.{last}.{kind}"][3:]
+    torch.save({"model": state, "step": 10, "baked": True, "history": [], "config": dataclasses.asdict(TrainConfig())},
+               tmp_path / "checkpoint.pt")
+    legacy = load_checkpoint(tmp_path / "checkpoint.pt")
+    wi = torch.nn.functional.normalize(torch.rand(64, 3) + torch.tensor([0.0, 0.0, 0.5]), dim=-1)
+    at = ShadingPoint(uv=torch.rand(64, 2))
+    with torch.no_grad():
+        _, _, c = legacy.environment_lobes(wi, at)
+        _, _, want = model.environment_lobes(wi, at)
+    assert float(c[:, 0].abs().max()) < 1e-40  # exp(-103): 0 in FP16, a denormal in FP32
+    torch.testing.assert_close(c[:, 1:], want[:, 1:], rtol=0.0, atol=0.0)
+    assert spec_from_state({k: v for k, v in state.items() if k.startswith(("decoder.", "sampler."))}
+                           ).environment[-1].shape[0] == 9  # the shader generators read the same three lobes

@@ -71,7 +71,7 @@ class LambertianWithLobes:
         n = wi.shape[0]
         params = proxy.ProxyParams(torch.full((n, 2), 0.5), torch.zeros(n, 1), torch.zeros(n, 2), torch.zeros(n, 2),
                                    torch.zeros(n, 1))
-        c = torch.stack([torch.zeros(n, 3), (self.scale * self.color).expand(n, 3)], 1)
+        c = torch.stack([torch.zeros(n, 3), torch.zeros(n, 3), (self.scale * self.color).expand(n, 3)], 1)
         return wi, params, torch.where(wi[:, None, 2:3] > 0, c, torch.zeros_like(c))
 
 
