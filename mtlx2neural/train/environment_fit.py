@@ -11,7 +11,7 @@ c_k the reflectance that lobe carries in the mixture p = W p_sharp + (1 - W) p_s
 so the c_k add up to the directional albedo, and a constant environment L gives albedo x L exactly. The
 sharp lobe takes what lies in its narrow cone (a coat's near-delta peak), which the sampler's one specular
 lobe, fitted to sample a coat and its base together, would spread over its own width (the sample CarPaint's
-sun reflection: torch twin HDR FLIP 0.149 with two lobes, 0.107 with three).
+sun reflection: torch twin HDR FLIP 0.149 with two lobes, 0.098 with three; docs/history/environment-lighting-2026-12-06.md).
 This module fits the decoder's environment head to c_k after the BRDF and the sampler are trained
 (they, and the latents, stay frozen). The targets come from the **reference**, not from the neural
 BRDF, so the prefiltered path's error is measured on its own:
