@@ -22,11 +22,7 @@ from mtlx2neural.export.surface_files import read_surface_files
 from mtlx2neural.export.usd_writer import API, NEURAL, VARIANT_SET, register_schema
 from mtlx2neural.formats import FORMAT_VERSION
 from mtlx2neural.formats.latent_codec import codec_from_architecture
-from mtlx2neural.formats.weights import (
-    analytic_cosine_of,
-    read_weights,
-    upgrade_environment_head,
-)
+from mtlx2neural.formats.weights import analytic_cosine_of, read_weights
 from mtlx2neural.model.checkpoint import model_arguments
 from mtlx2neural.model.neural_material import NeuralMaterial
 
@@ -178,7 +174,6 @@ def load_neural(path, material: str | None = None, device: str = "cpu") -> Expor
     args["in_dim"] = 0
     args["analytic_cosine"] = analytic_cosine_of(arch, manifest_file)
     del state["encoder.net.0.weight"]
-    upgrade_environment_head(state)
     try:
         model = ExportedNeuralMaterial(**args)
         missing, unexpected = model.load_state_dict(state, strict=False)

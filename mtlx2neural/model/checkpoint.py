@@ -32,7 +32,6 @@ import torch
 
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.latent_codec import format_of_code
-from mtlx2neural.formats.weights import upgrade_environment_head
 from mtlx2neural.model.neural_material import NeuralMaterial
 
 
@@ -130,7 +129,7 @@ def load_checkpoint(path, map_location="cpu") -> NeuralMaterial:
 def model_from_checkpoint(ck: dict, f, map_location="cpu") -> NeuralMaterial:
     """The NeuralMaterial of a checkpoint dict ``ck`` already read from the file ``f`` (:func:`read_checkpoint`),
     as :func:`load_checkpoint` returns it; the same errors and warning, naming ``f``."""
-    state, config = upgrade_environment_head(dict(ck["model"])), ck.get("config") or {}
+    state, config = ck["model"], ck.get("config") or {}
     try:
         model = NeuralMaterial(**model_arguments(state, config))
         model.load_state_dict(state)

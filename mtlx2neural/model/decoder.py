@@ -52,11 +52,21 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from mtlx2neural.formats.weights import ENVIRONMENT_OUTPUTS, OUTPUT_OFFSET
+from mtlx2neural.formats.weights import (
+    ENVIRONMENT_OUTPUTS,
+    OUTPUT_OFFSET,
+    upgrade_environment_head,
+)
 from mtlx2neural.model.mlp import mlp, parse_hidden
 
 NO_FRAME_LATENT_LAYER = 0
 """Measurement only (ablation): units of the extra latent layer of a ``frames=0`` decoder, 0 for none."""
+
+
+def _upgrade_legacy_environment_head(module, state_dict, prefix, *_):
+    """``load_state_dict`` pre-hook: :func:`~mtlx2neural.formats.weights.upgrade_environment_head` on the state
+    being loaded (torch's own copy of it; the caller's dict is left as it was)."""
+    upgrade_environment_head(state_dict, prefix + "environment.")
 
 
 class BrdfDecoder(nn.Module):
@@ -76,6 +86,9 @@ class BrdfDecoder(nn.Module):
         self.environment = None
         if environment_head:
             self.add_environment_head()
+        # A state written before the sharp lobe (a 6-output environment head: checkpoints, exports, the shipped
+        # universal networks) loads as one whose sharp lobe carries nothing, whoever loads it.
+        self.register_load_state_dict_pre_hook(_upgrade_legacy_environment_head)
 
     def add_environment_head(self) -> None:
         """Build the environment head (module docstring): (latent, wi in the learned frames) -> 6 values.

@@ -35,7 +35,6 @@ import torch
 from mtlx2neural.atomic import atomic_path
 from mtlx2neural.errors import InputError
 from mtlx2neural.formats.latent_codec import check_block_shapes
-from mtlx2neural.formats.weights import upgrade_environment_head
 from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.textures.parameter_stack import ParameterStack
@@ -176,7 +175,7 @@ class Trainer:
         if not self.checkpoint_path.exists():
             return False
         ck = torch.load(self.checkpoint_path, map_location=self.device, weights_only=False)
-        self.model.load_state_dict(upgrade_environment_head(dict(ck["model"])))
+        self.model.load_state_dict(ck["model"])
         self.opt.load_state_dict(ck["opt"])
         self.step, self.baked, self.history = ck["step"], ck["baked"], ck["history"]
         self.clipped_steps = self.history[-1].get("clipped_steps", 0) if self.history else 0

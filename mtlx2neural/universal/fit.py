@@ -29,7 +29,6 @@ import math
 
 import torch
 
-from mtlx2neural.formats.weights import upgrade_environment_head
 from mtlx2neural.model.networks import Encoder
 from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.encoder_input import EncoderInput
@@ -110,7 +109,7 @@ def load_networks(model, weights: dict) -> None:
     """The shipped decoder (its environment head included; one shipped before the sharp lobe reads as one whose
     sharp lobe carries nothing: :func:`~mtlx2neural.formats.weights.upgrade_environment_head`) and sampler,
     into ``model``'s."""
-    model.decoder.load_state_dict(upgrade_environment_head(dict(weights["decoder"]), prefix="environment."))
+    model.decoder.load_state_dict(weights["decoder"])
     model.sampler.load_state_dict(weights["sampler"])
 
 
