@@ -302,12 +302,14 @@ def image_errors(ref: np.ndarray, test: np.ndarray) -> dict:
     return out
 
 
+CAMERA_DISTANCE = 4.0
+"""The perspective camera's distance from the sphere's centre in :func:`compare`'s scenes (lights or geometry given)."""
 RESERVED = ("view", "reference", "flip", "flip_map", "flip_note", "mae", "relmse")
 """Keys of compare's per-view dicts that a material's label cannot take."""
 
 
 def compare(reference: Material, model: Material, texels: tuple[int, int], views=VIEWS, res: int = 96,
-            spp: int = 32, geometry=None, lights=None, distance: float = 4.0, mis: bool = True,
+            spp: int = 32, geometry=None, lights=None, distance: float = CAMERA_DISTANCE, mis: bool = True,
             label: str = "neural") -> list[dict]:
     """Per view: the reference's and ``model``'s renders and their errors, ``{"view", "reference": image,
     label: image, "flip", "flip_map", "mae", "relmse"}``; ``label`` names what ``model`` is
@@ -333,7 +335,7 @@ def compare(reference: Material, model: Material, texels: tuple[int, int], views
 
 
 def compare_many(reference: Material, models: dict, texels: tuple[int, int], views=VIEWS, res: int = 96,
-                 spp: int = 32, geometry=None, lights=None, distance: float = 4.0, mis: bool = True,
+                 spp: int = 32, geometry=None, lights=None, distance: float = CAMERA_DISTANCE, mis: bool = True,
                  sampler: Material | None = None) -> dict:
     """:func:`compare` for several materials (``{label: material}``) against one reference render per
     view: ``{label: [per-view dict with "view", "reference" (the reference's render), label (that

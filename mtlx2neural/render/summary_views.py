@@ -30,6 +30,7 @@ from mtlx2neural.render.lighting import EnvironmentMap
 from mtlx2neural.render.mixture_sampler import MixtureSampler
 from mtlx2neural.render.prefiltered import PrefilteredEnvironment, has_environment_head
 from mtlx2neural.render.renderer import (
+    CAMERA_DISTANCE,
     VIEWS,
     View,
     compare_many,
@@ -55,8 +56,6 @@ VIEWER_REFERENCE_SPP = 128
 """Passes of the viewer view's reference render. A Lambertian shaded exactly reads HDR FLIP 0.11 against
 8 passes, 0.059 against 32 and 0.042 against 128 (48² px): the reference's noise, which the environment
 view's common random numbers cancel, counts in full against a noise-free image."""
-CAMERA_DISTANCE = 4.0
-"""The perspective camera's distance from the sphere's centre (:func:`~.renderer.compare_many`'s default)."""
 
 
 def _environment_light() -> EnvironmentMap:

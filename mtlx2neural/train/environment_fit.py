@@ -86,7 +86,7 @@ def lobe_targets(reference, targets, model, lat, uv, level, wi, generator) -> to
     f = targets.brdf(wi, wo, uv, level, 0.0)
     ok = (wo[:, 2] > 0) & (q > 0) & torch.isfinite(f).all(-1)
     y = torch.where(ok[:, None], f / q.clamp_min(1e-30)[:, None], torch.zeros_like(f))
-    # responsibilities in the three-lobe mixture (the draws' density q is the sampler's and the reference's)
+    # responsibilities in the three-lobe mixture (not q: that is the density the directions were drawn with)
     p_sharp = proxy.SHARP_WEIGHT * p_sharp_lobe
     p_all = p_sharp + (1.0 - proxy.SHARP_WEIGHT) * p_own
     live = p_all > 0
