@@ -1,13 +1,14 @@
 """The neural material in MaterialX's own GLSL renderer, against the original material.
 
 Run:  python benchmarks/bench_viewer.py [--layers OUT.usda,...] [--materials CarPaint,Plastic,GlazedCeramic]
+                                       [--decoders Plastic=2x32]
       (from the repository root; needs xvfb-run or a DISPLAY, and MaterialX's GLSL render module)
 
 Without ``--layers`` the samples are copied into ``--work`` (default: a folder under the system
 temporary folder, kept for reuse) and converted there with ``mtlx2neural convert --preset fast``
 (the two spheres of ``samples/layered_spheres.usda`` and the GlazedCeramic of the textured sample,
-which ``samples/make_textured_sample.py`` writes when the repository has no copy); a rerun reuses
-the unchanged conversions. For each material:
+which ``samples/make_textured_sample.py`` writes when the repository has no copy; ``--decoders`` names
+another decoder for some of them); a rerun reuses the unchanged conversions. For each material:
 
 (a) its ``NeuralMaterial_<name>.mtlx`` node (written here from the exported ``neural/`` folder by
     ``codegen.materialx_node.write_materialx_node``, as the export writes ``neural/materialx/``, but
@@ -25,7 +26,9 @@ the unchanged conversions. For each material:
     node (a) as exported shades it prefiltered when the model has an environment head
     (``env_prefiltered``); it is also rendered with the environment sampled by its learned sampler
     (``env_prefiltered`` false), and both again with their random streams offset (``seed`` 1): the
-    noise is the HDR FLIP between the two renders of one node.
+    noise is the HDR FLIP between the two renders of one node. (c) is also rendered converged
+    (``--converged-samples`` FIS directions): FLIP (a)-(c converged) is the node's error without the
+    original's own, which FLIP (c)-(c converged) shows.
 
 Comparison frames: GlslRenderer at 256² (``--compare-size``; ``--gl-supersample 4``: 512²), compared
 box-filtered to 128² with torch's 128² (16 samples per pixel); mean HDR FLIP over the whole frame (background included, as the tool's own summary
@@ -94,6 +97,7 @@ INTENSITY = 3.0
 SIZE = 512  # GlslRenderer frames for the frame time
 COMPARE_SIZE = 256  # GlslRenderer frames for the comparisons; compared box-filtered to half
 COMPARE_SAMPLES = 32  # environment directions per pixel for the comparison frames
+CONVERGED_SAMPLES = 1024  # the original's FIS directions for its converged environment frame
 TIMING_SAMPLES = 16  # MaterialXView's default FIS sample count
 DEFAULT_MATERIALS = ("CarPaint", "Plastic", "GlazedCeramic")
 
@@ -101,16 +105,17 @@ DEFAULT_MATERIALS = ("CarPaint", "Plastic", "GlazedCeramic")
 # ------------------------------------------------------------------------------ inputs
 
 
-def convert_samples(work: Path, materials) -> list[Path]:
-    """Copy the samples into ``work/samples`` and convert them there (``fast`` preset); returns
-    the neural layers. Nothing is written into the repository."""
+def convert_samples(work: Path, materials, decoders: dict | None = None) -> list[Path]:
+    """Copy the samples into ``work/samples`` and convert them there (``fast`` preset, with the decoder
+    ``decoders`` names for a material, {name: "2x32"}); returns the neural layers. Nothing is written into
+    the repository."""
     src = work / "samples"
     src.mkdir(parents=True, exist_ok=True)
     layers = []
     spheres = [m for m in materials if m != "GlazedCeramic"]
     if spheres:
         shutil.copy(SAMPLES / "layered_spheres.usda", src / "layered_spheres.usda")
-        layers.append(_convert(src / "layered_spheres.usda", work / "spheres_neural", spheres))
+        layers.append(_convert(src / "layered_spheres.usda", work / "spheres_neural", spheres, decoders))
     if "GlazedCeramic" in materials:
         textured = src / "textured"
         if (SAMPLES / "textured" / "ceramic_and_metal.usda").is_file():
@@ -118,14 +123,17 @@ def convert_samples(work: Path, materials) -> list[Path]:
                 shutil.copytree(SAMPLES / "textured", textured, dirs_exist_ok=True)
         elif not (textured / "ceramic_and_metal.usda").is_file():
             subprocess.run([sys.executable, str(SAMPLES / "make_textured_sample.py"), str(textured)], check=True)
-        layers.append(_convert(textured / "ceramic_and_metal.usda", work / "textured_neural", ["GlazedCeramic"]))
+        layers.append(_convert(textured / "ceramic_and_metal.usda", work / "textured_neural", ["GlazedCeramic"],
+                               decoders))
     return layers
 
 
-def _convert(asset: Path, out: Path, materials) -> Path:
+def _convert(asset: Path, out: Path, materials, decoders: dict | None = None) -> Path:
     for name in materials:  # --material takes one name; the tool keeps a layer's other materials
         cmd = [sys.executable, "-m", "mtlx2neural.cli", "convert", str(asset), "--preset", "fast", "--quiet",
                "-o", str(out), "--material", name]
+        if (decoders or {}).get(name):
+            cmd += ["--decoder", decoders[name]]
         print(f"# {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
         subprocess.run(cmd, check=True, stdout=sys.stderr)
     return out.with_suffix(".usda")
@@ -250,7 +258,8 @@ def run(args) -> dict:
     materials = [m for m in args.materials.split(",") if m]
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    layers = [Path(p) for p in args.layers.split(",")] if args.layers else convert_samples(work, materials)
+    decoders = dict(item.split("=", 1) for item in args.decoders.split(",") if item)
+    layers = [Path(p) for p in args.layers.split(",")] if args.layers else convert_samples(work, materials, decoders)
     convs = find_conversions(layers, materials)
     lighting = work / "viewer"
     lighting.mkdir(parents=True, exist_ok=True)
@@ -278,6 +287,12 @@ def run(args) -> dict:
                              "size": args.compare_size // 2 * args.gl_supersample,
                              "frames": 0})
                 keys.append((m, light, label))
+        # The original converged: its FIS at --converged-samples directions (its own error at
+        # --compare-samples is then measured, not charged to the node).
+        jobs.append({**environment, "environment_samples": args.converged_samples, "mtlx": str(d["original"]),
+                     "material": d["original_material"], "out": str(d["folder"] / "gl_environment_original_converged.exr"),
+                     "size": args.compare_size // 2 * args.gl_supersample, "frames": 0})
+        keys.append((m, "environment", "original_converged"))
     for r in range(args.rounds):
         for m, d in docs.items():
             for label in ("neural", "neural_sampled", "original"):
@@ -314,6 +329,9 @@ def run(args) -> dict:
         ac_dir = image_errors(rgb[("directional", "original")], rgb[("directional", "neural")])
         ac_env = image_errors(rgb[("environment", "original")], rgb[("environment", "neural")])
         ac_env_sampled = image_errors(rgb[("environment", "original")], rgb[("environment", "neural_sampled")])
+        converged = rgb[("environment", "original_converged")]
+        ac_env_converged = image_errors(converged, rgb[("environment", "neural")])
+        cc_env = image_errors(converged, rgb[("environment", "original")])
         # Noise: two renders of one node that differ only in their random streams (HDR FLIP between them).
         noise = {mode: image_errors(rgb[("environment", mode)], rgb[("environment", f"{mode}_seed1")])["flip"]
                  for mode in ("neural", "neural_sampled")}
@@ -334,6 +352,8 @@ def run(args) -> dict:
             "flip_a_c_environment": round(ac_env["flip"], 4),
             "environment_mode": "prefiltered" if model.has_environment_head else "sampled",
             "flip_a_c_environment_sampled": round(ac_env_sampled["flip"], 4),
+            "flip_a_c_environment_converged": round(ac_env_converged["flip"], 4),
+            "flip_c_c_environment_converged": round(cc_env["flip"], 4),
             "noise_flip_environment": round(noise["neural"], 4),
             "noise_flip_environment_sampled": round(noise["neural_sampled"], 4),
             "sphere_only": {"flip_a_b": round(sphere_flip(b, rgb[("directional", "neural")], covered), 4),
@@ -362,6 +382,7 @@ def run(args) -> dict:
             "settings": {"timing_size": SIZE, "compare_size": args.compare_size,
                          "compared_at": args.compare_size // 2, "gl_supersample": args.gl_supersample, "light_towards": LIGHT, "intensity": INTENSITY,
                          "environment": "EnvironmentMap.sky(128, 256), FIS", "compare_env_samples": args.compare_samples,
+                         "converged_env_samples": args.converged_samples, "decoders": args.decoders,
                          "timing": f"{SIZE}² light rig + sky at {TIMING_SAMPLES} directions, median of "
                                    f"{args.frames} frames after a warm-up, {args.rounds} rounds",
                          "torch_spp": 16},
@@ -382,15 +403,17 @@ def machine(gl_renderer: str | None) -> dict:
 
 def table(report: dict) -> str:
     lines = ["| material | decoder | tool's FLIP (summary.json) | FLIP (a)-(b) | FLIP (a)-(c) directional | "
-             "FLIP (a)-(c) environment, prefiltered / sampled | noise, prefiltered / sampled | "
-             "frame time (a) / (c), prefiltered / sampled | torch prefiltered vs converged reference |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "FLIP (a)-(c) environment, prefiltered / sampled | (a)-(c converged) / (c)-(c converged) | "
+             "noise, prefiltered / sampled | frame time (a) / (c), prefiltered / sampled | "
+             "torch prefiltered vs converged reference |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         sa, sc = np.median(r["seconds_per_frame_neural"]), np.median(r["seconds_per_frame_original"])
         ss = np.median(r["seconds_per_frame_neural_sampled"])
         lines.append(f"| {r['material'].rsplit('/', 1)[-1]} | {r['decoder']} | {r['summary_flip']:.3f} | "
                      f"{r['flip_a_b']:.3f} | {r['flip_a_c_directional']:.3f} | {r['flip_a_c_environment']:.3f} / "
-                     f"{r['flip_a_c_environment_sampled']:.3f} | {r['noise_flip_environment']:.3f} / "
+                     f"{r['flip_a_c_environment_sampled']:.3f} | {r['flip_a_c_environment_converged']:.3f} / "
+                     f"{r['flip_c_c_environment_converged']:.3f} | {r['noise_flip_environment']:.3f} / "
                      f"{r['noise_flip_environment_sampled']:.3f} | **{r['frame_time_ratio']:.2f}x** / "
                      f"{r['frame_time_ratio_sampled']:.2f}x ({sa * 1000:.0f} / {ss * 1000:.0f} / {sc * 1000:.0f} ms) | "
                      f"{r['diagnosis']['torch_prefiltered_vs_converged_reference']:.3f} |")
@@ -418,6 +441,11 @@ def main(argv=None) -> int:
                          "as many as the torch frame's)")
     ap.add_argument("--compare-samples", type=int, default=COMPARE_SAMPLES,
                     help="environment directions per pixel in the comparison frames")
+    ap.add_argument("--converged-samples", type=int, default=CONVERGED_SAMPLES,
+                    help="environment directions per pixel of the converged original (c converged)")
+    ap.add_argument("--decoders", default="",
+                    help="MATERIAL=SIZE,...: convert these materials with this decoder (2x16, 2x32, 3x64) "
+                         "instead of the fast preset's 3x64")
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "viewer.json"))
     ap.add_argument("--screenshot", help="PNG: original | neural as MaterialX rendered them")
     ap.add_argument("--screenshot-lighting", choices=("viewer", "directional", "environment"),

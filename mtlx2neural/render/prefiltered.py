@@ -19,7 +19,7 @@ E_spec is a deterministic quadrature, the same at every pixel (no per-pixel rand
 sparkle): ``samples`` directions of the specular lobe from a rank-1 lattice (the R2 sequence), each read from a
 prefiltered copy of the environment at the level whose texels cover the direction's share of the lobe
 (filtered importance sampling: a sample stands for the solid angle 1 / (samples * pdf), read
-:data:`LOD_BIAS` levels coarser). The MaterialX
+:data:`LOD_BIAS` levels coarser), but no finer than the level :data:`LATTICE_FINEST_WIDTH` texels wide. The MaterialX
 node (``codegen/templates/neural_bsdf.glsl.in``) does the same with the viewer's MIP chain; this module is
 its torch twin, for ``render --env-mode prefiltered`` and for the measurements. E_diff is the map's irradiance /
 pi along the diffuse lobe's axis, from the map convolved with the clamped cosine (:func:`irradiance_image`),
@@ -55,6 +55,10 @@ LOD_BIAS = 1.0
 """Levels added to each lookup's footprint level: a texel then covers about twice the sample's share of
 the lobe on each axis, so neighbouring samples' footprints overlap and a small bright source spreads
 over the lobe instead of showing as separate spots (filtered importance sampling's usual +1)."""
+LATTICE_FINEST_WIDTH = 64
+"""E_spec's lookups read no finer level than the one this many texels wide (5.6 degrees a texel): the MaterialX
+node then reads two levels per lookup, not every level (its frame time halves on the sample Plastic), and
+what is narrower is the sharp lobe's to carry."""
 
 
 def lattice(samples: int, device=None) -> torch.Tensor:
@@ -153,6 +157,10 @@ class EnvironmentPyramid:
         lod = 0.5 * torch.log2((solid_angle / texel).clamp_min(1e-30)) + LOD_BIAS
         return lod.clamp(0.0, len(self.levels) - 1.0)
 
+    def finest_for_width(self, width: int) -> int:
+        """The index of the finest level at most ``width`` texels wide (the coarsest level if none is)."""
+        return next((k for k, level in enumerate(self.levels) if level.shape[1] <= width), len(self.levels) - 1)
+
     def irradiance(self, d: torch.Tensor) -> torch.Tensor:
         """[N,3] irradiance / pi on surfaces facing unit world directions ``d`` [N,3]: a bilinear lookup of
         :func:`irradiance_image`, as the MaterialX node reads the viewer's irradiance map
@@ -175,15 +183,17 @@ class EnvironmentPyramid:
         return out
 
 
-def _lobe_mean(pyramid: EnvironmentPyramid, basis, wo: torch.Tensor, pdf: torch.Tensor, samples: int) -> torch.Tensor:
+def _lobe_mean(pyramid: EnvironmentPyramid, basis, wo: torch.Tensor, pdf: torch.Tensor, samples: int,
+               finest: int = 0) -> torch.Tensor:
     """[N,3] mean radiance over a lobe's ``samples`` directions per point (``wo`` [N, S, 3] local, ``pdf``
-    [N, S] their density in the lobe), those below the horizon mirrored above it; 0 where none has a density."""
+    [N, S] their density in the lobe), those below the horizon mirrored above it, read no finer than level
+    ``finest``; 0 where none has a density."""
     t, b, n = basis
     wo = torch.cat([wo[..., :2], wo[..., 2:].abs()], -1)
     world = wo[..., 0:1] * t[:, None] + wo[..., 1:2] * b[:, None] + wo[..., 2:3] * n[:, None]
     world = world / world.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     flat = world.reshape(-1, 3)
-    lod = pyramid.level_of(flat, 1.0 / (samples * pdf.reshape(-1).clamp_min(1e-12)))
+    lod = pyramid.level_of(flat, 1.0 / (samples * pdf.reshape(-1).clamp_min(1e-12))).clamp_min(float(finest))
     radiance = pyramid.lookup(flat.to(pyramid.levels[0].dtype), lod).view(*wo.shape[:2], 3)
     valid = (pdf > 0).to(radiance.dtype)
     count = valid.sum(1, keepdim=True)
@@ -203,7 +213,8 @@ def lobe_means(pyramid: EnvironmentPyramid, basis, wi: torch.Tensor, params: pro
     wi_r = wi.repeat_interleave(s, 0)
     spec = proxy.sample_specular(wi_r, rep, u)
     spec = spec / spec.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    e_spec = _lobe_mean(pyramid, basis, spec.view(n, s, 3), proxy.pdf_specular(wi_r, spec, rep).view(n, s), s)
+    e_spec = _lobe_mean(pyramid, basis, spec.view(n, s, 3), proxy.pdf_specular(wi_r, spec, rep).view(n, s), s,
+                        finest=pyramid.finest_for_width(LATTICE_FINEST_WIDTH))
     sharp = proxy.sharp_direction(wi, params)
     sharp = sharp / sharp.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     e_sharp = _lobe_mean(pyramid, basis, sharp[:, None], torch.full_like(sharp[:, :1], 1.0 / proxy.SHARP_SOLID_ANGLE), 1)

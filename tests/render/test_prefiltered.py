@@ -14,6 +14,7 @@ from mtlx2neural.model.neural_material import NeuralMaterial
 from mtlx2neural.render.geometry import OrthographicCamera, Sphere
 from mtlx2neural.render.lighting import EnvironmentMap, uv_to_direction
 from mtlx2neural.render.prefiltered import (
+    LATTICE_FINEST_WIDTH,
     EnvironmentPyramid,
     PrefilteredEnvironment,
     lobe_means,
@@ -96,6 +97,27 @@ def test_a_near_mirror_lobe_reads_the_reflected_direction():
     # same mean microfacet normal, here the normal) reads the same direction.
     torch.testing.assert_close(e[:, 1], expected, rtol=5e-3, atol=0.0)
     torch.testing.assert_close(e[:, 0], expected, rtol=5e-3, atol=0.0)
+
+
+def test_the_specular_lattice_reads_no_finer_than_64_texels_and_the_sharp_lobe_does():
+    """A near-mirror specular lobe aimed at a one-texel source reads it at the level 64 texels wide
+    (LATTICE_FINEST_WIDTH, what the MaterialX node's two-level lookups read), the sharp lobe at its own finer level."""
+    img = np.full((128, 256, 3), 0.5, np.float32)
+    img[40, 100] = 1000.0
+    env = EnvironmentPyramid(EnvironmentMap(img))
+    assert env.finest_for_width(LATTICE_FINEST_WIDTH) == 2 and env.levels[2].shape[1] == 64
+    source = uv_to_direction(torch.tensor([[100.5 / 256, 40.5 / 128]]))
+    normal = torch.nn.functional.normalize(source + torch.tensor([[0.0, 1.0, 0.0]]), dim=-1)
+    basis = frames(normal)
+    world_wi = 2 * (source * normal).sum(-1, keepdim=True) * normal - source  # the source's mirror image
+    wi = torch.stack([(world_wi * v).sum(-1) for v in basis], -1)
+    e = lobe_means(env, basis, wi, params(1, alpha=1e-3))
+    level2 = env.lookup(source, torch.tensor([2.0]))
+    sharp = env.lookup(source, env.level_of(source, torch.tensor([proxy.SHARP_SOLID_ANGLE])))
+    assert sharp[0, 0] > 2.0 * level2[0, 0]  # the sharp lobe's own level keeps more of the source
+    # 2 %: the lobe's 16 lattice directions spread over ~0.1 degrees, a fiftieth of a level-2 texel.
+    torch.testing.assert_close(e[:, 1], level2, rtol=0.02, atol=0.0)
+    torch.testing.assert_close(e[:, 0], sharp, rtol=0.02, atol=0.0)
 
 
 def test_a_constant_environment_gives_the_heads_reflectance():
