@@ -9,12 +9,15 @@ prints HDR FLIP against the reference rendered at 2048 spp (cached in ``--work``
 - ``ls``: the same lobes, reflectance by least squares onto their shapes;
 - ``trueA_B_..``: GGX lobes of alpha A, B... about the mirror direction plus Lambert, non-negative least squares;
 - ``coatplusA``: a GGX lobe of alpha A plus the sampler's two, least squares;
-- ``coatrespA_W``: a sharp lobe of alpha A plus the sampler's two, responsibilities with the sharp lobe at weight W.
+- ``coatrespA_W``: a sharp lobe of alpha A plus the sampler's two, responsibilities with the sharp lobe at weight W;
+- ``resp3``: the model's three lobes (sharp, specular, diffuse), responsibilities as ``train.environment_fit`` splits;
+- ``ls3``: the same lobes, non-negative least squares onto their shapes; ``ls3e``: the same with the sum held to the
+  albedo; ``hyb3``: the sharp lobe by least squares, the rest by the sampler's two-lobe responsibilities (2026-12-07).
 
     python docs/history/environment_lobes_oracle_probe.py LAYER.usda MATERIAL MODE [SAMPLES] [--work DIR]
 
 (SPP, NS, DIFF in the environment: passes per pixel, lattice directions, a lattice diffuse lookup.)
-Results: docs/history/environment-lighting-2026-12-06.md.
+Results: docs/history/environment-lighting-2026-12-06.md and environment-lighting-2026-12-07.md.
 """
 import json
 import math
@@ -59,6 +62,7 @@ class Oracle:
         wo_ref, _, _ = ref.sample(W, u[:, :2])
         wo_own = proxy.sample(W, P, u[:, :2])
         use = (u[:, 2] < 0.5) & torch.isfinite(wo_ref).all(-1)
+        use_ref = (u[:, 2] < 1 / 3) & torch.isfinite(wo_ref).all(-1)
         wo = torch.where(use[:, None], torch.nan_to_num(wo_ref), wo_own)
         wo = wo / wo.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         ps = proxy.pdf_specular(W, wo, P)
@@ -67,6 +71,65 @@ class Oracle:
         f = ref.eval(W, wo)
         ok = (wo[:, 2] > 0) & (q > 0)
         wgt = torch.where(ok, 1 / q.clamp_min(1e-30), torch.zeros_like(q)) / M
+        if mode in ("resp3", "ls3", "hyb3", "ls3e"):
+            # the model's three lobes (sharp, specular, diffuse), directions from the reference, the sampler and
+            # the sharp lobe (a third each), as train.environment_fit draws them
+            S = proxy.sharp_params(P)
+            wo_sh = proxy.sample_specular(W, S, u[:, :2])
+            wo = torch.where(use_ref[:, None], torch.nan_to_num(wo_ref), torch.where((u[:, 2] < 2 / 3)[:, None], wo_own, wo_sh))
+            wo = wo / wo.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+            ps = proxy.pdf_specular(W, wo, P); pd = proxy.pdf_diffuse(wo, P.slope_diff); pc = proxy.pdf_specular(W, wo, S)
+            pm = P.w_spec[:, 0] * ps + (1 - P.w_spec[:, 0]) * pd
+            q = (pm + ref.pdf(W, wo) + pc) / 3
+            f = ref.eval(W, wo)
+            ok = (wo[:, 2] > 0) & (q > 0)
+            wgt = torch.where(ok, 1 / q.clamp_min(1e-30), torch.zeros_like(q)) / M
+            y = f * wgt[:, None]
+            if mode in ("resp3", "hyb3"):
+                Wt = proxy.SHARP_WEIGHT
+                p3 = Wt * pc + (1 - Wt) * pm
+                r_c = (Wt * pc / p3.clamp_min(1e-30))[:, None]
+                r_s = ((1 - Wt) * P.w_spec[:, 0] * ps / p3.clamp_min(1e-30))[:, None]
+                if mode == "resp3":
+                    cc = (y * r_c).view(n, M, 3).sum(1); cs = (y * r_s).view(n, M, 3).sum(1); cd = (y * (1 - r_c - r_s)).view(n, M, 3).sum(1)
+                    return wi, p, torch.stack([cc, cs, cd], 1).clamp_min(0) * (wi[:, None, 2:3] > 0)
+            mir = torch.cat([wo[:, :2], -wo[:, 2:]], -1)
+            bases = [pc + proxy.pdf_specular(W, mir, S), ps + proxy.pdf_specular(W, mir, P), pd]
+            K = 3
+            B = torch.stack(bases, -1) * ok[:, None]
+            wv = wgt.view(n, M); Bv = B.view(n, M, K)
+            A = torch.einsum("nmi,nmj,nm->nij", Bv, Bv, wv) + 1e-9 * torch.eye(K)
+            rhs = torch.einsum("nmi,nmc,nm->nic", Bv, f.view(n, M, 3), wv)
+            free = torch.ones(n, K, dtype=torch.bool)
+            if mode == "ls3e":  # least squares with the lobes' sum held to the albedo estimate (KKT), c >= 0
+                alb = y.view(n, M, 3).sum(1)  # [n, 3]
+                for _ in range(K):
+                    Af = A * (free[:, :, None] & free[:, None, :]) + torch.diag_embed((~free).float())
+                    one = free.float()
+                    Kk = torch.zeros(n, K + 1, K + 1)
+                    Kk[:, :K, :K] = Af; Kk[:, :K, K] = one; Kk[:, K, :K] = one
+                    r = torch.cat([rhs * free[:, :, None], alb[:, None]], 1)
+                    sol = torch.linalg.solve(Kk, r)[:, :K]
+                    neg = (sol < 0).any(-1) & free
+                    if not neg.any(): break
+                    free = free & ~neg
+                sol = sol.clamp_min(0) * free[:, :, None]
+                return wi, p, sol * (wi[:, None, 2:3] > 0)
+            for _ in range(K):
+                Af = A * (free[:, :, None] & free[:, None, :]) + torch.diag_embed((~free).float())
+                sol = torch.linalg.solve(Af, rhs * free[:, :, None])
+                neg = (sol < 0).any(-1) & free
+                if not neg.any(): break
+                free = free & ~neg
+            sol = sol.clamp_min(0) * free[:, :, None]
+            if mode == "ls3":
+                return wi, p, sol * (wi[:, None, 2:3] > 0)
+            # hyb3: the sharp lobe's reflectance by least squares, the rest split by the sampler's two-lobe
+            # responsibilities, the sharp lobe's share taken from the specular lobe's
+            r2 = (P.w_spec[:, 0] * ps / pm.clamp_min(1e-30))[:, None]
+            cs = (y * r2).view(n, M, 3).sum(1); cd = (y * (1 - r2)).view(n, M, 3).sum(1)
+            cc = torch.minimum(sol[:, 0], cs)
+            return wi, p, torch.stack([cc, cs - cc, cd], 1).clamp_min(0) * (wi[:, None, 2:3] > 0)
         if mode == "resp":
             pm = P.w_spec[:, 0] * ps + (1 - P.w_spec[:, 0]) * pd
             r = (P.w_spec[:, 0] * ps / pm.clamp_min(1e-30))[:, None]
@@ -182,4 +245,5 @@ else:  # 8 x 256 spp of the reference, light and BSDF samples (MIS)
     big = np.mean([render_scene(ref, Sphere(), Camera(0.0, 0.0, 3.0, 45.0), sky, res=64, spp=256, texels=texels,
                                 seed=100 + s, sampler=ref, footprint=1.0) for s in range(8)], 0)
     np.save(cache, big)
+np.save(WORK / mat / f"o_{mode}.npy", img)
 print(mat, mode, "vs conv2048", round(image_errors(big, img)["flip"], 4), img.mean((0, 1)).round(4), big.mean((0, 1)).round(4), flush=True)
