@@ -12,7 +12,9 @@ prints HDR FLIP against the reference rendered at 2048 spp (cached in ``--work``
 - ``coatrespA_W``: a sharp lobe of alpha A plus the sampler's two, responsibilities with the sharp lobe at weight W;
 - ``resp3``: the model's three lobes (sharp, specular, diffuse), responsibilities as ``train.environment_fit`` splits;
 - ``ls3``: the same lobes, non-negative least squares onto their shapes; ``ls3e``: the same with the sum held to the
-  albedo; ``hyb3``: the sharp lobe by least squares, the rest by the sampler's two-lobe responsibilities (2026-12-07).
+  albedo; ``hyb3``: the sharp lobe by least squares, the rest by the sampler's two-lobe responsibilities; ``excess3``:
+  the sharp lobe takes f's excess over the sampler's two-lobe fit (2026-12-07; each also prints the brightest pixel
+  against the reference's).
 
     python docs/history/environment_lobes_oracle_probe.py LAYER.usda MATERIAL MODE [SAMPLES] [--work DIR]
 
@@ -48,6 +50,21 @@ src = find_material(summary["source"], summary["material"])
 ref = ReferenceMaterial(compile_material(src.document, src.material))
 g = torch.Generator().manual_seed(0)
 
+
+def nnls(A, rhs, free):
+    """Non-negative least squares by active sets: solve A c = rhs per row ([n, K, K], [n, K, 3]) over the lobes still
+    ``free`` ([n, K] bool), dropping those that come out negative."""
+    K = A.shape[-1]
+    for _ in range(K):
+        Af = A * (free[:, :, None] & free[:, None, :]) + torch.diag_embed((~free).float())
+        sol = torch.linalg.solve(Af, rhs * free[:, :, None])
+        neg = (sol < 0).any(-1) & free
+        if not neg.any():
+            break
+        free = free & ~neg
+    return sol.clamp_min(0) * free[:, :, None]
+
+
 class Oracle:
     def __init__(self, m): self.m = m
     def __getattr__(self, k): return getattr(self.m, k)
@@ -71,7 +88,7 @@ class Oracle:
         f = ref.eval(W, wo)
         ok = (wo[:, 2] > 0) & (q > 0)
         wgt = torch.where(ok, 1 / q.clamp_min(1e-30), torch.zeros_like(q)) / M
-        if mode in ("resp3", "ls3", "hyb3", "ls3e"):
+        if mode in ("resp3", "ls3", "hyb3", "ls3e", "excess3"):
             # the model's three lobes (sharp, specular, diffuse), directions from the reference, the sampler and
             # the sharp lobe (a third each), as train.environment_fit draws them
             S = proxy.sharp_params(P)
@@ -85,6 +102,18 @@ class Oracle:
             ok = (wo[:, 2] > 0) & (q > 0)
             wgt = torch.where(ok, 1 / q.clamp_min(1e-30), torch.zeros_like(q)) / M
             y = f * wgt[:, None]
+            if mode == "excess3":
+                # the sharp lobe takes f's excess over the sampler's two lobes as their two-lobe
+                # responsibilities would fit them (c2_spec p_spec + c2_diff p_diff), the rest split by those
+                r2 = (P.w_spec[:, 0] * ps / pm.clamp_min(1e-30))[:, None]
+                c2s = (y * r2).view(n, M, 3).sum(1); c2d = (y * (1 - r2)).view(n, M, 3).sum(1)
+                mir = torch.cat([wo[:, :2], -wo[:, 2:]], -1)
+                gsm = (c2s.repeat_interleave(M, 0) * (ps + proxy.pdf_specular(W, mir, P))[:, None]
+                     + c2d.repeat_interleave(M, 0) * pd[:, None])
+                rs = ((f - gsm) / f.clamp_min(1e-30)).clamp(0.0, 1.0) * (pc > 0)[:, None]
+                cc = (y * rs).view(n, M, 3).sum(1)
+                cs = (y * (1 - rs) * r2).view(n, M, 3).sum(1); cd = (y * (1 - rs) * (1 - r2)).view(n, M, 3).sum(1)
+                return wi, p, torch.stack([cc, cs, cd], 1).clamp_min(0) * (wi[:, None, 2:3] > 0)
             if mode in ("resp3", "hyb3"):
                 Wt = proxy.SHARP_WEIGHT
                 p3 = Wt * pc + (1 - Wt) * pm
@@ -115,13 +144,7 @@ class Oracle:
                     free = free & ~neg
                 sol = sol.clamp_min(0) * free[:, :, None]
                 return wi, p, sol * (wi[:, None, 2:3] > 0)
-            for _ in range(K):
-                Af = A * (free[:, :, None] & free[:, None, :]) + torch.diag_embed((~free).float())
-                sol = torch.linalg.solve(Af, rhs * free[:, :, None])
-                neg = (sol < 0).any(-1) & free
-                if not neg.any(): break
-                free = free & ~neg
-            sol = sol.clamp_min(0) * free[:, :, None]
+            sol = nnls(A, rhs, free)
             if mode == "ls3":
                 return wi, p, sol * (wi[:, None, 2:3] > 0)
             # hyb3: the sharp lobe's reflectance by least squares, the rest split by the sampler's two-lobe
@@ -169,13 +192,7 @@ class Oracle:
             A = torch.einsum("nmi,nmj,nm->nij", Bv, Bv, wv) + 1e-9 * torch.eye(K)
             rhs = torch.einsum("nmi,nmc,nm->nic", Bv, f.view(n, M, 3), wv)
             free = torch.ones(n, K, dtype=torch.bool)
-            for _ in range(K):
-                Af = A * (free[:, :, None] & free[:, None, :]) + torch.diag_embed((~free).float())
-                sol = torch.linalg.solve(Af, rhs * free[:, :, None])
-                neg = (sol < 0).any(-1) & free
-                if not neg.any(): break
-                free = free & ~neg
-            sol = sol.clamp_min(0) * free[:, :, None]
+            sol = nnls(A, rhs, free)
             self.sol = sol
             if mode.startswith("true"): self.alphas = alphas
             return wi, p, sol
@@ -246,4 +263,5 @@ else:  # 8 x 256 spp of the reference, light and BSDF samples (MIS)
                                 seed=100 + s, sampler=ref, footprint=1.0) for s in range(8)], 0)
     np.save(cache, big)
 np.save(WORK / mat / f"o_{mode}.npy", img)
-print(mat, mode, "vs conv2048", round(image_errors(big, img)["flip"], 4), img.mean((0, 1)).round(4), big.mean((0, 1)).round(4), flush=True)
+LUM = np.array([0.2126, 0.7152, 0.0722], np.float32)
+print(mat, mode, "vs conv2048", round(image_errors(big, img)["flip"], 4), "peak ratio", round(float((img @ LUM).max() / (big @ LUM).max()), 3), img.mean((0, 1)).round(4), big.mean((0, 1)).round(4), flush=True)
