@@ -39,8 +39,8 @@ small MLP of the albedo head's shape from (``wi`` in the learned frames, latent)
 exp(x - 3): the reflectance (RGB each) carried by the sharp lobe (:func:`~mtlx2neural.model.proxy.sharp_params`),
 the learned sampler's specular lobe and its diffuse lobe. Lobe k's reflectance is c_k(wi) = integral of
 f * cos(wo) * r_k(wo) over wo, with r_k the lobe's responsibility w_k p_k / p in the mixture of the sharp
-lobe (weight :data:`~mtlx2neural.model.proxy.SHARP_WEIGHT`) and the sampler's two; the three add up to the
-directional albedo. Under distant light, outgoing radiance ~= sum of c_k E_k, with E_k the incident
+lobe (weight :data:`~mtlx2neural.model.proxy.SHARP_WEIGHT`) and the sampler's two, the sharp lobe's kept only
+where f peaks inside its cone (``train.environment_fit``); the three add up to the directional albedo. Under distant light, outgoing radiance ~= sum of c_k E_k, with E_k the incident
 radiance averaged over lobe k's density (exact when f * cos is proportional to each lobe's share of the
 mixture). It is fitted after the BRDF, against the reference (``train.environment_fit``). A head of
 6 outputs (no sharp lobe, written before it existed) reads as one whose sharp lobe carries nothing

@@ -59,7 +59,7 @@ CarPaint (coat alpha 0.0064) 0.003, 0.005 and 0.015 give the same prefiltered re
 SHARP_WEIGHT = 0.3
 """The sharp lobe's weight in the mixture whose responsibilities split the reflectance between the lobes
 (``train.environment_fit``): inside its narrow cone it takes almost all of it at any weight (0.05 and 0.3
-give the same render within 3 %), elsewhere almost none."""
+give the same render within 3 %), elsewhere almost none; of what it takes, the fit keeps only f's own peak."""
 SHARP_SOLID_ANGLE = 4.0 * math.pi * SHARP_ALPHA ** 2
 """Steradians one filtered lookup of the sharp lobe stands for: 1 / its peak density at normal incidence."""
 

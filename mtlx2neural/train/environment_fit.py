@@ -8,10 +8,14 @@ c_k the reflectance that lobe carries in the mixture p = W p_sharp + (1 - W) p_s
 
     c_k(wi) = integral over wo of f(wi, wo) cos(wo) r_k(wo),   r_k = w_k p_k / p,
 
-so the c_k add up to the directional albedo, and a constant environment L gives albedo x L exactly. The
-sharp lobe takes what lies in its narrow cone (a coat's near-delta peak), which the sampler's one specular
-lobe, fitted to sample a coat and its base together, would spread over its own width (the sample CarPaint's
-sun reflection: torch twin HDR FLIP 0.149 with two lobes, 0.098 with three; docs/history/environment-lighting-2026-12-06.md).
+except that the sharp lobe keeps only the share rho(wo) = clamp(1 - f(ring) / f(wo), 0, 1) of its r_sharp that is
+f's own peak (the ring: :data:`RING` sharp alphas from the sharp lobe's centre in slope space, towards wo) and the
+specular lobe takes the rest. So the c_k add up to the directional albedo, and a constant environment L gives
+albedo x L exactly. The sharp lobe takes what lies in its narrow cone when f peaks there (a coat's near-delta
+peak), which the sampler's one specular lobe, fitted to sample a coat and its base together, would spread over its
+own width (the sample CarPaint's sun reflection: torch twin HDR FLIP 0.149 with two lobes, 0.098 with three;
+docs/history/environment-lighting-2026-12-06.md); it takes nothing of a smooth lobe, where responsibilities alone
+gave a rough plastic a sun glint (peak 1.8x the original's; docs/history/environment-lighting-2026-12-07.md).
 This module fits the decoder's environment head to c_k after the BRDF and the sampler are trained
 (they, and the latents, stay frozen). The targets come from the **reference**, not from the neural
 BRDF, so the prefiltered path's error is measured on its own:
@@ -22,7 +26,8 @@ BRDF, so the prefiltered path's error is measured on its own:
   each), with the combined density q = (p_sampler + p_ref + p_sharp) / 3, so a lobe sharper than the learned
   one is still found, and the sharp lobe's narrow cone gets rows of its own;
 - one-sample estimates y_k = f_ref(wi, wo) cos(wo) r_k(wo) / q(wo) (the footprint-filtered,
-  unmollified reference at textured rows), unbiased for c_k;
+  unmollified reference at textured rows), unbiased for c_k; f at the ring is read only at rows inside the
+  sharp lobe's cone (r_sharp above :data:`RING_FROM`);
 - the relative squared error (c - y)^2 / (sg(c)^2 + eps) of neural radiance caching, whose
   minimiser is the targets' mean (what c_k is), with the prediction's scale held out of the
   gradient so dark and bright texels weigh alike.
@@ -49,6 +54,11 @@ AHEAD = 25
 """Steps whose rows are drawn in one call per material. The rows do not depend on the head being fitted
 (the sampler, the latents and the rest of the decoder are frozen), so drawing ahead changes only the cost:
 the reference's per-call overhead dominates a CPU step, most of all for a group of many materials."""
+RING = 8.0
+"""Where the sharp lobe's test of f's peak reads f: this many sharp alphas from its centre in slope space (2.3
+degrees of normal). A clear coat of alpha 0.0064 falls to under 0.3 % there, a roughness-0.45 lobe by 8 %."""
+RING_FROM = 1e-3
+"""Rows whose sharp responsibility is at most this keep it unscaled, without reading f at the ring."""
 AHEAD_ROWS = 32768
 """At most this many rows drawn ahead (over every material): a large ``environment_batch`` draws fewer steps."""
 LR_START, LR_END = 5e-3, 5e-4
@@ -93,7 +103,29 @@ def lobe_targets(reference, targets, model, lat, uv, level, wi, generator) -> to
     r_sharp = torch.where(live, p_sharp / p_all.clamp_min(1e-30), torch.zeros_like(p_all))[:, None]
     r_spec = torch.where(live, (1.0 - proxy.SHARP_WEIGHT) * p_spec / p_all.clamp_min(1e-30),
                          torch.zeros_like(p_all))[:, None]
-    return torch.stack([y * r_sharp, y * r_spec, y * (1.0 - r_sharp - r_spec).clamp_min(0.0)], 1)
+    r_diff = (1.0 - r_sharp - r_spec).clamp_min(0.0)
+    # the share of the sharp lobe's responsibility that is f's own peak; the rest is the specular lobe's
+    rho = torch.ones_like(f)
+    inside = ((r_sharp[:, 0] > RING_FROM) & ok).nonzero()[:, 0]
+    if inside.numel():
+        ring = ring_direction(wi[inside], wo[inside], sharp.slope_spec[inside])
+        f_ring = targets.brdf(wi[inside], ring, uv[inside], None if level is None else level[inside], 0.0)
+        f_ring = torch.where((ring[:, 2:] > 0) & torch.isfinite(f_ring), f_ring, torch.zeros_like(f_ring))
+        rho[inside] = (1.0 - f_ring / f[inside].clamp_min(1e-30)).clamp(0.0, 1.0)
+    return torch.stack([y * r_sharp * rho, y * (r_spec + r_sharp * (1.0 - rho)), y * r_diff], 1)
+
+
+def ring_direction(wi: torch.Tensor, wo: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
+    """[N, 3] the mirror direction of ``wi`` about the normal :data:`RING` sharp alphas from the slope ``centre``
+    [N, 2] (the sharp lobe's), on the side of ``wo``'s half vector (along +x where that is the centre itself)."""
+    h = wi + wo
+    h = h / h.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    z = h[:, 2:].clamp_min(1e-6)
+    offset = -h[:, :2] / z - centre
+    length = offset.norm(dim=-1, keepdim=True)
+    towards = torch.where(length > 1e-9, offset / length.clamp_min(1e-12), torch.tensor([[1.0, 0.0]], device=wi.device))
+    m = proxy.slope_axis(centre + RING * proxy.SHARP_ALPHA * towards)
+    return 2.0 * (wi * m).sum(-1, keepdim=True) * m - wi
 
 
 def wake_silent_sharp_lobe(head) -> bool:

@@ -228,8 +228,9 @@ class _PlainTargets:
 def test_the_three_lobes_targets_add_up_to_the_albedo():
     """The environment fit's one-sample targets (a third of the directions from the learned sampler, the
     reference's sampler and the sharp lobe each; the reflectance split by responsibilities in the three-lobe
-    mixture) are unbiased: their sum averages to the reference's directional albedo, and a clear coat's
-    sharp lobe takes a share of it that a rough dielectric's does not."""
+    mixture, the sharp lobe's kept where f peaks inside its cone) are unbiased: their sum averages to the
+    reference's directional albedo, and a clear coat's sharp lobe takes a share of it that a rough dielectric's
+    does not."""
     from materials import reference_of, standard_surface
 
     from mtlx2neural.train.environment_fit import lobe_targets
@@ -255,8 +256,10 @@ def test_the_three_lobes_targets_add_up_to_the_albedo():
         # 1 %) against a 40000-sample albedo
         torch.testing.assert_close(y.mean(0).sum(0), albedo.float(), rtol=0.04, atol=0.0)
         shares[label] = float(y.mean(0)[0].sum() / y.mean(0).sum())
-    # measured 0.22 and 0.011: the coat's near-mirror peak against a rough lobe's sliver around the mirror
-    assert shares["coat"] > 0.1 and shares["rough"] < 0.03, shares
+    # measured 0.17 and 0.0002: the coat's near-mirror peak, and next to nothing of a rough lobe, whose f is as
+    # high on the ring 8 sharp alphas out as inside the sharp cone (by responsibilities alone the rough lobe
+    # gave 0.011, which lit a sun glint on a rough plastic)
+    assert shares["coat"] > 0.1 and shares["rough"] < 0.003, shares
 
 
 def test_a_legacy_heads_sharp_lobe_wakes_before_it_is_fitted_again():
