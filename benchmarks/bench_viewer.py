@@ -195,6 +195,15 @@ def downsample(img: np.ndarray, k: int = 2) -> np.ndarray:
     return img.reshape(h // k, k, w // k, k, c).mean((1, 3))
 
 
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # linear Rec. 709
+
+
+def peak_ratio(test: np.ndarray, ref: np.ndarray) -> float:
+    """The brightest pixel's luminance of ``test`` over ``ref``'s ([H, W, 3] linear each): a reflection's
+    peak that is lost (< 1) or one the original does not have (> 1)."""
+    return float((test @ LUMINANCE).max() / max(float((ref @ LUMINANCE).max()), 1e-12))
+
+
 def sphere_flip(ref: np.ndarray, test: np.ndarray, covered: np.ndarray) -> float:
     """Mean HDR FLIP over the sphere's pixels only (``covered``, [H, W] bool); the frame mean of
     :func:`image_errors` also counts the background, where both images are black."""
@@ -354,6 +363,9 @@ def run(args) -> dict:
             "flip_a_c_environment_sampled": round(ac_env_sampled["flip"], 4),
             "flip_a_c_environment_converged": round(ac_env_converged["flip"], 4),
             "flip_c_c_environment_converged": round(cc_env["flip"], 4),
+            # the brightest pixel under the sky against the converged original's (compared frames, 128²)
+            "peak_ratio_environment": {mode: round(peak_ratio(rgb[("environment", label)], converged), 3)
+                                       for mode, label in (("prefiltered", "neural"), ("sampled", "neural_sampled"))},
             "noise_flip_environment": round(noise["neural"], 4),
             "noise_flip_environment_sampled": round(noise["neural_sampled"], 4),
             "sphere_only": {"flip_a_b": round(sphere_flip(b, rgb[("directional", "neural")], covered), 4),
