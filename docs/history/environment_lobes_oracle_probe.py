@@ -13,8 +13,9 @@ prints HDR FLIP against the reference rendered at 2048 spp (cached in ``--work``
 - ``resp3``: the model's three lobes (sharp, specular, diffuse), responsibilities as ``train.environment_fit`` splits;
 - ``ls3``: the same lobes, non-negative least squares onto their shapes; ``ls3e``: the same with the sum held to the
   albedo; ``hyb3``: the sharp lobe by least squares, the rest by the sampler's two-lobe responsibilities; ``excess3``:
-  the sharp lobe takes f's excess over the sampler's two-lobe fit (2026-12-07; each also prints the brightest pixel
-  against the reference's).
+  the sharp lobe takes f's excess over the sampler's two-lobe fit; ``ring3R``: responsibilities, the sharp lobe's
+  kept as far as f at the sample exceeds f R sharp alphas out (what ``train.environment_fit`` ships with R = 8)
+  (2026-12-07; each also prints the brightest pixel against the reference's).
 
     python docs/history/environment_lobes_oracle_probe.py LAYER.usda MATERIAL MODE [SAMPLES] [--work DIR]
 
@@ -88,7 +89,7 @@ class Oracle:
         f = ref.eval(W, wo)
         ok = (wo[:, 2] > 0) & (q > 0)
         wgt = torch.where(ok, 1 / q.clamp_min(1e-30), torch.zeros_like(q)) / M
-        if mode in ("resp3", "ls3", "hyb3", "ls3e", "excess3"):
+        if mode in ("resp3", "ls3", "hyb3", "ls3e", "excess3") or mode.startswith("ring3"):
             # the model's three lobes (sharp, specular, diffuse), directions from the reference, the sampler and
             # the sharp lobe (a third each), as train.environment_fit draws them
             S = proxy.sharp_params(P)
@@ -113,6 +114,26 @@ class Oracle:
                 rs = ((f - gsm) / f.clamp_min(1e-30)).clamp(0.0, 1.0) * (pc > 0)[:, None]
                 cc = (y * rs).view(n, M, 3).sum(1)
                 cs = (y * (1 - rs) * r2).view(n, M, 3).sum(1); cd = (y * (1 - rs) * (1 - r2)).view(n, M, 3).sum(1)
+                return wi, p, torch.stack([cc, cs, cd], 1).clamp_min(0) * (wi[:, None, 2:3] > 0)
+            if mode.startswith("ring3"):
+                # responsibilities in the three-lobe mixture, the sharp lobe's share scaled by how much of f at the
+                # sample is its own peak: 1 - f(ring) / f(sample), the ring RING sharp alphas out in slope space
+                RING = float(mode[5:] or 4)
+                Wt = proxy.SHARP_WEIGHT
+                p3 = Wt * pc + (1 - Wt) * pm
+                r_c = (Wt * pc / p3.clamp_min(1e-30))[:, None]
+                r_s = ((1 - Wt) * P.w_spec[:, 0] * ps / p3.clamp_min(1e-30))[:, None]
+                h = W + wo; h = h / h.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+                hz = h[:, 2:].clamp_min(1e-6)
+                d = torch.cat([-h[:, :1] / hz, -h[:, 1:2] / hz], -1) - S.slope_spec
+                dn = d.norm(dim=-1, keepdim=True)
+                dirn = torch.where(dn > 1e-9, d / dn.clamp_min(1e-12), torch.tensor([[1.0, 0.0]]))
+                hr = proxy.slope_axis(S.slope_spec + RING * proxy.SHARP_ALPHA * dirn)
+                ring = 2 * (W * hr).sum(-1, keepdim=True) * hr - W
+                fr = torch.where((ring[:, 2:] > 0), ref.eval(W, ring), torch.zeros_like(f))
+                rho = (1 - fr / f.clamp_min(1e-30)).clamp(0, 1)
+                cc = (y * r_c * rho).view(n, M, 3).sum(1); cs = (y * (r_s + r_c * (1 - rho))).view(n, M, 3).sum(1)
+                cd = (y * (1 - r_c - r_s)).view(n, M, 3).sum(1)
                 return wi, p, torch.stack([cc, cs, cd], 1).clamp_min(0) * (wi[:, None, 2:3] > 0)
             if mode in ("resp3", "hyb3"):
                 Wt = proxy.SHARP_WEIGHT
