@@ -267,7 +267,10 @@ def run(args) -> dict:
     materials = [m for m in args.materials.split(",") if m]
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    decoders = dict(item.split("=", 1) for item in args.decoders.split(",") if item)
+    items = [item for item in args.decoders.split(",") if item]
+    if any("=" not in item for item in items):
+        raise SystemExit(f"--decoders {args.decoders!r}: give MATERIAL=SIZE,... (e.g. Plastic=2x32)")
+    decoders = dict(item.split("=", 1) for item in items)
     layers = [Path(p) for p in args.layers.split(",")] if args.layers else convert_samples(work, materials, decoders)
     convs = find_conversions(layers, materials)
     lighting = work / "viewer"

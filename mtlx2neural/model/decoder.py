@@ -40,9 +40,9 @@ exp(x - 3): the reflectance (RGB each) carried by the sharp lobe (:func:`~mtlx2n
 the learned sampler's specular lobe and its diffuse lobe. Lobe k's reflectance is c_k(wi) = integral of
 f * cos(wo) * r_k(wo) over wo, with r_k the lobe's responsibility w_k p_k / p in the mixture of the sharp
 lobe (weight :data:`~mtlx2neural.model.proxy.SHARP_WEIGHT`) and the sampler's two, the sharp lobe's kept only
-where f peaks inside its cone (``train.environment_fit``); the three add up to the directional albedo. Under distant light, outgoing radiance ~= sum of c_k E_k, with E_k the incident
-radiance averaged over lobe k's density (exact when f * cos is proportional to each lobe's share of the
-mixture). It is fitted after the BRDF, against the reference (``train.environment_fit``). A head of
+where f peaks inside its cone (``train.environment_fit``); the three add up to the directional albedo. Under
+distant light, outgoing radiance ~= sum of c_k E_k, with E_k the incident radiance averaged over lobe k's density
+(exact when f * cos is proportional to each lobe's share of the mixture). It is fitted after the BRDF, against the reference (``train.environment_fit``). A head of
 6 outputs (no sharp lobe, written before it existed) reads as one whose sharp lobe carries nothing
 (:func:`mtlx2neural.formats.weights.upgrade_environment_head`).
 """
@@ -91,7 +91,7 @@ class BrdfDecoder(nn.Module):
         self.register_load_state_dict_pre_hook(_upgrade_legacy_environment_head)
 
     def add_environment_head(self) -> None:
-        """Build the environment head (module docstring): (latent, wi in the learned frames) -> 6 values.
+        """Build the environment head (module docstring): (latent, wi in the learned frames) -> 9 values.
         ``NeuralMaterial`` calls it after building its other networks, so their initial weights (drawn
         from torch's global generator) are the same with or without it."""
         per_dir = 3 * max(self.frames, 1)

@@ -73,7 +73,12 @@ def sharp_params(p: "ProxyParams") -> "ProxyParams":
 
 def sharp_direction(wi: torch.Tensor, p: "ProxyParams") -> torch.Tensor:
     """[N, 3] the sharp lobe's centre: ``wi`` reflected about the specular lobe's mean microfacet normal."""
-    h = slope_axis(p.slope_spec)
+    return reflect_about_slope(wi, p.slope_spec)
+
+
+def reflect_about_slope(wi: torch.Tensor, slope: torch.Tensor) -> torch.Tensor:
+    """[N, 3] ``wi`` reflected about the microfacet normal of ``slope`` [N, 2] (:func:`slope_axis`)."""
+    h = slope_axis(slope)
     return 2.0 * (wi * h).sum(-1, keepdim=True) * h - wi
 
 

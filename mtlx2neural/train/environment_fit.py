@@ -124,8 +124,7 @@ def ring_direction(wi: torch.Tensor, wo: torch.Tensor, centre: torch.Tensor) -> 
     offset = -h[:, :2] / z - centre
     length = offset.norm(dim=-1, keepdim=True)
     towards = torch.where(length > 1e-9, offset / length.clamp_min(1e-12), torch.tensor([[1.0, 0.0]], device=wi.device))
-    m = proxy.slope_axis(centre + RING * proxy.SHARP_ALPHA * towards)
-    return 2.0 * (wi * m).sum(-1, keepdim=True) * m - wi
+    return proxy.reflect_about_slope(wi, centre + RING * proxy.SHARP_ALPHA * towards)
 
 
 def wake_silent_sharp_lobe(head) -> bool:
