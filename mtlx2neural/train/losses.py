@@ -35,6 +35,7 @@ import math
 
 import torch
 
+from mtlx2neural.formats.weights import OUTPUT_OFFSET
 from mtlx2neural.model import proxy
 from mtlx2neural.reference.vec import cosine_sample
 
@@ -144,11 +145,18 @@ def _kl_rows(decoder, sampler, latent, wi, u):
     return lat_d, wo_s, w
 
 
-OUTPUT_FLOOR = -9.0
-"""Lowest raw decoder output (before exp(x - 3): f about 6e-6) the training leaves unpenalised. At -6 the
-sample CarPaint lost HDR FLIP (0.058 against 0.045, seed 0); at -9 it keeps it (0.046), the BrushedMetal
-and GlazedCeramic never reach the floor, and the near-mirror PolishedMetal no longer dies
-(docs/history/energy-and-loss-2026-12-04.md)."""
+OUTPUT_FLOOR = -15.42
+"""Lowest raw decoder output (before exp(x - 3): f = 1e-8, ``TrainConfig.brdf_floor``'s default) the
+training leaves unpenalised. Without a floor the near-mirror PolishedMetal trained to black; at -6 the
+sample CarPaint lost HDR FLIP (0.058 against 0.045, seed 0; docs/history/energy-and-loss-2026-12-04.md).
+-9 (f = 6e-6) held that near mirror's dim tails, which HDR FLIP sees down to about 1e-7, 3x too bright
+(docs/history/near-mirror-tails-2026-12-07.md)."""
+
+
+def raw_floor(brdf_floor: float) -> float:
+    """The raw decoder output (before exp(x - :data:`~mtlx2neural.formats.weights.OUTPUT_OFFSET`)) at which
+    f equals ``brdf_floor`` (linear RGB, before the cosine): the ``floor`` of :func:`floor_penalty`."""
+    return math.log(brdf_floor) + OUTPUT_OFFSET
 
 
 def floor_penalty(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float = OUTPUT_FLOOR) -> torch.Tensor:
@@ -160,7 +168,8 @@ def floor_penalty(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: floa
     prediction, but Adam normalises it and keeps stepping the same way, until exp() underflows to 0 in
     float32 and every gradient is exactly 0: the near-mirror sample trained to black that way within 50
     steps (docs/history/energy-and-loss-2026-12-04.md). Below the floor the penalty's gradient wins and
-    the raw output stays near it; a black value is still predicted as about 6e-6, far under log-L1's EPS."""
+    the raw output stays near it; a black value is still predicted as about the floor's f, far under
+    log-L1's scale."""
     return floor_terms(raw, wo, floor).mean()
 
 
@@ -170,23 +179,27 @@ def floor_terms(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float 
     return below * (wo[:, 2:3] > 0) if wo is not None else below
 
 
-def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1):
+def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1, floor=OUTPUT_FLOOR):
     """(BRDF loss, sampler loss) of one step's batch, given the latents: ``brdf_loss`` (one of
     :data:`BRDF_LOSSES`) between the decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the
-    filtered reference, f * cos, linear RGB) plus :func:`floor_penalty` of its raw outputs, then
+    filtered reference, f * cos, linear RGB) plus :func:`floor_penalty` of its raw outputs at ``floor``
+    (a raw output, :func:`raw_floor`), then
     :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame."""
     raw = decoder.logits(latent, wi, wo)
-    loss_brdf = brdf_loss(decoder.activate(raw, wo), target) + floor_penalty(raw, wo if decoder.analytic_cosine else None)
+    loss_brdf = brdf_loss(decoder.activate(raw, wo), target) + floor_penalty(
+        raw, wo if decoder.analytic_cosine else None, floor)
     return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
 
 
-def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, brdf_terms=log_l1_terms):
+def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, brdf_terms=log_l1_terms,
+                   floor=OUTPUT_FLOOR):
     """:func:`brdf_and_sampler_losses` of ``segments`` equal consecutive parts of the rows at once (several
     materials' batches through one shared decoder and sampler): ``(BRDF loss [S], sampler loss [S])``, each
     part's as if it were a batch of its own (means over the part; the KL's weights normalised within it).
-    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`)."""
+    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor``: as there."""
     raw = decoder.logits(latent, wi, wo)
-    terms = brdf_terms(decoder.activate(raw, wo), target) + floor_terms(raw, wo if decoder.analytic_cosine else None)
+    terms = brdf_terms(decoder.activate(raw, wo), target) + floor_terms(raw, wo if decoder.analytic_cosine else None,
+                                                                        floor)
     lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
     w = w.view(segments, -1)
     w = w / w.sum(1, keepdim=True).clamp_min(1e-12)

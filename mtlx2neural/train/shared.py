@@ -45,7 +45,7 @@ import torch
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.environment_fit import fit_environment_head
-from mtlx2neural.train.losses import brdf_loss_of, segment_losses
+from mtlx2neural.train.losses import brdf_loss_of, raw_floor, segment_losses
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.row_process import RemoteReplay, Request, RowProcess
 from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr, at_mollify_floor
@@ -127,7 +127,8 @@ class SharedTrainer:
         self.seconds: dict[str, float] = {}
         self.gen = torch.Generator().manual_seed(self.cfg.seed)  # the order materials take their steps in
         losses = functools.partial(segment_losses, brdf_terms=brdf_loss_of(self.cfg.brdf_loss, self.cfg.brdf_eps,
-                                                                           terms=True))
+                                                                           terms=True),
+                                   floor=raw_floor(self.cfg.brdf_floor))
         self._segment_losses = torch.compile(losses) if self.cfg.compile else losses
         self._queue: list[int] = []
         self.remote = False  # rows from a RowProcess (use_rows)

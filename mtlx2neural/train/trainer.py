@@ -54,6 +54,7 @@ from mtlx2neural.train.losses import (
     albedo_loss,
     brdf_and_sampler_losses,
     brdf_loss_of,
+    raw_floor,
 )
 from mtlx2neural.train.mollify import lobe_directions
 from mtlx2neural.train.replay import RowReplay
@@ -152,7 +153,8 @@ class Trainer:
             import logging
 
             torch._logging.set_logs(dynamo=logging.ERROR)  # the reference's data-dependent branches break graphs
-        losses = functools.partial(brdf_and_sampler_losses, brdf_loss=brdf_loss_of(cfg.brdf_loss, cfg.brdf_eps))
+        losses = functools.partial(brdf_and_sampler_losses, brdf_loss=brdf_loss_of(cfg.brdf_loss, cfg.brdf_eps),
+                                   floor=raw_floor(cfg.brdf_floor))
         self._losses = torch.compile(losses) if cfg.compile else losses
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
