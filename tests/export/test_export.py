@@ -101,17 +101,23 @@ def assert_round_trip(loaded, original, textured=False, lod=None, u_level=None, 
             torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
         # looser against the float32 model
         torch.testing.assert_close(loaded.eval(wi, wo, **kw), original.eval(wi, wo, **kw), rtol=1e-2, atol=1e-5)
-        torch.testing.assert_close(loaded.pdf(wi, wo, **kw), original.pdf(wi, wo, **kw), rtol=1e-2, atol=1e-5)
+        # The pdf of a narrow lobe moves by more than its FP16-rounded parameters at a few directions
+        # (measured: 1 of 2048 at 1.8% on the sample CarPaint, at its sampled directions; 1 of 2048 at 4.4% on
+        # MaterialX's basicTextured, at random ones): 99.5% within 1%, all within 5%.
+        assert_pdfs_close(original.pdf(wi, wo, **kw), loaded.pdf(wi, wo, **kw))
         wo_l, _, pdf_l = loaded.sample(wi, u, **kw)
         wo_f, _, _ = original.sample(wi, u, **kw)
         # A random number within the rounding change of the lobe weight picks the other lobe.
         assert ((wo_l - wo_f).abs().amax(-1) < 1e-2).float().mean() >= 0.99
-        # The pdf of a narrow lobe moves by more than its FP16-rounded parameters at a few directions
-        # (measured: 1 of 2048 at 1.8% on the sample CarPaint): 99.5% within 1%, all within 5%.
-        p_f, p_l = original.pdf(wi, wo_l, **kw), pdf_l
-        close = (p_f - p_l).abs() <= 1e-5 + 1e-2 * p_l.abs()
-        assert close.float().mean() >= 0.995, f"{(~close).sum()} of {close.numel()} pdfs beyond 1%"
-        torch.testing.assert_close(p_f, p_l, rtol=5e-2, atol=1e-5)
+        assert_pdfs_close(original.pdf(wi, wo_l, **kw), pdf_l)
+
+
+def assert_pdfs_close(p_f, p_l):
+    """The FP16 model's pdfs ``p_l`` against the float32 model's ``p_f``: 99.5 % within 1 % (plus 1e-5), all
+    within 5 % (assert_round_trip's comment says why not all within 1 %)."""
+    close = (p_f - p_l).abs() <= 1e-5 + 1e-2 * p_l.abs()
+    assert close.float().mean() >= 0.995, f"{(~close).sum()} of {close.numel()} pdfs beyond 1%"
+    torch.testing.assert_close(p_f, p_l, rtol=5e-2, atol=1e-5)
 
 
 def load_checkpoint_like(model):
