@@ -145,18 +145,18 @@ def _kl_rows(decoder, sampler, latent, wi, u):
     return lat_d, wo_s, w
 
 
-OUTPUT_FLOOR = -15.42
+def raw_floor(brdf_floor: float) -> float:
+    """The raw decoder output (before exp(x - :data:`~mtlx2neural.formats.weights.OUTPUT_OFFSET`)) at which
+    f equals ``brdf_floor`` (linear RGB, before the cosine): the ``floor`` of :func:`floor_penalty`."""
+    return math.log(brdf_floor) + OUTPUT_OFFSET
+
+
+OUTPUT_FLOOR = raw_floor(1e-8)
 """Lowest raw decoder output (before exp(x - 3): f = 1e-8, ``TrainConfig.brdf_floor``'s default) the
 training leaves unpenalised. Without a floor the near-mirror PolishedMetal trained to black; at -6 the
 sample CarPaint lost HDR FLIP (0.058 against 0.045, seed 0; docs/history/energy-and-loss-2026-12-04.md).
 -9 (f = 6e-6) held that near mirror's dim tails, which HDR FLIP sees down to about 1e-7, 3x too bright
 (docs/history/near-mirror-tails-2026-12-07.md)."""
-
-
-def raw_floor(brdf_floor: float) -> float:
-    """The raw decoder output (before exp(x - :data:`~mtlx2neural.formats.weights.OUTPUT_OFFSET`)) at which
-    f equals ``brdf_floor`` (linear RGB, before the cosine): the ``floor`` of :func:`floor_penalty`."""
-    return math.log(brdf_floor) + OUTPUT_OFFSET
 
 
 def floor_penalty(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float = OUTPUT_FLOOR) -> torch.Tensor:

@@ -216,9 +216,8 @@ def test_the_training_scale_sees_dim_tails():
 
 def test_the_floor_is_the_configured_brdf_value():
     """``raw_floor(f)`` is the raw output the decoder turns into f (before the cosine): the trainer's floor
-    is ``TrainConfig.brdf_floor`` in BRDF units, and ``OUTPUT_FLOOR`` is the default's raw value (to 1e-3:
-    it is written with two decimals). It lies under the default scale, so a tail the loss still sees is
-    never held up by the floor."""
+    is ``TrainConfig.brdf_floor`` in BRDF units, and ``OUTPUT_FLOOR`` is the default's raw value. It lies
+    under the default scale, so a tail the loss still sees is never held up by the floor."""
     from mtlx2neural.model.decoder import BrdfDecoder
     from mtlx2neural.train.config import TrainConfig
     from mtlx2neural.train.losses import OUTPUT_FLOOR, raw_floor
@@ -226,7 +225,7 @@ def test_the_floor_is_the_configured_brdf_value():
     dec = BrdfDecoder(analytic_cosine=False)
     for f in (1e-8, 3e-5):
         assert math.isclose(float(dec.activate(torch.tensor([[raw_floor(f)]]), None)), f, rel_tol=1e-5)
-    assert abs(raw_floor(TrainConfig.brdf_floor) - OUTPUT_FLOOR) < 1e-3
+    assert raw_floor(TrainConfig.brdf_floor) == OUTPUT_FLOOR
     assert TrainConfig.brdf_floor < 0.1 * TrainConfig.brdf_eps
 
 
