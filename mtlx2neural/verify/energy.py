@@ -24,7 +24,8 @@ one level (1x1) and the reference's points all coincide.
 Monte Carlo: the reference's albedo is estimated with ``samples`` scrambled-Sobol directions per
 point by its own analytic sampler. The model's is **not** estimated by its learned sampler alone,
 which cannot see energy it does not sample (a near-mirror model with a sharp spike where its sampler
-rarely goes measured 1.1x its reference that way, and rendered 2.2x as bright): :func:`mixture_albedo`
+rarely goes measured 1.1x its reference that way, and rendered 2.2x as bright):
+:func:`~mtlx2neural.textures.footprint_albedo.mixture_albedo`
 draws a third of the directions from each of the model's sampler, the reference's sampler at the row's
 uv and the cosine-weighted hemisphere, and weighs them by the mixture's density (the balance
 heuristic), which is unbiased wherever the cosine is positive. With the defaults a ratio is good to
@@ -38,9 +39,12 @@ from dataclasses import dataclass, field
 
 import torch
 
-from mtlx2neural.contract import ShadingPoint
-from mtlx2neural.reference.vec import cosine_sample, luminance
-from mtlx2neural.textures.footprint import footprint_sigma, stratified_gaussian
+from mtlx2neural.reference.vec import luminance
+from mtlx2neural.textures.footprint_albedo import (
+    model_level_albedo,
+    probe_rows,
+    reference_footprint_albedo,
+)
 
 VIEW_DEGREES = (0.0, 30.0, 60.0, 80.0)
 """Default view angles from the normal, degrees."""
@@ -115,45 +119,6 @@ class EnergyCheck:
                 "texels": self.texels, "samples": self.samples, "view_degrees": list(self.view_degrees)}
 
 
-def _view_directions(n: int, degrees, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """``wi`` [n * V, 3] (V view angles per row, random azimuth; local frame, z the normal) and the
-    angle of each row."""
-    theta = torch.tensor([math.radians(d) for d in degrees]).repeat(n)
-    phi = torch.rand(theta.shape[0], generator=generator) * 2 * math.pi
-    s = torch.sin(theta)
-    wi = torch.stack([s * torch.cos(phi), s * torch.sin(phi), torch.cos(theta)], -1)
-    return wi, torch.tensor(list(degrees)).repeat(n)
-
-
-def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples: int = 256,
-                   seed: int = 0) -> torch.Tensor:
-    """Directional albedo ``[N, 3]`` of ``model`` at unit ``wi`` ``[N, 3]`` (local frame, towards the viewer;
-    cosine included), estimated with directions drawn from a mixture of three samplers: ``model``'s own
-    at ``at``, ``reference``'s at ``reference_at`` (the same rows, the reference's parameters) and the
-    cosine-weighted hemisphere, ``samples`` scrambled-Sobol points per row of which sample j uses
-    strategy j mod 3. Each direction is weighed by the mixture's density (the mean of the three pdfs,
-    the balance heuristic), so the estimate is unbiased wherever the cosine is positive, however poorly
-    the model's sampler matches its BRDF. A failed draw contributes 0. No gradients."""
-    n = wi.shape[0]
-    rep = wi.repeat_interleave(samples, 0)
-    point, ref_point = at.repeat_rows(samples, n), reference_at.repeat_rows(samples, n)
-    sobol = torch.quasirandom.SobolEngine(3, scramble=True, seed=seed).draw(samples)
-    u = sobol.to(device=wi.device, dtype=wi.dtype).repeat(n, 1)
-    strategy = torch.arange(samples, device=wi.device).repeat(n) % 3
-    with torch.no_grad():
-        wo = cosine_sample(u[:, :2])
-        for who, at_rows, k in ((model, point, 0), (reference, ref_point, 1)):  # each samples its third
-            rows = torch.nonzero(strategy == k)[:, 0]
-            # the direction alone: a model that can draw it without evaluating its BRDF does so
-            draw = getattr(who, "sample_direction", None) or who.sample
-            wo[rows] = draw(rep[rows], u[rows], at_rows.select(rows, rep.shape[0]))[0].to(wo.dtype)
-        density = (model.pdf(rep, wo, point) + reference.pdf(rep, wo, ref_point)
-                   + wo[:, 2].clamp(min=0.0) / math.pi) / 3.0
-        f = model.eval(rep, wo, point)
-        weight = torch.where((density > 0)[:, None], f / density.clamp(min=1e-30)[:, None], torch.zeros_like(f))
-    return weight.view(n, samples, 3).mean(1)
-
-
 def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, texels: int = 64,
                  samples: int = 64, footprint_points: int = 8, view_degrees=VIEW_DEGREES, seed: int = 0,
                  params_at=None, device="cpu", coverage=None) -> EnergyCheck:
@@ -171,32 +136,12 @@ def energy_check(reference, model, resolution: tuple[int, int], levels: int, *, 
     g = torch.Generator().manual_seed(seed)
     out = []
     for k in range(levels):
-        uv = torch.rand(texels, 2, generator=g)
-        for _ in range(8 if coverage is not None else 0):  # redraw texels where there is no surface
-            empty = torch.nonzero(coverage(uv) <= 0)[:, 0]
-            if len(empty) == 0:
-                break
-            uv[empty] = torch.rand(len(empty), 2, generator=g)
-        wi, angle = _view_directions(texels, view_degrees, g)
-        uv_rows = uv.repeat_interleave(len(view_degrees), 0)
-        n = wi.shape[0]
-        # The reference over the level's footprint: P points per row, one albedo estimate each.
-        sigma = footprint_sigma(k, resolution)
-        offsets = stratified_gaussian(n, footprint_points, g) * sigma
-        pts = (uv_rows[:, None, :] + offsets).reshape(-1, 2).to(device)
-        wi, uv_rows = wi.to(device), uv_rows.to(device)
-        at = ShadingPoint(params=params_at(pts)) if params_at is not None else ShadingPoint(uv=pts)
-        with torch.no_grad():
-            ref = reference.albedo(wi.repeat_interleave(footprint_points, 0), at, samples=samples, seed=seed)
-            if coverage is not None:  # the mean over the surface that is there
-                w = coverage(pts.cpu()).to(ref.dtype).to(ref.device).view(n, footprint_points, 1)
-                ref = (ref.view(n, footprint_points, 3) * w).sum(1) / w.sum(1).clamp_min(1e-12)
-            else:
-                ref = ref.view(n, footprint_points, 3).mean(1)
-            centre = ShadingPoint(params=params_at(uv_rows)) if params_at is not None else ShadingPoint(uv=uv_rows)
-            mod = mixture_albedo(model, reference, wi, ShadingPoint(uv=uv_rows, lod=torch.full((n,), float(k),
-                                                                                               device=device)),
-                                 centre, samples=samples * footprint_points, seed=seed)
+        uv_rows, wi, angle = probe_rows(texels, view_degrees, g, coverage)
+        ref = reference_footprint_albedo(reference, wi, uv_rows, k, resolution, points=footprint_points,
+                                         samples=samples, seed=seed, generator=g, params_at=params_at,
+                                         coverage=coverage, device=device)
+        mod = model_level_albedo(model, reference, wi, uv_rows, k, samples=samples * footprint_points, seed=seed,
+                                 params_at=params_at, device=device)
         ref_l, mod_l = luminance(ref.float().cpu()), luminance(mod.float().cpu())
         by_view = {}
         for d in view_degrees:
