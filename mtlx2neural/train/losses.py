@@ -16,6 +16,14 @@ so one near-delta sample cannot dominate a batch with a gradient spike, and the 
 the log finite and its gradient bounded (<= 1/EPS) where the target is black. Dividing by EPS
 makes the loss linear below EPS and logarithmic above it.
 
+**The quantile it seeks** (``tau``): log-L1 is minimised by the median of noisy targets. A textured target
+is the mean of a few footprint points, a right-skewed estimate wherever a footprint mixes a lobe's peak with
+its surroundings, so its median lies below its mean and the fit loses energy. With ``tau`` the two signs of
+the log error weigh ``2 tau`` (prediction below the target) and ``2 (1 - tau)`` (above), which is minimised
+by the tau-quantile of the targets (the pinball loss, in log space); tau 0.5 is log-L1 exactly. The quantile
+that equals the mean depends on how skewed each level's targets are, so
+:mod:`mtlx2neural.train.energy_balance` steers it per MIP level from the energy it measures.
+
 **Sampler** (:func:`sampler_kl`): KL(neural BRDF || learned proxy) up to a constant, scored on
 the sampler's own directions mixed defensively with cosine ones (``KL_DEFENSIVE``); gradients reach
 the sampler only. The uniform-direction estimator it replaced, and the measurement, are in
@@ -44,19 +52,23 @@ KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine dens
 KL_LOG_FLOOR = 1e-4  # added to the sampler's density inside the KL's log: a sample it cannot reach costs log(1e-4)
 
 
-def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
     """Mean |log1p(pred/eps) - log1p(target/eps)| over all elements (inputs must be >= 0; negative
     values are clamped to 0). ``pred`` and ``target`` are cosine-weighted BRDF values f * cos [N, 3],
-    linear RGB; ``eps`` is in the same units."""
-    return log_l1_terms(pred, target, eps).mean()
+    linear RGB; ``eps`` is in the same units. ``tau`` (None, a float or [N, 1] per row, in (0, 1)): the
+    quantile the loss seeks (module docstring); None or 0.5 is the plain absolute log error."""
+    return log_l1_terms(pred, target, eps, tau).mean()
 
 
-def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
     """:func:`log_l1` per element, [N, 3] (not averaged)."""
-    return (torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)).abs()
+    d = torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)
+    if tau is None:
+        return d.abs()
+    return 2.0 * torch.where(d < 0, -tau * d, (1.0 - tau) * d)
 
 
-def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
     """Mean of (pred - target)^2 / (sg(pred)^2 + eps^2) over all elements: the relative L2 of neural
     radiance caching (Müller et al. 2021), the prediction's scale held out of the gradient (sg: detached).
 
@@ -65,11 +77,11 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> t
     the median and drops it. Dividing by the prediction's own square weighs dark and bright values
     alike (a relative error), and ``eps`` (f * cos units, squared) keeps black predictions from
     dividing by zero. Inputs as :func:`log_l1`: cosine-weighted BRDF values f * cos [N, 3], linear RGB;
-    negative values are clamped to 0."""
+    negative values are clamped to 0. ``tau`` is ignored (it is mean-seeking already)."""
     return relative_l2_terms(pred, target, eps).mean()
 
 
-def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
     """:func:`relative_l2` per element, [N, 3] (not averaged)."""
     pred = pred.clamp_min(0)
     return (pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)
@@ -81,16 +93,16 @@ MIXED_RELATIVE_WEIGHT = 0.1
 at 0.187 (log_l1: 0.96 / 0.85 at 0.045 / 0.174; BENCHMARKS.md, "Energy and the BRDF loss")."""
 
 
-def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
-    """:func:`log_l1` (its scale ``eps``) plus :data:`MIXED_RELATIVE_WEIGHT` times :func:`relative_l2`:
-    log-L1's shape, and a mean-seeking pull that keeps the prediction from collapsing where most targets are
-    black."""
-    return log_l1(pred, target, eps) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
+def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
+    """:func:`log_l1` (its scale ``eps``, its quantile ``tau``) plus :data:`MIXED_RELATIVE_WEIGHT` times
+    :func:`relative_l2`: log-L1's shape, and a mean-seeking pull that keeps the prediction from collapsing
+    where most targets are black."""
+    return log_l1(pred, target, eps, tau) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
 
 
-def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
     """:func:`mixed_log_l1` per element, [N, 3] (not averaged)."""
-    return log_l1_terms(pred, target, eps) + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target)
+    return log_l1_terms(pred, target, eps, tau) + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target)
 
 
 BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2, "log_l1+relative_l2": mixed_log_l1}
@@ -179,26 +191,30 @@ def floor_terms(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float 
     return below * (wo[:, 2:3] > 0) if wo is not None else below
 
 
-def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1, floor=OUTPUT_FLOOR):
+def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1, floor=OUTPUT_FLOOR,
+                            tau=None):
     """(BRDF loss, sampler loss) of one step's batch, given the latents: ``brdf_loss`` (one of
     :data:`BRDF_LOSSES`) between the decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the
     filtered reference, f * cos, linear RGB) plus :func:`floor_penalty` of its raw outputs at ``floor``
     (a raw output, :func:`raw_floor`), then
-    :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame."""
+    :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame. ``tau`` (None or
+    [N] per row): the quantile the BRDF loss seeks (module docstring)."""
     raw = decoder.logits(latent, wi, wo)
-    loss_brdf = brdf_loss(decoder.activate(raw, wo), target) + floor_penalty(
+    tau = None if tau is None else tau[:, None]
+    loss_brdf = brdf_loss(decoder.activate(raw, wo), target, tau=tau) + floor_penalty(
         raw, wo if decoder.analytic_cosine else None, floor)
     return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
 
 
 def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, brdf_terms=log_l1_terms,
-                   floor=OUTPUT_FLOOR):
+                   floor=OUTPUT_FLOOR, tau=None):
     """:func:`brdf_and_sampler_losses` of ``segments`` equal consecutive parts of the rows at once (several
     materials' batches through one shared decoder and sampler): ``(BRDF loss [S], sampler loss [S])``, each
     part's as if it were a batch of its own (means over the part; the KL's weights normalised within it).
-    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor``: as there."""
+    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor`` and ``tau`` (per row): as there."""
     raw = decoder.logits(latent, wi, wo)
-    terms = brdf_terms(decoder.activate(raw, wo), target) + floor_terms(raw, wo if decoder.analytic_cosine else None,
+    tau = None if tau is None else tau[:, None]
+    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau) + floor_terms(raw, wo if decoder.analytic_cosine else None,
                                                                         floor)
     lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
     w = w.view(segments, -1)

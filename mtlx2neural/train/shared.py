@@ -11,7 +11,8 @@ for a per-material run, after tying their models' ``decoder`` and ``sampler`` to
    losses weighted 1/K, and takes one Adam step over every parameter (the shared networks', each
    encoder's or latent pyramid's). The K batches go through the shared networks in one pass
    (:func:`~.losses.segment_losses`: each batch's losses as its own), which costs less than K passes.
-   A joint step so costs about what one material's step costs, whatever the number of materials. Once
+   A joint step so costs about what one material's step costs, whatever the number of materials. Each
+   material keeps its own energy balance (:mod:`.energy_balance`: its levels' loss quantiles). Once
    a material's mollification angle is at its floor, its rows are drawn :data:`FLOOR_PREFETCH` of its
    steps at a time (:meth:`SharedTrainer._prefetch_at_floor`).
 2. **Latent fine-tune**: the shared networks frozen, each material's latents alone for
@@ -212,13 +213,16 @@ class SharedTrainer:
         if len({b.wi.shape[0] for b in batches}) == 1:
             cat = [torch.cat(parts) for parts in zip(*((b.latent, b.wi, b.wo, b.target, b.u_kl) for b in batches))]
             lead = trainers[0].model
-            brdf, kl = self._segment_losses(lead.decoder, lead.sampler, *cat, segments=len(batches))
+            tau = None  # each material's rows at their own levels' quantiles (0.5 without a balance)
+            if any(b.tau is not None for b in batches):
+                tau = torch.cat([b.tau if b.tau is not None else torch.full_like(b.wi[:, 0], 0.5) for b in batches])
+            brdf, kl = self._segment_losses(lead.decoder, lead.sampler, *cat, segments=len(batches), tau=tau)
             out = list(zip(brdf + kl, brdf, kl))
         else:  # batches of different sizes: one at a time
             out = []
             for t, b in zip(trainers, batches):
                 loss_brdf, loss_kl = t._losses(t.model.decoder, t.model.sampler, b.latent, b.wi, b.wo, b.target,
-                                               b.u_kl)
+                                               b.u_kl, tau=b.tau)
                 out.append((loss_brdf + loss_kl, loss_brdf, loss_kl))
         return [(loss + t.albedo_term(b), brdf, kl) if t.cfg.albedo_head else (loss, brdf, kl)
                 for t, b, (loss, brdf, kl) in zip(trainers, batches, out)]
@@ -281,6 +285,12 @@ class SharedTrainer:
             rec = self.joint_step()
             if not all(math.isfinite(rec[k]) for k in ("loss_brdf", "loss_kl", "grad_norm")):
                 raise FloatingPointError(f"non-finite loss at joint step {self.step}: {rec}")
+            for t in self.trainers:  # each material's energy balance (train.energy_balance), when one is due
+                balanced = t.balance_energy()
+                if balanced and t.history and t.history[-1]["step"] == self.step:
+                    t.history[-1].update(balanced)
+                elif balanced:
+                    t.history.append({"step": self.step, **balanced})
             if self.step % 25 == 0 or self.step == cfg.iterations:
                 rec["seconds"] = round(time.time() - t0, 2)
                 self.history.append(rec)

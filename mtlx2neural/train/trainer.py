@@ -8,7 +8,8 @@ Three phases over ``cfg.iterations`` steps:
 Each step draws (uv, level, wi, wo) (a share of wo near the reference's lobes and,
 with ``grazing_fraction``, extra rows with wi near the horizon), a footprint-filtered
 and mollified reference target (the cone narrows with the paper's cosine decay, then stays
-at a floor; ``train.mollify``), and optimises the log-L1 BRDF loss plus the sampler's KL loss
+at a floor; ``train.mollify``), and optimises the log-L1 BRDF loss (its quantile per MIP level steered
+by the energy the model keeps, with ``energy_gain``: ``train.energy_balance``) plus the sampler's KL loss
 against the current neural BRDF, scored on the sampler's own samples mixed with cosine ones
 (latents detached; docs/history/paper-choices-2026-12-02.md), plus the albedo head's loss when it
 has one (every loss: ``train.losses``). With ``environment_fraction``, the environment head is fitted
@@ -43,6 +44,7 @@ from mtlx2neural.train.adam import Adam, cosine_lr
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
 from mtlx2neural.train.encoder_input import EncoderInput
+from mtlx2neural.train.energy_balance import EnergyBalance, update_due
 from mtlx2neural.train.environment_fit import fit_environment_head
 from mtlx2neural.train.latent_init import (
     freeze_encoder,
@@ -71,7 +73,8 @@ GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a
 class StepRows:
     """One step's batch (:meth:`Trainer.step_rows`): the rows of :meth:`Trainer.draw_rows` (``uv``, ``level``,
     ``wi``, ``wo``, ``target``), their latent codes ``latent`` [N, latent_dim] (with the graph to the encoder
-    or the latent pyramid) and the sampler loss's uniform numbers ``u_kl`` [N, 3]."""
+    or the latent pyramid), the sampler loss's uniform numbers ``u_kl`` [N, 3], and each row's BRDF loss
+    quantile ``tau`` [N] (None without an energy balance: plain log-L1)."""
 
     uv: torch.Tensor
     level: torch.Tensor
@@ -80,6 +83,7 @@ class StepRows:
     target: torch.Tensor
     latent: torch.Tensor
     u_kl: torch.Tensor
+    tau: torch.Tensor | None = None
 
 
 class TrainingInterrupted(Exception):
@@ -156,6 +160,8 @@ class Trainer:
         losses = functools.partial(brdf_and_sampler_losses, brdf_loss=brdf_loss_of(cfg.brdf_loss, cfg.brdf_eps),
                                    floor=raw_floor(cfg.brdf_floor))
         self._losses = torch.compile(losses) if cfg.compile else losses
+        self.balance: EnergyBalance | None = None  # built at its first update (:meth:`_balance_energy`)
+        self._balance_state = None  # a resumed run's balance, restored when it is built
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
 
@@ -169,7 +175,8 @@ class Trainer:
         _atomic_save({"model": self.model.state_dict(), "opt": self.opt.state_dict(), "step": self.step,
                       "baked": self.baked, "history": self.history, "config": dataclasses.asdict(self.cfg),
                       "rng": self.gen.get_state(), "udim_tiles": self.tiles,
-                      "replay": self.replay.state_dict(), "environment_history": self.environment_history},
+                      "replay": self.replay.state_dict(), "environment_history": self.environment_history,
+                      "energy_balance": self.balance.state_dict() if self.balance is not None else self._balance_state},
                      self.checkpoint_path)
         self._write_curves()
 
@@ -184,6 +191,9 @@ class Trainer:
         self.gen.set_state(ck["rng"])
         self.replay.load_state_dict(ck.get("replay"), self.device)
         self.environment_history = ck.get("environment_history", [])
+        self._balance_state = ck.get("energy_balance")
+        if self._balance_state:  # the quantiles the run had reached apply from its next step
+            self._build_balance()
         return True
 
     def _write_curves(self) -> None:
@@ -311,7 +321,7 @@ class Trainer:
         the BRDF and sampler losses, and the albedo head's when it has one. No optimiser step."""
         rows = self.step_rows()
         loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, rows.latent, rows.wi, rows.wo,
-                                          rows.target, rows.u_kl)
+                                          rows.target, rows.u_kl, tau=rows.tau)
         loss = loss_brdf + loss_kl
         if self.cfg.albedo_head:
             loss = loss + self.albedo_term(rows)
@@ -323,7 +333,8 @@ class Trainer:
         uv, level, wi, wo, target = self.replay.batch(self.draw_rows)
         latent = self._latent(uv, level)
         u_kl = torch.rand(wi.shape[0], 3, generator=self.gen).to(self.device)
-        return StepRows(uv, level, wi, wo, target, latent, u_kl)
+        tau = self.balance.row_tau(level) if self.balance is not None else None
+        return StepRows(uv, level, wi, wo, target, latent, u_kl, tau)
 
     def albedo_term(self, rows: StepRows) -> torch.Tensor:
         """The albedo head's loss on ``rows`` (its targets drawn now, from the reference)."""
@@ -336,6 +347,36 @@ class Trainer:
         return {"step": self.step, "phase": "finetune" if self.baked else "encoder",
                 "loss_brdf": loss_brdf.item(), "loss_kl": loss_kl.item(), "lr": _lr(self.cfg, self.step),
                 "grad_norm": grad_norm, "clipped_steps": self.clipped_steps}
+
+    def _build_balance(self) -> None:
+        """The energy balance (:mod:`.energy_balance`), built once, with a resumed run's state."""
+        if self.balance is not None:
+            return
+        native = bool(self.stack.channels) and self.stack.texel_ratio == (1.0, 1.0)
+        self.balance = EnergyBalance(
+            self.ref, len(self.model.latents.levels), tuple(self.stack.resolution), gain=self.cfg.energy_gain,
+            seed=self.cfg.seed, device=self.device,
+            params_at=(lambda pts: self.stack.sample(pts, 0)) if native else None, coverage=self.surface.coverage_at if self.surface is not None else None)
+        self.balance.load_state_dict(self._balance_state)
+
+    def balance_energy(self) -> dict:
+        """After a step: update the energy balance's quantiles when an update is due
+        (:mod:`.energy_balance`), building the balance at its first; returns the curves' fields of the update
+        (``energy_ratio_min``, ``energy_tau_min``, ``energy_tau_max``), empty when there was none. No balance
+        without ``cfg.energy_gain``, for a UDIM material (its levels are per tile) or with relative_l2 (which
+        seeks the mean already). The probe fills the latents from the encoder before the bake, as a FLIP
+        probe does."""
+        cfg = self.cfg
+        if (cfg.energy_gain <= 0 or self.tiles is not None or cfg.brdf_loss == "relative_l2"
+                or not update_due(self.step, cfg.iterations)):
+            return {}
+        self._build_balance()
+        if not self.baked:
+            self._encode_latents()
+        ratios = self.balance.update(self.model)
+        taus = self.balance.taus
+        return {"energy_ratio_min": round(min(ratios), 4), "energy_tau_min": round(float(taus.min()), 4),
+                "energy_tau_max": round(float(taus.max()), 4)}
 
     def train_step(self) -> dict:
         loss, loss_brdf, loss_kl = self.step_loss()
@@ -393,6 +434,8 @@ class Trainer:
                 rec = self.train_step()
                 if not all(math.isfinite(rec[k]) for k in ("loss_brdf", "loss_kl", "grad_norm")):
                     raise FloatingPointError(f"non-finite loss at step {self.step}: {rec}")
+                balanced = self.balance_energy()
+                rec.update(balanced)
                 rec["flip_probe"] = math.nan
                 if probe is not None and cfg.probe_every > 0 and (self.step % cfg.probe_every == 0
                                                                   or self.step == cfg.iterations):
@@ -401,7 +444,8 @@ class Trainer:
                         self._encode_latents()
                     rec["flip_probe"] = round(float(probe(self.model)), 5)
                     probing += time.time() - t
-                if self.step % 25 == 0 or self.step == cfg.iterations or math.isfinite(rec["flip_probe"]):
+                if (self.step % 25 == 0 or self.step == cfg.iterations or math.isfinite(rec["flip_probe"])
+                        or balanced):
                     rec["seconds"] = round(time.time() - start - probing, 2)
                     self.history.append(rec)
                     bar.set_postfix(phase=rec["phase"], loss=f"{rec['loss_brdf']:.4f}", kl=f"{rec['loss_kl']:.3f}")

@@ -13,7 +13,8 @@
    ``prefetch`` draws the rows of that many steps in one call to the reference (``target_prefetch``).
    ``input`` is what the encoder reads (:mod:`mtlx2neural.train.encoder_input`): ``normalized``, the
    atlas's channels standardised by the atlas's own statistics, plus log roughness, which every material
-   is then read with; ``brdf_eps`` is log-L1's scale and ``brdf_floor`` its floor (``TrainConfig``'s).
+   is then read with; ``brdf_eps`` is log-L1's scale, ``brdf_floor`` its floor and ``energy_gain`` its energy balance
+   (``TrainConfig``'s).
 4. Save the encoder, decoder (with its environment head) and sampler with the stack's channel layout,
    the encoder's input statistics and the run's provenance (:mod:`.weights`).
 
@@ -82,7 +83,7 @@ def canonical_statistics(stats: dict | None) -> dict | None:
 def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS, size: int = DEFAULT_SIZE,
                     seed: int = 0, lr: float = DEFAULT_LR, workdir: Path | None = None, progress: bool = True,
                     prefetch: int = 1, encoder_input: str = "normalized", brdf_eps: float | None = None,
-                    brdf_floor: float | None = None) -> dict:
+                    brdf_floor: float | None = None, energy_gain: float | None = None) -> dict:
     """Steps 1-3 of the module docstring; returns the weights' dict (:mod:`.weights`)."""
     from mtlx2neural.train.config import PRESETS  # Local: fast --help
     from mtlx2neural.train.trainer import Trainer  # Local: fast --help
@@ -96,7 +97,8 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
                                   environment_fraction=ENVIRONMENT_FRACTION, target_prefetch=prefetch,
                                   encoder_input=encoder_input,
                                   brdf_eps=PRESETS["fast"].brdf_eps if brdf_eps is None else brdf_eps,
-                                  brdf_floor=PRESETS["fast"].brdf_floor if brdf_floor is None else brdf_floor)
+                                  brdf_floor=PRESETS["fast"].brdf_floor if brdf_floor is None else brdf_floor,
+                                  energy_gain=PRESETS["fast"].energy_gain if energy_gain is None else energy_gain)
         trainer = Trainer(ref, stack, cfg, folder / "train")
         net = trainer.run(progress=progress)
     last = trainer.history[-1] if trainer.history else {}
@@ -110,7 +112,7 @@ def train_universal(model: str = "UsdPreviewSurface", steps: int = DEFAULT_STEPS
         "provenance": {
             "command": f"python -m mtlx2neural.universal.train --model {model} --steps {steps} --size {size} "
                        f"--seed {seed} --lr {lr} --input {encoder_input} --brdf-eps {cfg.brdf_eps} "
-                       f"--brdf-floor {cfg.brdf_floor}"
+                       f"--brdf-floor {cfg.brdf_floor} --energy-gain {cfg.energy_gain}"
                        + (f" --prefetch {prefetch}" if prefetch > 1 else ""),
             "config": dataclasses.asdict(cfg), "atlas": {"size": size, "seed": seed},
             "seconds": round(time.time() - t0, 1), "torch": torch.__version__, "threads": torch.get_num_threads(),
@@ -134,11 +136,15 @@ def main(argv=None) -> int:
                    help="log-L1's scale in f*cos units (default: the fast preset's)")
     p.add_argument("--brdf-floor", type=float, default=None,
                    help="the smallest f the decoder predicts without a penalty (default: the fast preset's)")
+    p.add_argument("--energy-gain", type=float, default=None,
+                   help="how fast each level's loss quantile follows the energy it keeps; 0: plain log-L1 "
+                        "(default: the fast preset's)")
     p.add_argument("--out", type=Path, default=WEIGHTS_DIR, help="folder of the weights file (default: the package's)")
     p.add_argument("--workdir", type=Path, default=None, help="keep the atlas and checkpoint here (default: a temporary folder)")
     a = p.parse_args(argv)
     data = train_universal(a.model, a.steps, a.size, a.seed, a.lr, a.workdir, prefetch=a.prefetch,
-                           encoder_input=a.input, brdf_eps=a.brdf_eps, brdf_floor=a.brdf_floor)
+                           encoder_input=a.input, brdf_eps=a.brdf_eps, brdf_floor=a.brdf_floor,
+                           energy_gain=a.energy_gain)
     path = weights_path(a.model, a.out)
     save_weights(path, data)
     print(f"{path}: {len(data['channels'])} channel groups, {data['provenance']['seconds']} s", flush=True)

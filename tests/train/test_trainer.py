@@ -175,9 +175,9 @@ def test_grazing_rows_are_extra_and_half_of_them_near_the_lobes(carpaint, tmp_pa
     seen = {}
     real = tr._losses
 
-    def spy(decoder, sampler, latent, wi, wo, target, wo_u):
+    def spy(decoder, sampler, latent, wi, wo, target, wo_u, **kw):
         seen.update(wi=wi, wo=wo, target=target)
-        return real(decoder, sampler, latent, wi, wo, target, wo_u)
+        return real(decoder, sampler, latent, wi, wo, target, wo_u, **kw)
 
     tr._losses = spy
     tr.train_step()

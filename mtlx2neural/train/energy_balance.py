@@ -1,0 +1,133 @@
+"""Energy balance: steer the BRDF loss's quantile per MIP level so each level keeps the reference's energy.
+
+log-L1 follows the median of its targets (:mod:`mtlx2neural.train.losses`). A textured material's target
+is the mean of a few footprint points, a right-skewed estimate where a footprint mixes a lobe's peak with
+its surroundings, so with ``fast``'s 8 points the textured samples kept 85-93 % of their directional albedo;
+32 points would keep it at twice the training time (docs/history/energy-levers-2026-12-06.md). The loss's
+quantile ``tau`` moves the fit between the targets' median and their upper tail, and the quantile that
+equals their mean depends on how skewed each level's targets are, so it is measured rather than set:
+
+1. **Probe set**, drawn once from a generator of its own (seed ``cfg.seed + PROBE_SEED_OFFSET``, so the
+   training's random numbers are untouched): per level, :data:`PROBE_TEXELS` texels, each seen from the
+   energy check's four view angles, and the reference's directional albedo over each row's footprint
+   (:func:`~mtlx2neural.textures.footprint_albedo.reference_footprint_albedo`, :data:`PROBE_POINTS` points of
+   :data:`PROBE_SAMPLES` directions). The probe set is not the energy check's (seed 0), which stays a
+   held-out measurement.
+2. **Updates**, every :data:`EVERY_FRACTION` of the run from :data:`START_FRACTION` on (before that the model
+   is too far from its targets for its energy to mean much): level k's ratio r_k = sum of the model's albedo
+   luminance over the reference's (:func:`~mtlx2neural.textures.footprint_albedo.mixture_albedo`), smoothed
+   in log space (:data:`SMOOTHING`), moves its quantile by ``-gain * log r_k`` (``cfg.energy_gain``), at most
+   :data:`MAX_MOVE` per update, within [:data:`TAU_MIN`, :data:`TAU_MAX`].
+
+A level that keeps its energy stays at its quantile, so a material whose fit already conserves energy
+(a uniform plastic) trains as plain log-L1 would. The near mirror's energy swings by 2x between steps 50
+apart (the spike's height follows Adam's steps), which is why each move is bounded and smoothed.
+
+Measured with ``fast`` (docs/history/energy-balance-2026-12-07.md): the BrushedMetal's lowest level ratio
+goes from 0.85 / 0.87 (seeds 0 / 1) to 0.98 / 1.03, the GlazedCeramic's from 0.93 / 0.91 to 1.00 / 0.99. A
+UDIM material is not balanced (its levels are per tile), as the energy check does not measure it.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from mtlx2neural.reference.vec import luminance
+from mtlx2neural.textures.footprint_albedo import (
+    model_level_albedo,
+    probe_rows,
+    reference_footprint_albedo,
+)
+
+MIN_ITERATIONS = 200
+"""Runs shorter than this are not balanced: their model's energy is too far from settled to steer by."""
+START_FRACTION = 0.3
+"""Share of the run before the first update."""
+EVERY_FRACTION = 0.05
+"""Share of the run between updates (50 steps of ``fast``'s 1000)."""
+PROBE_TEXELS = 32
+"""Texels per level in the probe set (each seen from four view angles)."""
+PROBE_POINTS = 4
+"""Footprint points per probe row for the reference's albedo."""
+PROBE_SAMPLES = 32
+"""Directions per footprint point (the model's albedo: this times :data:`PROBE_POINTS` per row)."""
+PROBE_VIEWS = (0.0, 30.0, 60.0, 80.0)
+"""View angles from the normal, degrees (the energy check's)."""
+PROBE_SEED_OFFSET = 7919
+"""The probe set's generator is seeded with the run's seed plus this."""
+SMOOTHING = 0.5
+"""Weight of the previous smoothed log ratio in each update (exponential smoothing)."""
+MAX_MOVE = 0.03
+"""Largest change of a level's quantile in one update."""
+TAU_MIN, TAU_MAX = 0.3, 0.8
+"""The quantile's bounds."""
+
+
+def update_due(step: int, iterations: int) -> bool:
+    """Whether an update falls after step ``step`` (counted from 1) of a run of ``iterations``: from
+    :data:`START_FRACTION` of the run on, every :data:`EVERY_FRACTION` of it, never after the last step (no
+    step would follow it); never in a run shorter than :data:`MIN_ITERATIONS`."""
+    if iterations < MIN_ITERATIONS:
+        return False
+    start = max(1, round(START_FRACTION * iterations))
+    every = max(1, round(EVERY_FRACTION * iterations))
+    return start <= step < iterations and (step - start) % every == 0
+
+
+class EnergyBalance:
+    """Per-level quantiles of a training run's BRDF loss, steered by the energy the model keeps (module
+    docstring). ``reference`` and ``levels`` / ``resolution`` (the latent pyramid's level count and finest
+    grid, H x W texels) are the run's; ``params_at`` and ``coverage`` as the energy check takes them;
+    ``gain``: ``cfg.energy_gain``; ``seed``: the run's (the probe set's generator and Sobol seed derive from
+    it). :func:`update_due` says when to call :meth:`update`."""
+
+    def __init__(self, reference, levels: int, resolution: tuple[int, int], *, gain: float, seed: int, params_at=None, coverage=None, device="cpu"):
+        self.reference, self.params_at, self.device = reference, params_at, device
+        self.gain = float(gain)
+        self.taus = torch.full((levels,), 0.5)
+        self.smoothed: torch.Tensor | None = None
+        self.last_ratios: list[float] = []
+        g = torch.Generator().manual_seed(seed + PROBE_SEED_OFFSET)
+        self.rows = []  # per level: (uv [n, 2], wi [n, 3], summed luminance of the reference's albedo)
+        for k in range(levels):
+            uv, wi, _ = probe_rows(PROBE_TEXELS, PROBE_VIEWS, g, coverage)
+            ref = reference_footprint_albedo(reference, wi, uv, k, resolution, points=PROBE_POINTS,
+                                             samples=PROBE_SAMPLES, seed=seed, generator=g, params_at=params_at,
+                                             coverage=coverage, device=device)
+            self.rows.append((uv, wi, float(luminance(ref.float().cpu()).sum())))
+        self.seed = seed
+
+    def ratios(self, model) -> torch.Tensor:
+        """[levels] the model's energy ratio per level on the probe set (model / reference albedo luminance)."""
+        out = []
+        for k, (uv, wi, ref_sum) in enumerate(self.rows):
+            mod = model_level_albedo(model, self.reference, wi, uv, k, samples=PROBE_POINTS * PROBE_SAMPLES,
+                                     seed=self.seed, params_at=self.params_at, device=self.device)
+            out.append(float(luminance(mod.float().cpu()).sum()) / ref_sum if ref_sum > 0 else 1.0)
+        return torch.tensor(out)
+
+    def update(self, model) -> list[float]:
+        """Measure the model's ratios and move each level's quantile (module docstring); returns the ratios."""
+        ratios = self.ratios(model)
+        log_r = torch.log(ratios.clamp(0.2, 5.0))
+        log_r = torch.where(torch.isfinite(log_r), log_r, torch.zeros_like(log_r))
+        self.smoothed = log_r if self.smoothed is None else SMOOTHING * self.smoothed + (1 - SMOOTHING) * log_r
+        move = (-self.gain * self.smoothed).clamp(-MAX_MOVE, MAX_MOVE)
+        self.taus = (self.taus + move).clamp(TAU_MIN, TAU_MAX)
+        self.last_ratios = ratios.tolist()
+        return self.last_ratios
+
+    def row_tau(self, level: torch.Tensor) -> torch.Tensor:
+        """[N] each row's quantile, from its MIP level [N] (int64)."""
+        return self.taus.to(level.device)[level]
+
+    def state_dict(self) -> dict:
+        """What a checkpoint keeps of the balance (the probe set is redrawn from the seed)."""
+        return {"taus": self.taus.tolist(), "smoothed": None if self.smoothed is None else self.smoothed.tolist()}
+
+    def load_state_dict(self, state: dict | None) -> None:
+        """Restore :meth:`state_dict`'s values (None: a checkpoint written without a balance)."""
+        if not state:
+            return
+        self.taus = torch.tensor(state["taus"], dtype=torch.float32)
+        self.smoothed = None if state.get("smoothed") is None else torch.tensor(state["smoothed"])

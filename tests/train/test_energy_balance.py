@@ -1,0 +1,167 @@
+"""The energy balance: the asymmetric log-L1, its schedule, its measurement and its moves, and a textured
+sample that keeps its energy with ``fast``."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from materials import layered_spheres_material
+
+from mtlx2neural.contract import ShadingPoint
+from mtlx2neural.train import energy_balance as eb
+from mtlx2neural.train.config import preset
+from mtlx2neural.train.losses import log_l1_terms
+from mtlx2neural.train.trainer import Trainer
+
+
+@pytest.fixture(scope="module")
+def carpaint():
+    return layered_spheres_material("CarPaint")
+
+
+class Scaled:
+    """A stand-in model: the reference itself times ``scale`` (its albedo is the reference's times the scale);
+    it samples and has the density of the reference."""
+
+    def __init__(self, reference, scale: float):
+        self.ref, self.scale = reference, scale
+
+    def eval(self, wi, wo, at=None):
+        return self.scale * self.ref.eval(wi, wo, ShadingPoint(uv=at.uv))
+
+    def pdf(self, wi, wo, at=None):
+        return self.ref.pdf(wi, wo, ShadingPoint(uv=at.uv))
+
+    def sample(self, wi, u, at=None):
+        return self.ref.sample(wi, u, ShadingPoint(uv=at.uv))
+
+
+def test_the_asymmetric_log_l1_seeks_its_quantile():
+    """Over right-skewed targets (log-normal), the constant prediction that minimises the loss is the targets'
+    tau-quantile: the pinball loss in log space. Grid step 0.0067 in log; the empirical minimiser is a sample
+    quantile itself, so 0.015 (two steps) covers the grid alone. tau 0.5 is plain log-L1, bit for bit."""
+    g = torch.Generator().manual_seed(0)
+    y = torch.exp(torch.randn(5000, generator=g, dtype=torch.float64))
+    grid = torch.linspace(-2.0, 2.0, 601, dtype=torch.float64)
+    preds, targets = torch.exp(grid)[:, None].expand(-1, y.shape[0]), y[None].expand(grid.shape[0], -1)
+    for tau in (0.3, 0.5, 0.7):
+        best = float(grid[int(torch.argmin(log_l1_terms(preds, targets, 1e-9, tau).mean(1)))])
+        assert abs(best - float(torch.quantile(torch.log(y), tau))) < 0.015, tau
+    y = y[:, None].expand(-1, 3)
+    pred = torch.rand(64, 3, generator=g)
+    assert torch.equal(log_l1_terms(pred, y[:64], 1e-4, tau=0.5), log_l1_terms(pred, y[:64], 1e-4))
+    # A per-row quantile ([N, 1]) weighs each row's error by its own: rows below their target at tau 0.8 cost 4x
+    # what they cost at 0.2.
+    low = torch.zeros(2, 3) + 0.5
+    terms = log_l1_terms(low, torch.ones(2, 3), 1e-4, tau=torch.tensor([[0.8], [0.2]]))
+    assert torch.allclose(terms[0], 4 * terms[1])
+
+
+def test_updates_fall_from_thirty_percent_every_twentieth_never_after_the_last_step():
+    assert [s for s in range(1, 1001) if eb.update_due(s, 1000)] == list(range(300, 1000, 50))
+    assert [s for s in range(1, 201) if eb.update_due(s, 200)] == list(range(60, 200, 10))
+    assert not any(eb.update_due(s, eb.MIN_ITERATIONS - 1) for s in range(0, eb.MIN_ITERATIONS))
+
+
+def test_the_balance_measures_the_energy_and_moves_the_quantile_against_it(carpaint):
+    """The reference itself measures 1 (the estimators are the energy check's; 3 % covers their Monte Carlo
+    error on the coat); the reference at 0.8 measures 0.8 and raises the quantile by the largest move; at 1.25
+    it lowers it; smoothing keeps a repeated measurement's move."""
+    ref, _ = carpaint
+    balance = eb.EnergyBalance(ref, 1, (1, 1), gain=0.2, seed=0)
+    same = float(balance.ratios(Scaled(ref, 1.0))[0])
+    assert abs(same - 1.0) < 0.03, same
+    assert abs(float(balance.ratios(Scaled(ref, 0.8))[0]) - 0.8 * same) < 1e-4
+    balance.update(Scaled(ref, 0.8))
+    assert math.isclose(float(balance.taus[0]), 0.5 + eb.MAX_MOVE, abs_tol=1e-6)
+    balance.update(Scaled(ref, 0.8))
+    assert math.isclose(float(balance.taus[0]), 0.5 + 2 * eb.MAX_MOVE, abs_tol=1e-6)
+    down = eb.EnergyBalance(ref, 1, (1, 1), gain=0.2, seed=0)
+    down.update(Scaled(ref, 1.25))
+    assert float(down.taus[0]) < 0.5
+    kept = eb.EnergyBalance(ref, 1, (1, 1), gain=0.2, seed=0)
+    kept.update(Scaled(ref, 1.0))
+    assert abs(float(kept.taus[0]) - 0.5) <= 0.2 * 0.03 + 1e-6  # gain x the ratio's error at most
+    assert torch.equal(kept.row_tau(torch.tensor([0, 0])), kept.taus[[0, 0]])
+    restored = eb.EnergyBalance(ref, 1, (1, 1), gain=0.2, seed=0)
+    restored.load_state_dict(balance.state_dict())
+    assert torch.equal(restored.taus, balance.taus) and torch.allclose(restored.smoothed, balance.smoothed)
+
+
+def test_a_training_run_updates_its_balance_draws_none_of_its_random_numbers_and_resumes_it(carpaint, tmp_path):
+    """With ``energy_gain`` the curves record each update (from 30 % of the run, every twentieth), the quantile
+    moves off 0.5, the checkpoint keeps it and a resumed run starts from it; the rows drawn are the same as
+    without a balance (the probe set has a generator of its own), so only the loss differs."""
+    import csv
+    import dataclasses
+
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=200, batch=128, seed=3, checkpoint_every=1000, environment_fraction=0.0,
+                 preview_iterations=0)
+    on = Trainer(ref, stack, cfg, tmp_path / "on")
+    on.run(progress=False)
+    updates = [r for r in on.history if "energy_ratio_min" in r]
+    assert [r["step"] for r in updates] == list(range(60, 200, 10))
+    assert all(0 < r["energy_ratio_min"] < 10 and eb.TAU_MIN <= r["energy_tau_min"] <= r["energy_tau_max"]
+               <= eb.TAU_MAX for r in updates)
+    assert float(on.balance.taus[0]) != 0.5
+    rows = list(csv.DictReader(open(tmp_path / "on" / "training_curves.csv")))
+    assert sum(1 for r in rows if r["energy_ratio_min"]) == len(updates)
+    off = Trainer(ref, stack, dataclasses.replace(cfg, energy_gain=0.0), tmp_path / "off")
+    off.run(progress=False)
+    assert off.balance is None and not any("energy_ratio_min" in r for r in off.history)
+    assert torch.equal(on.gen.get_state(), off.gen.get_state())
+    saved = torch.load(tmp_path / "on" / "checkpoint.pt", weights_only=False)["energy_balance"]
+    assert saved["taus"] == on.balance.taus.tolist()
+    again = Trainer(ref, stack, cfg, tmp_path / "on")
+    assert again.resume() and again._balance_state["taus"] == saved["taus"]
+
+
+@pytest.mark.slow
+def test_fast_keeps_a_brushed_metals_energy(tmp_path):
+    """The textured sample's BrushedMetal (anisotropic metal, roughness and normal maps), ``fast``, seed 0: every
+    MIP level keeps at least 95 % of the reference's directional albedo (the energy check, 64 texels x 4 views
+    per level). Plain log-L1 (``energy_gain`` 0) keeps 0.85-0.88 at every level (1024² textures; 0.87 / 0.85
+    measured on seeds 0 / 1); with the balance 0.98-1.03. 0.95 is the issue's bound, 3 % under the balance's
+    lowest measured level."""
+    from mitsuba_samples import sample_asset
+
+    from mtlx2neural.graph import compile_material
+    from mtlx2neural.pipeline.plan import latent_resolution
+    from mtlx2neural.reference import ReferenceMaterial
+    from mtlx2neural.scene import find_material
+    from mtlx2neural.textures.parameter_stack import build_parameter_stack
+    from mtlx2neural.verify.energy import energy_check
+
+    src = find_material(sample_asset("textured"), "/World/Looks/BrushedMetal")
+    compiled = compile_material(src.document, src.material)
+    cfg = preset("fast", seed=0, environment_fraction=0.0, preview_iterations=0)
+    stack = build_parameter_stack(compiled, resolution=latent_resolution(compiled, cfg))
+    ref = ReferenceMaterial(compiled)
+    model = Trainer(ref, stack, cfg, tmp_path).run(progress=False)
+    check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels))
+    assert check.min_ratio >= 0.95, [round(lv.ratio, 3) for lv in check.levels]
+
+
+def test_an_interrupted_run_resumes_its_balance_bit_for_bit(carpaint, tmp_path, monkeypatch):
+    """Interrupted after four updates and resumed, a balanced run ends with the weights of an uninterrupted one:
+    the quantiles and their smoothing are in the checkpoint and apply from the next step on."""
+    from mtlx2neural.train.trainer import TrainingInterrupted
+
+    ref, stack = carpaint
+    cfg = preset("fast", iterations=200, batch=64, seed=5, checkpoint_every=1000, environment_fraction=0.0,
+                 preview_iterations=0)
+    straight = Trainer(ref, stack, cfg, tmp_path / "a").run(progress=False).state_dict()
+    tr = Trainer(ref, stack, cfg, tmp_path / "b")
+    real_step = tr.train_step
+    monkeypatch.setattr(tr, "train_step", lambda: (_ for _ in ()).throw(KeyboardInterrupt) if tr.step == 95
+                        else real_step())
+    with pytest.raises(TrainingInterrupted):
+        tr.run(progress=False)
+    again = Trainer(ref, stack, cfg, tmp_path / "b")
+    assert again.resume() and again.step == 95 and again.balance is not None
+    assert torch.equal(again.balance.taus, tr.balance.taus) and float(tr.balance.taus[0]) != 0.5
+    resumed = again.run(progress=False).state_dict()
+    assert all(torch.equal(straight[k], resumed[k]) for k in straight)
