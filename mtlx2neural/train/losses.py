@@ -214,8 +214,8 @@ def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, b
     ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor`` and ``tau`` (per row): as there."""
     raw = decoder.logits(latent, wi, wo)
     tau = None if tau is None else tau[:, None]
-    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau) + floor_terms(raw, wo if decoder.analytic_cosine else None,
-                                                                        floor)
+    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau) + floor_terms(
+        raw, wo if decoder.analytic_cosine else None, floor)
     lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
     w = w.view(segments, -1)
     w = w / w.sum(1, keepdim=True).clamp_min(1e-12)

@@ -160,7 +160,7 @@ class Trainer:
         losses = functools.partial(brdf_and_sampler_losses, brdf_loss=brdf_loss_of(cfg.brdf_loss, cfg.brdf_eps),
                                    floor=raw_floor(cfg.brdf_floor))
         self._losses = torch.compile(losses) if cfg.compile else losses
-        self.balance: EnergyBalance | None = None  # built at its first update (:meth:`_balance_energy`)
+        self.balance: EnergyBalance | None = None  # built at its first update (:meth:`balance_energy`)
         self._balance_state = None  # a resumed run's balance, restored when it is built
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
@@ -356,7 +356,8 @@ class Trainer:
         self.balance = EnergyBalance(
             self.ref, len(self.model.latents.levels), tuple(self.stack.resolution), gain=self.cfg.energy_gain,
             seed=self.cfg.seed, device=self.device,
-            params_at=(lambda pts: self.stack.sample(pts, 0)) if native else None, coverage=self.surface.coverage_at if self.surface is not None else None)
+            params_at=(lambda pts: self.stack.sample(pts, 0)) if native else None,
+            coverage=self.surface.coverage_at if self.surface is not None else None)
         self.balance.load_state_dict(self._balance_state)
 
     def balance_energy(self) -> dict:
