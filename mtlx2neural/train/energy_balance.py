@@ -28,9 +28,9 @@ CarPaint's by 1.8x early in the run), which is why each move is bounded and smoo
 sequence for every row, one CarPaint model measured 0.91-0.99 across probe seeds.
 
 Measured with ``fast``, seeds 0 / 1, lowest level ratio (docs/history/energy-balance-2026-12-07.md):
-BrushedMetal 0.85 / 0.87 -> 0.99 / 1.01, GlazedCeramic 0.93 / 0.91 -> 0.97 / 0.93 (its levels move by a few %
-from run to run), the near mirror 0.81-0.89 / 0.79 -> 0.97 / 0.92, the CarPaint 0.96 / 0.99 -> 0.99; the sphere
-views' HDR FLIP by 0-6 %, within the seeds' spread. A UDIM
+BrushedMetal 0.85 / 0.87 -> 0.99 / 1.01, GlazedCeramic 0.93 / 0.91 -> 0.99 / 0.97 (32 probe texels: 0.97 /
+0.93), the CarPaint 0.96 / 0.99 -> 1.00 / 0.99; the near mirror 0.81-0.89 / 0.79 -> 0.95-0.97 / 0.79-0.92, one draw
+from swings of tens of percent; the sphere views' HDR FLIP by 0-6 %, within the seeds' spread. A UDIM
 material is not balanced (its levels are per tile), as the energy check does not measure it.
 """
 
@@ -51,7 +51,7 @@ START_FRACTION = 0.3
 """Share of the run before the first update."""
 EVERY_FRACTION = 0.05
 """Share of the run between updates (50 steps of ``fast``'s 1000)."""
-PROBE_TEXELS = 32
+PROBE_TEXELS = 64
 """Texels per level in the probe set (each seen from four view angles)."""
 PROBE_POINTS = 4
 """Footprint points per probe row for the reference's albedo."""
