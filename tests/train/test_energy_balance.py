@@ -122,10 +122,11 @@ def test_a_training_run_updates_its_balance_draws_none_of_its_random_numbers_and
 @pytest.mark.slow
 def test_fast_keeps_a_brushed_metals_energy(tmp_path):
     """The textured sample's BrushedMetal (anisotropic metal, roughness and normal maps), ``fast``, seed 0: every
-    MIP level keeps at least 95 % of the reference's directional albedo (the energy check, 64 texels x 4 views
-    per level). Plain log-L1 (``energy_gain`` 0) keeps 0.85-0.88 at every level (1024² textures; 0.87 / 0.85
-    measured on seeds 0 / 1); with the balance 0.98-1.03. 0.95 is the issue's bound, 3 % under the balance's
-    lowest measured level."""
+    MIP level keeps most of the reference's directional albedo (the energy check, 64 texels x 4 views per level).
+    With the 512² textures a test process writes (``mitsuba_samples.sample_asset``): plain log-L1 (``energy_gain``
+    0) keeps 0.91-0.94, the balance 0.97-1.01; with the 1024² ones of ``samples/make_textured_sample.py``, 0.85-0.88
+    and 0.98-1.02. Bound 0.94: 3 % under the balance's lowest level at 512², 3 % over plain log-L1's lowest; the
+    issue's goal (0.95) is measured at 1024² (BENCHMARKS.md)."""
     from mitsuba_samples import sample_asset
 
     from mtlx2neural.graph import compile_material
@@ -142,7 +143,7 @@ def test_fast_keeps_a_brushed_metals_energy(tmp_path):
     ref = ReferenceMaterial(compiled)
     model = Trainer(ref, stack, cfg, tmp_path).run(progress=False)
     check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels))
-    assert check.min_ratio >= 0.95, [round(lv.ratio, 3) for lv in check.levels]
+    assert check.min_ratio >= 0.94, [round(lv.ratio, 3) for lv in check.levels]
 
 
 def test_an_interrupted_run_resumes_its_balance_bit_for_bit(carpaint, tmp_path, monkeypatch):
