@@ -54,9 +54,8 @@ def main() -> None:
         extra[name] = _value(name, text)
     cfg = preset("fast", seed=args.seed, brdf_loss=args.loss, iterations=args.iterations, **extra)
     ref, stack, model, seconds = train_and_model(args.case, cfg)
-    native = bool(stack.channels) and stack.texel_ratio == (1.0, 1.0)
     check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels),
-                         params_at=(lambda pts: stack.sample(pts, 0)) if native else None)
+                         params_at=stack.native_params_at())
     with torch.no_grad():
         flip = float(np.mean([e["flip"] for e in compare(ref, model, tuple(stack.resolution), res=64, spp=8)]))
     label = " ".join([args.loss, *args.set])

@@ -432,9 +432,8 @@ def energy_of(ref, model, stack, device, surface: SurfaceMaps | None = None) -> 
     """The energy check of :func:`with_energy` (None for a UDIM material)."""
     if is_udim_stack(stack):
         return None
-    native = stack.channels and stack.texel_ratio == (1.0, 1.0)
     return energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels), device=device,
-                        params_at=(lambda pts: stack.sample(pts, 0)) if native else None,
+                        params_at=stack.native_params_at(),
                         coverage=surface.coverage_at if surface is not None and surface.partial else None)
 
 

@@ -92,6 +92,15 @@ class ParameterStack:
         """
         return self._decode(bilinear_periodic(self.levels[level], uv))
 
+    def native_params_at(self):
+        """``uv [M, 2] -> {name: [M, width]}``: the reference's parameters at points, read from level 0, when the
+        stack holds the textures at their own resolution (``texel_ratio`` 1); None when points must evaluate the
+        material graph instead (a grid capped below the textures, or a material with no varying channels). The
+        energy check and the energy balance read their footprint points through it, as the training targets do."""
+        if not self.channels or self.texel_ratio != (1.0, 1.0):
+            return None
+        return lambda uv: self.sample(uv, 0)
+
     def sample_raw(self, uv: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         """Undecoded channels [N, C] (LEAN moments, not lobes) at ``uv`` with per-query integer
         ``level`` [N]: the encoder's input. [N, 0] for a uniform material."""

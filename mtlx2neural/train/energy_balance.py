@@ -24,8 +24,8 @@ not plain log-L1 (``held_out_log_l1`` in the summary is). A level that keeps its
 so a material whose fit already conserves energy (a uniform plastic) trains as plain log-L1 would. The
 model's energy swings between updates (the near mirror's by up to 2x between steps 50 apart, the coated
 CarPaint's by 1.8x early in the run), which is why each move is bounded and smoothed and the first waits for
-30 % of the run. The probe's rows go in :data:`PROBE_GROUPS` groups with Sobol points of their own: with one
-sequence for every row, one CarPaint model measured 0.91-0.99 across probe seeds.
+30 % of the run. The probe's rows go in :data:`PROBE_GROUPS` groups with Sobol points of their own
+(:func:`_by_group`).
 
 Measured with ``fast``, seeds 0 / 1, lowest level ratio (docs/history/energy-balance-2026-12-07.md):
 BrushedMetal 0.85 / 0.87 -> 0.99 / 1.01, GlazedCeramic 0.93 / 0.91 -> 0.99 / 0.97 (32 probe texels: 0.97 /
@@ -58,7 +58,7 @@ PROBE_POINTS = 4
 PROBE_SAMPLES = 32
 """Directions per footprint point (the model's albedo: this times :data:`PROBE_POINTS` per row)."""
 PROBE_GROUPS = 8
-"""Groups of probe rows with Sobol points of their own (:meth:`EnergyBalance.ratios`)."""
+"""Groups of probe rows with Sobol points of their own (:func:`_by_group`)."""
 PROBE_VIEWS = (0.0, 30.0, 60.0, 80.0)
 """View angles from the normal, degrees (the energy check's)."""
 PROBE_SEED_OFFSET = 7919
@@ -69,6 +69,13 @@ MAX_MOVE = 0.05
 """Largest change of a level's quantile in one update."""
 TAU_MIN, TAU_MAX = 0.3, 0.8
 """The quantile's bounds."""
+
+
+def _by_group(rows: int, albedo) -> torch.Tensor:
+    """``albedo(rows [m], group j) -> [m, 3]`` over ``rows`` probe rows split into :data:`PROBE_GROUPS` groups,
+    concatenated in row order: each group draws Sobol points of its own seed, so rows of one view angle do not
+    share their error (one sequence for every row gave one CarPaint model 0.91-0.99 across probe seeds)."""
+    return torch.cat([albedo(idx, j) for j, idx in enumerate(torch.arange(rows).chunk(PROBE_GROUPS))])
 
 
 def update_due(step: int, iterations: int) -> bool:
@@ -95,29 +102,24 @@ class EnergyBalance:
         self.gain = float(gain)
         self.taus = torch.full((levels,), 0.5)
         self.smoothed: torch.Tensor | None = None
-        self.last_ratios: list[float] = []
+        self.seed = seed
         g = torch.Generator().manual_seed(seed + PROBE_SEED_OFFSET)
         self.rows = []  # per level: (uv [n, 2], wi [n, 3], summed luminance of the reference's albedo)
         for k in range(levels):
             uv, wi, _ = probe_rows(PROBE_TEXELS, PROBE_VIEWS, g, coverage)
-            ref = torch.cat([reference_footprint_albedo(reference, wi[rows], uv[rows], k, resolution,
-                                                        points=PROBE_POINTS, samples=PROBE_SAMPLES, seed=seed + j,
-                                                        generator=g, params_at=params_at, coverage=coverage,
-                                                        device=device)
-                             for j, rows in enumerate(torch.arange(wi.shape[0]).chunk(PROBE_GROUPS))])
+            ref = _by_group(wi.shape[0], lambda idx, j, uv=uv, wi=wi, k=k: reference_footprint_albedo(
+                reference, wi[idx], uv[idx], k, resolution, points=PROBE_POINTS, samples=PROBE_SAMPLES, seed=seed + j,
+                generator=g, params_at=params_at, coverage=coverage, device=device))
             self.rows.append((uv, wi, float(luminance(ref.float().cpu()).sum())))
-        self.seed = seed
 
     def ratios(self, model) -> torch.Tensor:
-        """[levels] the model's energy ratio per level on the probe set (model / reference albedo luminance).
-        The rows go in :data:`PROBE_GROUPS` groups, each with Sobol points of its own seed: one sequence for
-        every row would give rows of one view angle correlated errors, which more rows would not average out."""
+        """[levels] the model's energy ratio per level on the probe set (model / reference albedo luminance),
+        the rows in groups with Sobol points of their own (:func:`_by_group`)."""
         out = []
         for k, (uv, wi, ref_sum) in enumerate(self.rows):
-            mod = torch.cat([model_level_albedo(model, self.reference, wi[rows], uv[rows], k,
-                                                samples=PROBE_POINTS * PROBE_SAMPLES, seed=self.seed + j,
-                                                params_at=self.params_at, device=self.device)
-                             for j, rows in enumerate(torch.arange(wi.shape[0]).chunk(PROBE_GROUPS))])
+            mod = _by_group(wi.shape[0], lambda idx, j, uv=uv, wi=wi, k=k: model_level_albedo(
+                model, self.reference, wi[idx], uv[idx], k, samples=PROBE_POINTS * PROBE_SAMPLES, seed=self.seed + j,
+                params_at=self.params_at, device=self.device))
             out.append(float(luminance(mod.float().cpu()).sum()) / ref_sum if ref_sum > 0 else 1.0)
         return torch.tensor(out)
 
@@ -129,8 +131,7 @@ class EnergyBalance:
         self.smoothed = log_r if self.smoothed is None else SMOOTHING * self.smoothed + (1 - SMOOTHING) * log_r
         move = (-self.gain * self.smoothed).clamp(-MAX_MOVE, MAX_MOVE)
         self.taus = (self.taus + move).clamp(TAU_MIN, TAU_MAX)
-        self.last_ratios = ratios.tolist()
-        return self.last_ratios
+        return ratios.tolist()
 
     def row_tau(self, level: torch.Tensor) -> torch.Tensor:
         """[N] each row's quantile, from its MIP level [N] (int64)."""

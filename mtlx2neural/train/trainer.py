@@ -352,11 +352,9 @@ class Trainer:
         """The energy balance (:mod:`.energy_balance`), built once, with a resumed run's state."""
         if self.balance is not None:
             return
-        native = bool(self.stack.channels) and self.stack.texel_ratio == (1.0, 1.0)
         self.balance = EnergyBalance(
             self.ref, len(self.model.latents.levels), tuple(self.stack.resolution), gain=self.cfg.energy_gain,
-            seed=self.cfg.seed, device=self.device,
-            params_at=(lambda pts: self.stack.sample(pts, 0)) if native else None,
+            seed=self.cfg.seed, device=self.device, params_at=self.stack.native_params_at(),
             coverage=self.surface.coverage_at if self.surface is not None else None)
         self.balance.load_state_dict(self._balance_state)
 
