@@ -44,6 +44,12 @@ class TrainConfig:
     by this times log(ratio) per update (every twentieth of the run, from 30 % on), and one too bright moves it
     down. 0: log_l1's median throughout (the textured samples then keep 85-93 % of their energy with fast, the
     near mirror 79-81 %). Not used with relative_l2, which follows the mean already."""
+    lift_fraction: float = 0.3
+    """Share of the run, from its start, in which the BRDF loss pulls a prediction under its scale
+    (``brdf_eps``) towards a target over it with the log error's whole gradient (``train.losses``, "the
+    lift"), not log-L1's prediction / brdf_eps of it. Without it a lobe whose surroundings are black is never
+    found: MaterialX's standard_surface_chrome (roughness 0) trained black with fast, and keeps 95-101 % of
+    its energy with 0.3, which is where the energy balance starts. 0: never."""
     frames: int = field(default=2, metadata={"metavar": "N"})
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8
@@ -204,7 +210,7 @@ _COUNTS = {"batch": 1, "latent_dim": 1, "mollify_samples": 1, "footprint_samples
            "environment_batch": 1}
 """Integer settings and their smallest valid value."""
 _SHARES = ("encoder_fraction", "grazing_fraction", "lobe_fraction", "mollify_fraction", "block_fraction",
-           "environment_fraction")
+           "environment_fraction", "lift_fraction")
 """Settings that are a share of something, in [0, 1]."""
 _FLAGS = {"batch": "--batch", "frames": "--frames", "iterations": "--iterations", "decoder": "--decoder",
           "max_resolution": "--max-texels", "seed": "--seed", "preview_iterations": "--preview-iterations"}

@@ -24,6 +24,18 @@ by the tau-quantile of the targets (the pinball loss, in log space); tau 0.5 is 
 that equals the mean depends on how skewed each level's targets are, so
 :mod:`mtlx2neural.train.energy_balance` steers it per MIP level from the energy it measures.
 
+**The lift** (``lift``): below EPS the loss is linear in the prediction, so its gradient with respect to the
+decoder's raw (log) output is only prediction / EPS of the log error's. A prediction at the output floor
+(``floor_penalty``, 1e-8) under a target over EPS is pulled with 1e-4 of the force that moves it once it is
+over EPS. A lobe whose surroundings are black, a perfect mirror's, is then never found: its rows are a tenth
+of the batch, and the black rows around it, at the same small gradient, win (MaterialX's
+``standard_surface_chrome``, roughness 0, trained black with ``fast``). With ``lift`` those rows (prediction
+under EPS, target over it) pull with the log error's own gradient, log(prediction) - log(target); the loss's
+value is unchanged. Rows whose target is under EPS keep log-L1's gradient, so the dim tails it damps stay
+damped. The trainer lifts in the first ``TrainConfig.lift_fraction`` of the run only: it finds the lobes,
+and the plain loss then fits them (lifting throughout the run left the textured near mirror's HDR FLIP
+17-27 % worse, seeds 0 / 1; docs/history/lift-2026-12-07.md).
+
 **Sampler** (:func:`sampler_kl`): KL(neural BRDF || learned proxy) up to a constant, scored on
 the sampler's own directions mixed defensively with cosine ones (``KL_DEFENSIVE``); gradients reach
 the sampler only. The uniform-direction estimator it replaced, and the measurement, are in
@@ -52,23 +64,39 @@ KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine dens
 KL_LOG_FLOOR = 1e-4  # added to the sampler's density inside the KL's log: a sample it cannot reach costs log(1e-4)
 
 
-def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
+def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
+           ) -> torch.Tensor:
     """Mean |log1p(pred/eps) - log1p(target/eps)| over all elements (inputs must be >= 0; negative
     values are clamped to 0). ``pred`` and ``target`` are cosine-weighted BRDF values f * cos [N, 3],
     linear RGB; ``eps`` is in the same units. ``tau`` (None, a float or [N, 1] per row, in (0, 1)): the
-    quantile the loss seeks (module docstring); None or 0.5 is the plain absolute log error."""
-    return log_l1_terms(pred, target, eps, tau).mean()
+    quantile the loss seeks (module docstring); None or 0.5 is the plain absolute log error. ``lift``: the
+    elements whose prediction is under ``eps`` and target over it get the log error's own gradient (module
+    docstring); the value is the same."""
+    return log_l1_terms(pred, target, eps, tau, lift).mean()
 
 
-def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
+def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
+                 ) -> torch.Tensor:
     """:func:`log_l1` per element, [N, 3] (not averaged)."""
-    d = torch.log1p(pred.clamp_min(0) / eps) - torch.log1p(target.clamp_min(0) / eps)
+    pred, target = pred.clamp_min(0), target.clamp_min(0)
+    d = torch.log1p(pred / eps) - torch.log1p(target / eps)
+    if lift:
+        d = d + lift_terms(pred, target, eps)
     if tau is None:
         return d.abs()
     return 2.0 * torch.where(d < 0, -tau * d, (1.0 - tau) * d)
 
 
-def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
+def lift_terms(pred: torch.Tensor, target: torch.Tensor, eps: float) -> torch.Tensor:
+    """[N, 3] zeros whose gradient is that of log(pred) where ``pred`` < ``eps`` < ``target`` (0 elsewhere):
+    added to log-L1's log error, it gives those elements the log error's own gradient (module docstring,
+    "the lift"). Inputs >= 0, as :func:`log_l1_terms` has them."""
+    log_pred = torch.log(pred.clamp_min(1e-30))
+    return torch.where((pred < eps) & (target > eps), log_pred - log_pred.detach(), torch.zeros_like(log_pred))
+
+
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
+                ) -> torch.Tensor:
     """Mean of (pred - target)^2 / (sg(pred)^2 + eps^2) over all elements: the relative L2 of neural
     radiance caching (Müller et al. 2021), the prediction's scale held out of the gradient (sg: detached).
 
@@ -77,11 +105,13 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=
     the median and drops it. Dividing by the prediction's own square weighs dark and bright values
     alike (a relative error), and ``eps`` (f * cos units, squared) keeps black predictions from
     dividing by zero. Inputs as :func:`log_l1`: cosine-weighted BRDF values f * cos [N, 3], linear RGB;
-    negative values are clamped to 0. ``tau`` is ignored (it is mean-seeking already)."""
+    negative values are clamped to 0. ``tau`` and ``lift`` are ignored (it is mean-seeking already, and its
+    gradient does not vanish under ``eps``)."""
     return relative_l2_terms(pred, target, eps).mean()
 
 
-def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
+def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
+                      ) -> torch.Tensor:
     """:func:`relative_l2` per element, [N, 3] (not averaged)."""
     pred = pred.clamp_min(0)
     return (pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)
@@ -93,16 +123,18 @@ MIXED_RELATIVE_WEIGHT = 0.1
 at 0.187 (log_l1: 0.96 / 0.85 at 0.045 / 0.174; BENCHMARKS.md, "Energy and the BRDF loss")."""
 
 
-def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
-    """:func:`log_l1` (its scale ``eps``, its quantile ``tau``) plus :data:`MIXED_RELATIVE_WEIGHT` times
-    :func:`relative_l2`: log-L1's shape, and a mean-seeking pull that keeps the prediction from collapsing
+def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
+                 ) -> torch.Tensor:
+    """:func:`log_l1` (its scale ``eps``, its quantile ``tau``, its ``lift``) plus :data:`MIXED_RELATIVE_WEIGHT`
+    times :func:`relative_l2`: log-L1's shape, and a mean-seeking pull that keeps the prediction from collapsing
     where most targets are black."""
-    return log_l1(pred, target, eps, tau) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
+    return log_l1(pred, target, eps, tau, lift) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
 
 
-def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None) -> torch.Tensor:
+def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
+                       ) -> torch.Tensor:
     """:func:`mixed_log_l1` per element, [N, 3] (not averaged)."""
-    return log_l1_terms(pred, target, eps, tau) + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target)
+    return log_l1_terms(pred, target, eps, tau, lift) + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target)
 
 
 BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2, "log_l1+relative_l2": mixed_log_l1}
@@ -192,29 +224,30 @@ def floor_terms(raw: torch.Tensor, wo: torch.Tensor | None = None, floor: float 
 
 
 def brdf_and_sampler_losses(decoder, sampler, latent, wi, wo, target, u, brdf_loss=log_l1, floor=OUTPUT_FLOOR,
-                            tau=None):
+                            tau=None, lift: bool = False):
     """(BRDF loss, sampler loss) of one step's batch, given the latents: ``brdf_loss`` (one of
     :data:`BRDF_LOSSES`) between the decoder's f * cos at (``wi``, ``wo``) and ``target`` [N, 3] (the
     filtered reference, f * cos, linear RGB) plus :func:`floor_penalty` of its raw outputs at ``floor``
     (a raw output, :func:`raw_floor`), then
     :func:`sampler_kl` with the uniform numbers ``u`` [N, 3]. Directions unit, local frame. ``tau`` (None or
-    [N] per row): the quantile the BRDF loss seeks (module docstring)."""
+    [N] per row): the quantile the BRDF loss seeks; ``lift``: its lift (module docstring)."""
     raw = decoder.logits(latent, wi, wo)
     tau = None if tau is None else tau[:, None]
-    loss_brdf = brdf_loss(decoder.activate(raw, wo), target, tau=tau) + floor_penalty(
+    loss_brdf = brdf_loss(decoder.activate(raw, wo), target, tau=tau, lift=lift) + floor_penalty(
         raw, wo if decoder.analytic_cosine else None, floor)
     return loss_brdf, sampler_kl(decoder, sampler, latent, wi, u)
 
 
 def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, brdf_terms=log_l1_terms,
-                   floor=OUTPUT_FLOOR, tau=None):
+                   floor=OUTPUT_FLOOR, tau=None, lift: bool = False):
     """:func:`brdf_and_sampler_losses` of ``segments`` equal consecutive parts of the rows at once (several
     materials' batches through one shared decoder and sampler): ``(BRDF loss [S], sampler loss [S])``, each
     part's as if it were a batch of its own (means over the part; the KL's weights normalised within it).
-    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor`` and ``tau`` (per row): as there."""
+    ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor``, ``tau`` (per row) and ``lift``:
+    as there."""
     raw = decoder.logits(latent, wi, wo)
     tau = None if tau is None else tau[:, None]
-    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau) + floor_terms(
+    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau, lift=lift) + floor_terms(
         raw, wo if decoder.analytic_cosine else None, floor)
     lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
     w = w.view(segments, -1)

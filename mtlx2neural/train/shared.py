@@ -216,13 +216,14 @@ class SharedTrainer:
             tau = None  # each material's rows at their own levels' quantiles (0.5 without a balance)
             if any(b.tau is not None for b in batches):
                 tau = torch.cat([b.tau if b.tau is not None else torch.full_like(b.wi[:, 0], 0.5) for b in batches])
-            brdf, kl = self._segment_losses(lead.decoder, lead.sampler, *cat, segments=len(batches), tau=tau)
+            brdf, kl = self._segment_losses(lead.decoder, lead.sampler, *cat, segments=len(batches), tau=tau,
+                                            lift=any(b.lift for b in batches))
             out = list(zip(brdf + kl, brdf, kl))
         else:  # batches of different sizes: one at a time
             out = []
             for t, b in zip(trainers, batches):
                 loss_brdf, loss_kl = t._losses(t.model.decoder, t.model.sampler, b.latent, b.wi, b.wo, b.target,
-                                               b.u_kl, tau=b.tau)
+                                               b.u_kl, tau=b.tau, lift=b.lift)
                 out.append((loss_brdf + loss_kl, loss_brdf, loss_kl))
         return [(loss + t.albedo_term(b), brdf, kl) if t.cfg.albedo_head else (loss, brdf, kl)
                 for t, b, (loss, brdf, kl) in zip(trainers, batches, out)]

@@ -73,8 +73,9 @@ GRAZING_LOBE_SHARE = 0.5  # share of the grazing rows whose wo is redrawn near a
 class StepRows:
     """One step's batch (:meth:`Trainer.step_rows`): the rows of :meth:`Trainer.draw_rows` (``uv``, ``level``,
     ``wi``, ``wo``, ``target``), their latent codes ``latent`` [N, latent_dim] (with the graph to the encoder
-    or the latent pyramid), the sampler loss's uniform numbers ``u_kl`` [N, 3], and each row's BRDF loss
-    quantile ``tau`` [N] (None without an energy balance: plain log-L1)."""
+    or the latent pyramid), the sampler loss's uniform numbers ``u_kl`` [N, 3], each row's BRDF loss
+    quantile ``tau`` [N] (None without an energy balance: plain log-L1) and whether the BRDF loss lifts
+    (``lift``: in the first ``lift_fraction`` of the run; :mod:`.losses`)."""
 
     uv: torch.Tensor
     level: torch.Tensor
@@ -84,6 +85,7 @@ class StepRows:
     latent: torch.Tensor
     u_kl: torch.Tensor
     tau: torch.Tensor | None = None
+    lift: bool = False
 
 
 class TrainingInterrupted(Exception):
@@ -92,6 +94,12 @@ class TrainingInterrupted(Exception):
 
 def _lr(cfg: TrainConfig, step: int) -> float:
     return cosine_lr(cfg.lr_start, cfg.lr_end, step, cfg.iterations)
+
+
+def lifts(cfg: TrainConfig, step: int) -> bool:
+    """Whether step ``step`` (counted from 0) lifts the BRDF loss (:mod:`.losses`): in the first
+    ``cfg.lift_fraction`` of the run."""
+    return step < round(cfg.lift_fraction * cfg.iterations)
 
 
 def mollify_angle_at(cfg: TrainConfig, step: int) -> float:
@@ -321,7 +329,7 @@ class Trainer:
         the BRDF and sampler losses, and the albedo head's when it has one. No optimiser step."""
         rows = self.step_rows()
         loss_brdf, loss_kl = self._losses(self.model.decoder, self.model.sampler, rows.latent, rows.wi, rows.wo,
-                                          rows.target, rows.u_kl, tau=rows.tau)
+                                          rows.target, rows.u_kl, tau=rows.tau, lift=rows.lift)
         loss = loss_brdf + loss_kl
         if self.cfg.albedo_head:
             loss = loss + self.albedo_term(rows)
@@ -334,7 +342,7 @@ class Trainer:
         latent = self._latent(uv, level)
         u_kl = torch.rand(wi.shape[0], 3, generator=self.gen).to(self.device)
         tau = self.balance.row_tau(level) if self.balance is not None else None
-        return StepRows(uv, level, wi, wo, target, latent, u_kl, tau)
+        return StepRows(uv, level, wi, wo, target, latent, u_kl, tau, lifts(self.cfg, self.step))
 
     def albedo_term(self, rows: StepRows) -> torch.Tensor:
         """The albedo head's loss on ``rows`` (its targets drawn now, from the reference)."""

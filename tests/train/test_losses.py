@@ -50,6 +50,32 @@ def test_log_l1_is_zero_on_the_target_linear_below_eps_and_clamps_negatives():
     assert float(log_l1(x, -x)) == float(log_l1(x, torch.zeros_like(x)))
 
 
+def test_the_lift_keeps_the_value_and_gives_dead_rows_the_log_errors_gradient():
+    """The lift (losses module docstring): the loss's value is bit for bit log-L1's; an element whose prediction
+    lies under eps and whose target lies over it gets the log error's own gradient with respect to the raw (log)
+    output (-1 per element before the mean, exact up to float rounding: 1e-6 relative), where plain log-L1 gives it
+    pred / (eps + pred) of that; elements whose target is under eps, or whose prediction is over eps, keep
+    log-L1's gradient exactly."""
+    eps = 1e-4
+    raw = torch.log(torch.tensor([[1e-8, 1e-8, 1e-8], [1e-8, 1e-8, 1e-8], [1e-2, 1e-2, 1e-2]])).requires_grad_()
+    target = torch.tensor([[10.0, 10.0, 10.0], [1e-6, 0.0, 5e-5], [10.0, 10.0, 10.0]])  # dead, dim, alive
+    grads = {}
+    for lift in (False, True):
+        raw.grad = None
+        loss = log_l1(torch.exp(raw), target, eps, lift=lift)
+        loss.backward()
+        grads[lift] = (loss.detach(), raw.grad.clone())
+    assert torch.equal(grads[False][0], grads[True][0])
+    plain, lifted = grads[False][1] * 9, grads[True][1] * 9  # per element (the mean is over 9)
+    assert torch.allclose(plain[0], torch.full((3,), -1e-8 / (eps + 1e-8)), rtol=1e-5)  # log-L1: 1e-4 of the pull
+    assert torch.allclose(lifted[0], torch.full((3,), -1.0 - 1e-8 / (eps + 1e-8)), rtol=1e-6)
+    assert torch.equal(lifted[1:], plain[1:])
+    # the quantile weighs the lifted pull as it weighs the rest: 2 tau below the target
+    raw.grad = None
+    log_l1(torch.exp(raw), target, eps, tau=0.8, lift=True).backward()
+    assert torch.allclose(raw.grad[0] * 9, 1.6 * lifted[0], rtol=1e-6)
+
+
 def test_sampler_kl_is_finite_and_its_gradient_reaches_the_sampler_only():
     m, latent, wi, _, _, u = _batch()
     loss = sampler_kl(m.decoder, m.sampler, latent, wi, u)
