@@ -32,6 +32,7 @@ BAD = {
     "iterations 0": (("--iterations", "0"), "--allow-untrained"),
     "iterations -5": (("--iterations", "-5"), "--iterations"),
     "negative seed": (("--seed", "-1"), "--seed"),
+    "lift fraction over 1": (("--lift-fraction", "1.5"), "lift_fraction"),
 }
 
 

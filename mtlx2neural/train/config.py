@@ -44,12 +44,13 @@ class TrainConfig:
     by this times log(ratio) per update (every twentieth of the run, from 30 % on), and one too bright moves it
     down. 0: log_l1's median throughout (the textured samples then keep 85-93 % of their energy with fast, the
     near mirror 79-81 %). Not used with relative_l2, which follows the mean already."""
-    lift_fraction: float = 0.3
-    """Share of the run, from its start, in which the BRDF loss pulls a prediction under its scale
-    (``brdf_eps``) towards a target over it with the log error's whole gradient (``train.losses``, "the
-    lift"), not log-L1's prediction / brdf_eps of it. Without it a lobe whose surroundings are black is never
-    found: MaterialX's standard_surface_chrome (roughness 0) trained black with fast, and keeps 95-101 % of
-    its energy with 0.3, which is where the energy balance starts. 0: never."""
+    lift_fraction: float = 1.0
+    """Share of the run, from its start, in which the BRDF loss may lift (``train.losses``, "the lift"): in a
+    batch where most predictions under a target over ``brdf_eps`` are dead (two decades under it), those
+    predictions get the log error's whole gradient, not log-L1's prediction / brdf_eps of it. Without it a lobe
+    whose surroundings are black is never found: MaterialX's standard_surface_chrome (roughness 0) trained black
+    with fast and keeps 127-136 % of its energy with it; the other materials tried lift in 0-2 of 1000 steps.
+    0: never."""
     frames: int = field(default=2, metadata={"metavar": "N"})
     """Learned shading frames; 0 feeds the decoder raw local directions (ablation)."""
     latent_dim: int = 8

@@ -29,12 +29,13 @@ decoder's raw (log) output is only prediction / EPS of the log error's. A predic
 (``floor_penalty``, 1e-8) under a target over EPS is pulled with 1e-4 of the force that moves it once it is
 over EPS. A lobe whose surroundings are black, a perfect mirror's, is then never found: its rows are a tenth
 of the batch, and the black rows around it, at the same small gradient, win (MaterialX's
-``standard_surface_chrome``, roughness 0, trained black with ``fast``). With ``lift`` those rows (prediction
-under EPS, target over it) pull with the log error's own gradient, log(prediction) - log(target); the loss's
-value is unchanged. Rows whose target is under EPS keep log-L1's gradient, so the dim tails it damps stay
-damped. The trainer lifts in the first ``TrainConfig.lift_fraction`` of the run only: it finds the lobes,
-and the plain loss then fits them (lifting throughout the run left the textured near mirror's HDR FLIP
-17-27 % worse, seeds 0 / 1; docs/history/lift-2026-12-07.md).
+``standard_surface_chrome``, roughness 0, trained black with ``fast``). The lift gives the elements whose
+prediction is under EPS and target over it the log error's own gradient, log(prediction) - log(target), the
+loss's value unchanged, but only in a batch where the fit is dead: where most of the elements with a target
+over EPS (over :data:`LIFT_DEAD_SHARE`) meet a prediction two decades under it (:data:`LIFT_DEAD`). A fit that
+finds its lobes by their tails (every other material tried) is then left as it was; lifting every batch cost
+the textured near mirror 17-27 % of HDR FLIP (docs/history/lift-2026-12-07.md). A batch of several materials
+(:func:`segment_losses`) asks per material.
 
 **Sampler** (:func:`sampler_kl`): KL(neural BRDF || learned proxy) up to a constant, scored on
 the sampler's own directions mixed defensively with cosine ones (``KL_DEFENSIVE``); gradients reach
@@ -62,41 +63,55 @@ from mtlx2neural.reference.vec import cosine_sample
 EPS = 1e-2  # radiance scale (f * cos) below which errors count linearly
 KL_DEFENSIVE = 0.5  # share of the sampler's KL batch drawn from the cosine density (defensive mixture)
 KL_LOG_FLOOR = 1e-4  # added to the sampler's density inside the KL's log: a sample it cannot reach costs log(1e-4)
+LIFT_DEAD = 1e-2
+"""A prediction under this times EPS is dead for the lift (module docstring): log-L1 pulls it with 1 % of the log
+error's gradient or less."""
+LIFT_DEAD_SHARE = 0.5
+"""The lift acts in a batch where more than this share of the elements with a target over EPS are dead. Measured
+(``fast``): MaterialX's chrome lifts in 22-26 of 1000 steps, the near mirror and the scene sample's textured gold in
+2, the other materials in none."""
 
 
-def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
-           ) -> torch.Tensor:
+def log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False,
+           lift_groups: int = 1) -> torch.Tensor:
     """Mean |log1p(pred/eps) - log1p(target/eps)| over all elements (inputs must be >= 0; negative
     values are clamped to 0). ``pred`` and ``target`` are cosine-weighted BRDF values f * cos [N, 3],
     linear RGB; ``eps`` is in the same units. ``tau`` (None, a float or [N, 1] per row, in (0, 1)): the
-    quantile the loss seeks (module docstring); None or 0.5 is the plain absolute log error. ``lift``: the
-    elements whose prediction is under ``eps`` and target over it get the log error's own gradient (module
-    docstring); the value is the same."""
-    return log_l1_terms(pred, target, eps, tau, lift).mean()
+    quantile the loss seeks (module docstring); None or 0.5 is the plain absolute log error. ``lift``: in a
+    dead batch, the elements whose prediction is under ``eps`` and target over it get the log error's own
+    gradient (:func:`lift_terms`; ``lift_groups`` equal consecutive parts of the rows, each asked on its own);
+    the value is the same."""
+    return log_l1_terms(pred, target, eps, tau, lift, lift_groups).mean()
 
 
-def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
-                 ) -> torch.Tensor:
+def log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False,
+                 lift_groups: int = 1) -> torch.Tensor:
     """:func:`log_l1` per element, [N, 3] (not averaged)."""
     pred, target = pred.clamp_min(0), target.clamp_min(0)
     d = torch.log1p(pred / eps) - torch.log1p(target / eps)
     if lift:
-        d = d + lift_terms(pred, target, eps)
+        d = d + lift_terms(pred, target, eps, lift_groups)
     if tau is None:
         return d.abs()
     return 2.0 * torch.where(d < 0, -tau * d, (1.0 - tau) * d)
 
 
-def lift_terms(pred: torch.Tensor, target: torch.Tensor, eps: float) -> torch.Tensor:
-    """[N, 3] zeros whose gradient is that of log(pred) where ``pred`` < ``eps`` < ``target`` (0 elsewhere):
-    added to log-L1's log error, it gives those elements the log error's own gradient (module docstring,
-    "the lift"). Inputs >= 0, as :func:`log_l1_terms` has them."""
+def lift_terms(pred: torch.Tensor, target: torch.Tensor, eps: float, groups: int = 1) -> torch.Tensor:
+    """[N, 3] zeros whose gradient is that of log(pred) where ``pred`` < ``eps`` < ``target``, in each of ``groups``
+    equal consecutive parts of the rows whose fit is dead (more than :data:`LIFT_DEAD_SHARE` of its elements with a
+    target over ``eps`` have a prediction under :data:`LIFT_DEAD` ``eps``); 0 elsewhere. Added to log-L1's log
+    error, it gives those elements the log error's own gradient (module docstring, "the lift"). Inputs >= 0, as
+    :func:`log_l1_terms` has them. No data-dependent branch (``torch.compile`` keeps one graph)."""
+    bright = target > eps
+    dead = (pred < LIFT_DEAD * eps) & bright
+    per_group = (dead.reshape(groups, -1).sum(1) > LIFT_DEAD_SHARE * bright.reshape(groups, -1).sum(1))
+    lifted = per_group.repeat_interleave(pred.shape[0] // groups)[:, None] & (pred < eps) & bright
     log_pred = torch.log(pred.clamp_min(1e-30))
-    return torch.where((pred < eps) & (target > eps), log_pred - log_pred.detach(), torch.zeros_like(log_pred))
+    return torch.where(lifted, log_pred - log_pred.detach(), torch.zeros_like(log_pred))
 
 
-def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
-                ) -> torch.Tensor:
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False,
+                lift_groups: int = 1) -> torch.Tensor:
     """Mean of (pred - target)^2 / (sg(pred)^2 + eps^2) over all elements: the relative L2 of neural
     radiance caching (Müller et al. 2021), the prediction's scale held out of the gradient (sg: detached).
 
@@ -105,13 +120,13 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=
     the median and drops it. Dividing by the prediction's own square weighs dark and bright values
     alike (a relative error), and ``eps`` (f * cos units, squared) keeps black predictions from
     dividing by zero. Inputs as :func:`log_l1`: cosine-weighted BRDF values f * cos [N, 3], linear RGB;
-    negative values are clamped to 0. ``tau`` and ``lift`` are ignored (it is mean-seeking already, and its
+    negative values are clamped to 0. ``tau`` and the lift are ignored (it is mean-seeking already, and its
     gradient does not vanish under ``eps``)."""
     return relative_l2_terms(pred, target, eps).mean()
 
 
-def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
-                      ) -> torch.Tensor:
+def relative_l2_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False,
+                      lift_groups: int = 1) -> torch.Tensor:
     """:func:`relative_l2` per element, [N, 3] (not averaged)."""
     pred = pred.clamp_min(0)
     return (pred - target.clamp_min(0)) ** 2 / (pred.detach() ** 2 + eps * eps)
@@ -123,18 +138,19 @@ MIXED_RELATIVE_WEIGHT = 0.1
 at 0.187 (log_l1: 0.96 / 0.85 at 0.045 / 0.174; BENCHMARKS.md, "Energy and the BRDF loss")."""
 
 
-def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
-                 ) -> torch.Tensor:
+def mixed_log_l1(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False,
+                 lift_groups: int = 1) -> torch.Tensor:
     """:func:`log_l1` (its scale ``eps``, its quantile ``tau``, its ``lift``) plus :data:`MIXED_RELATIVE_WEIGHT`
     times :func:`relative_l2`: log-L1's shape, and a mean-seeking pull that keeps the prediction from collapsing
     where most targets are black."""
-    return log_l1(pred, target, eps, tau, lift) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
+    return log_l1(pred, target, eps, tau, lift, lift_groups) + MIXED_RELATIVE_WEIGHT * relative_l2(pred, target)
 
 
-def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False
-                       ) -> torch.Tensor:
+def mixed_log_l1_terms(pred: torch.Tensor, target: torch.Tensor, eps: float = EPS, tau=None, lift: bool = False,
+                       lift_groups: int = 1) -> torch.Tensor:
     """:func:`mixed_log_l1` per element, [N, 3] (not averaged)."""
-    return log_l1_terms(pred, target, eps, tau, lift) + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target)
+    return (log_l1_terms(pred, target, eps, tau, lift, lift_groups)
+            + MIXED_RELATIVE_WEIGHT * relative_l2_terms(pred, target))
 
 
 BRDF_LOSSES = {"log_l1": log_l1, "relative_l2": relative_l2, "log_l1+relative_l2": mixed_log_l1}
@@ -244,10 +260,10 @@ def segment_losses(decoder, sampler, latent, wi, wo, target, u, segments: int, b
     materials' batches through one shared decoder and sampler): ``(BRDF loss [S], sampler loss [S])``, each
     part's as if it were a batch of its own (means over the part; the KL's weights normalised within it).
     ``brdf_terms``: the BRDF loss per element (:data:`BRDF_LOSS_TERMS`); ``floor``, ``tau`` (per row) and ``lift``:
-    as there."""
+    as there, the lift's dead batch asked per part."""
     raw = decoder.logits(latent, wi, wo)
     tau = None if tau is None else tau[:, None]
-    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau, lift=lift) + floor_terms(
+    terms = brdf_terms(decoder.activate(raw, wo), target, tau=tau, lift=lift, lift_groups=segments) + floor_terms(
         raw, wo if decoder.analytic_cosine else None, floor)
     lat_d, wo_s, w = _kl_rows(decoder, sampler, latent, wi, u)
     w = w.view(segments, -1)

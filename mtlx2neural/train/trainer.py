@@ -74,7 +74,7 @@ class StepRows:
     """One step's batch (:meth:`Trainer.step_rows`): the rows of :meth:`Trainer.draw_rows` (``uv``, ``level``,
     ``wi``, ``wo``, ``target``), their latent codes ``latent`` [N, latent_dim] (with the graph to the encoder
     or the latent pyramid), the sampler loss's uniform numbers ``u_kl`` [N, 3], each row's BRDF loss
-    quantile ``tau`` [N] (None without an energy balance: plain log-L1) and whether the BRDF loss lifts
+    quantile ``tau`` [N] (None without an energy balance: plain log-L1) and whether the BRDF loss may lift
     (``lift``: in the first ``lift_fraction`` of the run; :mod:`.losses`)."""
 
     uv: torch.Tensor
@@ -97,8 +97,8 @@ def _lr(cfg: TrainConfig, step: int) -> float:
 
 
 def lifts(cfg: TrainConfig, step: int) -> bool:
-    """Whether step ``step`` (counted from 0) lifts the BRDF loss (:mod:`.losses`): in the first
-    ``cfg.lift_fraction`` of the run."""
+    """Whether step ``step`` (counted from 0) may lift the BRDF loss (:mod:`.losses`; it does where the batch's fit is
+    dead): in the first ``cfg.lift_fraction`` of the run."""
     return step < round(cfg.lift_fraction * cfg.iterations)
 
 

@@ -50,30 +50,41 @@ def test_log_l1_is_zero_on_the_target_linear_below_eps_and_clamps_negatives():
     assert float(log_l1(x, -x)) == float(log_l1(x, torch.zeros_like(x)))
 
 
-def test_the_lift_keeps_the_value_and_gives_dead_rows_the_log_errors_gradient():
-    """The lift (losses module docstring): the loss's value is bit for bit log-L1's; an element whose prediction
-    lies under eps and whose target lies over it gets the log error's own gradient with respect to the raw (log)
-    output (-1 per element before the mean, exact up to float rounding: 1e-6 relative), where plain log-L1 gives it
-    pred / (eps + pred) of that; elements whose target is under eps, or whose prediction is over eps, keep
-    log-L1's gradient exactly."""
-    eps = 1e-4
-    raw = torch.log(torch.tensor([[1e-8, 1e-8, 1e-8], [1e-8, 1e-8, 1e-8], [1e-2, 1e-2, 1e-2]])).requires_grad_()
-    target = torch.tensor([[10.0, 10.0, 10.0], [1e-6, 0.0, 5e-5], [10.0, 10.0, 10.0]])  # dead, dim, alive
-    grads = {}
+def _lift_grads(raw_values, target, eps=1e-4, **kw):
+    """(loss, d loss / d raw per element) of log_l1 at predictions exp(raw), with and without the lift (the mean's
+    1 / N undone)."""
+    out = {}
     for lift in (False, True):
-        raw.grad = None
-        loss = log_l1(torch.exp(raw), target, eps, lift=lift)
+        raw = torch.log(torch.tensor(raw_values)).requires_grad_()
+        loss = log_l1(torch.exp(raw), target, eps, lift=lift, **kw)
         loss.backward()
-        grads[lift] = (loss.detach(), raw.grad.clone())
-    assert torch.equal(grads[False][0], grads[True][0])
-    plain, lifted = grads[False][1] * 9, grads[True][1] * 9  # per element (the mean is over 9)
-    assert torch.allclose(plain[0], torch.full((3,), -1e-8 / (eps + 1e-8)), rtol=1e-5)  # log-L1: 1e-4 of the pull
-    assert torch.allclose(lifted[0], torch.full((3,), -1.0 - 1e-8 / (eps + 1e-8)), rtol=1e-6)
-    assert torch.equal(lifted[1:], plain[1:])
+        out[lift] = (loss.detach(), raw.grad * raw.numel())
+    return out
+
+
+def test_the_lift_acts_only_where_the_fit_is_dead():
+    """The lift (losses module docstring): the loss's value is log-L1's bit for bit. In a dead batch (most
+    elements with a target over eps predicted two decades under it) the elements predicted under eps with a target
+    over it get the log error's own gradient with respect to the raw (log) output: -1 - pred / (eps + pred) where
+    plain log-L1 gives -pred / (eps + pred) (float rounding: 1e-6 relative); every other element keeps log-L1's
+    gradient exactly. A batch whose bright targets are mostly predicted alive is not lifted at all, and with
+    groups each part is asked on its own."""
+    eps, floor, alive = 1e-4, [1e-8] * 3, [1e-2] * 3
+    bright, dim = [10.0] * 3, [1e-6, 0.0, 5e-5]
+    dead_batch = _lift_grads([floor, floor, floor, alive], torch.tensor([bright, bright, dim, bright]), eps)
+    assert torch.equal(dead_batch[False][0], dead_batch[True][0])
+    plain, lifted = dead_batch[False][1], dead_batch[True][1]
+    assert torch.allclose(plain[:2], torch.full((2, 3), -1e-8 / (eps + 1e-8)), rtol=1e-5)  # 1e-4 of the pull
+    assert torch.allclose(lifted[:2], torch.full((2, 3), -1.0 - 1e-8 / (eps + 1e-8)), rtol=1e-6)
+    assert torch.equal(lifted[2:], plain[2:])
+    alive_batch = _lift_grads([floor, alive, alive, alive], torch.tensor([bright] * 4), eps)
+    assert torch.equal(alive_batch[True][1], alive_batch[False][1])
+    two = _lift_grads([floor, floor, floor, alive, floor, alive, alive, alive],
+                      torch.tensor([bright, bright, dim, bright] + [bright] * 4), eps, lift_groups=2)
+    assert torch.allclose(two[True][1][:2], lifted[:2], rtol=1e-6) and torch.equal(two[True][1][4:], two[False][1][4:])
     # the quantile weighs the lifted pull as it weighs the rest: 2 tau below the target
-    raw.grad = None
-    log_l1(torch.exp(raw), target, eps, tau=0.8, lift=True).backward()
-    assert torch.allclose(raw.grad[0] * 9, 1.6 * lifted[0], rtol=1e-6)
+    quantile = _lift_grads([floor, floor, floor, alive], torch.tensor([bright, bright, dim, bright]), eps, tau=0.8)
+    assert torch.allclose(quantile[True][1][:2], 1.6 * lifted[:2], rtol=1e-6)
 
 
 def test_sampler_kl_is_finite_and_its_gradient_reaches_the_sampler_only():
