@@ -153,6 +153,32 @@ def test_segment_losses_are_each_parts_own():
     assert len({round(float(x), 6) for x in brdf}) == 3
 
 
+def test_segment_losses_lift_each_part_as_its_own_batch():
+    """The shared network's joint step passes the lift through (``lift_groups``, one per material): with the loss's
+    scale at 1e3 every prediction of the tiny model (about 0.05) is dead, part 0's targets are all over the scale (a
+    dead batch: it lifts), parts 1 and 2 have none. Each part's gradient equals the one brdf_and_sampler_losses gives
+    it alone, with the lift (tolerance as above); part 0's differs from its unlifted gradient, the others' do not.
+    (Which parts lift, asked per part, is test_the_lift_acts_only_where_the_fit_is_dead's.)"""
+    m, latent, wi, wo, target, u = _batch(n=3 * 128, seed=7)
+    target = target.clone()
+    target[:128] = 1e4
+    grads = {}
+    for lift in (False, True):
+        brdf, kl = segment_losses(m.decoder, m.sampler, latent, wi, wo, target, u, segments=3,
+                                  brdf_terms=brdf_loss_of("log_l1", 1e3, terms=True), lift=lift)
+        brdf.sum().backward()
+        grads[lift] = latent.grad.clone()
+        latent.grad = None
+    for k in range(3):
+        part = slice(128 * k, 128 * (k + 1))
+        b, _ = brdf_and_sampler_losses(m.decoder, m.sampler, latent[part], wi[part], wo[part], target[part],
+                                       u[part], brdf_loss=brdf_loss_of("log_l1", 1e3), lift=True)
+        b.backward()
+    torch.testing.assert_close(grads[True], latent.grad, rtol=1e-5, atol=1e-9)
+    assert not torch.allclose(grads[True][:128], grads[False][:128])
+    assert torch.equal(grads[True][128:], grads[False][128:])
+
+
 def test_albedo_loss_is_the_mean_squared_error():
     m, latent, wi, _, _, _ = _batch(seed=5)
     pred = m.decoder.predict_albedo(latent, wi)
