@@ -16,8 +16,10 @@ selector; on the CPU its choice is the NM_CPU_COHERENT define, 1 = coherent).
 from __future__ import annotations
 
 import hashlib
+import shutil
 import tempfile
 import threading
+import weakref
 from pathlib import Path
 from string import Template
 
@@ -109,7 +111,8 @@ class CpuMaterial:
 
     ``unroll=False`` compiles with ``NM_UNROLL`` empty (loops kept: the same arithmetic, much
     faster C++ compilation); ``spec`` (the NetworkSpec) supplies the weight binaries for the
-    buffer-reading variants."""
+    buffer-reading variants; ``workdir`` is the folder the module's source is written to (None: a
+    temporary one, removed when the object is collected or at exit)."""
 
     def __init__(self, source: str, name: str, spec, variant: str = "FP32", *, unroll: bool = False,
                  cpu_coherent: bool = True, workdir=None):
@@ -123,6 +126,8 @@ class CpuMaterial:
         digest = hashlib.sha256(source.encode()).hexdigest()[:12]
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="m2n_cg_"))
         self.workdir.mkdir(parents=True, exist_ok=True)
+        if workdir is None:  # a folder of our own: removed with this object (or at exit), not left in the temp dir
+            weakref.finalize(self, shutil.rmtree, str(self.workdir), True)
         (self.workdir / f"{self.module}.slang").write_text(source)
         defines = {"NM_CPU_COHERENT": "1" if cpu_coherent else "0"}
         if not unroll:

@@ -23,6 +23,8 @@ there at most 0.5% may differ (measured: none of 1335).
 
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 import pytest
 import torch
@@ -170,6 +172,19 @@ def test_material_without_maps_emits_nothing_and_is_opaque(tmp_path):
     uv, lod = queries()
     e, o = cm.surface(None, None, uv[:64].numpy(), lod[:64].numpy())
     assert np.all(e == 0) and np.all(o == 1)
+
+
+@needs_slangpy
+def test_harness_removes_its_own_temporary_folder(tmp_path):
+    """Without a ``workdir`` the harness writes its module to a temporary folder of its own (the report's
+    shader timing does, once per material) and removes it when collected, so runs leave nothing behind."""
+    folder, _ = exported(tmp_path / "neural", None)
+    cm = CpuMaterial(generate_slang(folder, "Temp"), "Temp", as_spec(folder), "FP32")
+    work = cm.workdir
+    assert (work / "NeuralMaterial_Temp.slang").is_file()
+    del cm
+    gc.collect()
+    assert not work.exists()
 
 
 def test_module_text_follows_the_manifest(tmp_path):
