@@ -4,6 +4,7 @@ fixtures it uses: ``from mitsuba_samples import converted_layers, mi  # noqa: F4
 
 from __future__ import annotations
 
+import atexit
 import importlib.util
 import shutil
 import tempfile
@@ -43,7 +44,9 @@ def sample_asset(key: str) -> Path:
         spec = importlib.util.spec_from_file_location("make_textured_sample", SAMPLES / "make_textured_sample.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
-        folder = Path(tempfile.mkdtemp(prefix="m2n-textured-")) / "textured"
+        root = tempfile.mkdtemp(prefix="m2n-textured-")
+        atexit.register(shutil.rmtree, root, True)  # removed when the test process ends
+        folder = Path(root) / "textured"
         module.build(folder, TEXTURED_RES)
         _WRITTEN[key] = folder / path.name
     return _WRITTEN[key]
