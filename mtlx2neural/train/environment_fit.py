@@ -32,6 +32,9 @@ BRDF, so the prefiltered path's error is measured on its own:
   minimiser is the targets' mean (what c_k is), with the prediction's scale held out of the
   gradient so dark and bright texels weigh alike.
 
+After the fit, a material whose sharp-lobe targets carry almost none of its reflectance (:data:`SHARP_MIN_SHARE`:
+a rough plastic, a velvet) gets a silent sharp lobe, which the head could only approach, not reach.
+
 The step count is ``TrainConfig.environment_steps`` (``environment_fraction`` of the iterations); the rows per
 step ``environment_batch``.
 """
@@ -63,6 +66,13 @@ AHEAD_ROWS = 32768
 """At most this many rows drawn ahead (over every material): a large ``environment_batch`` draws fewer steps."""
 LR_START, LR_END = 5e-3, 5e-4
 """Adam's learning rate, decayed geometrically over the fit."""
+SHARP_MIN_SHARE = 0.01
+"""A material whose sharp-lobe targets carry less than this share of its reflectance (summed over the fit's rows)
+gets a silent sharp lobe after the fit (:func:`silence_sharp_lobe`). The head cannot fit a reflectance of 0: under
+the relative error's eps its sharp outputs stop at about 1e-3 of the albedo, which one lookup of a bright sun turns
+into a glint the material does not have (an unseen velvet's streak: viewer HDR FLIP 0.35). Shares measured with
+``fast``: coats and glazes 7-52 % (by view angle), BrushedMetal 0.3-0.4 %, the Plastic 0.02-0.1 %, the velvet
+under 0.02 %."""
 
 
 def uniform_hemisphere(n: int, generator: torch.Generator, device) -> torch.Tensor:
@@ -140,6 +150,17 @@ def wake_silent_sharp_lobe(head) -> bool:
     return True
 
 
+def silence_sharp_lobe(head) -> None:
+    """Make ``head``'s sharp lobe carry nothing, as a legacy head's does
+    (:func:`~mtlx2neural.formats.weights.upgrade_environment_head`): zero weights, bias
+    :data:`~mtlx2neural.formats.weights.SILENT_LOGIT` (exp(-103): 0 in FP16). A later fit wakes it again
+    (:func:`wake_silent_sharp_lobe`)."""
+    last = head[-1]
+    with torch.no_grad():
+        last.weight[:3] = 0.0
+        last.bias[:3] = SILENT_LOGIT
+
+
 def _rows_ahead(trainers, per: int, steps: int) -> list[tuple[torch.Tensor, ...]]:
     """The rows of ``steps`` steps (each: ``per`` rows of every trainer's material), drawn in one call per
     material (:data:`AHEAD`)."""
@@ -165,8 +186,10 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     docstring), drawing from ``trainer.gen``; the other networks and the latents are not changed.
     ``trainer`` may be a list of trainers whose models share one decoder (:mod:`.shared`): each step then
     takes ``batch // len(trainers)`` rows (at least 64) of every material. Rows are drawn :data:`AHEAD`
-    steps at a time. Returns one record per 25 steps (``step``, ``loss_environment``); ``listener(step, steps, record)``
-    is called with each."""
+    steps at a time. After the fit, the sharp lobe is silenced (:func:`silence_sharp_lobe`) when its targets carry
+    under :data:`SHARP_MIN_SHARE` of every material's reflectance. Returns one record per 25 steps (``step``,
+    ``loss_environment``; the last adds ``sharp_share``, the largest material's share, and ``sharp_lobe``, ``kept``
+    or ``silent``); ``listener(step, steps, record)`` is called with each."""
     trainers = list(trainer) if isinstance(trainer, (list, tuple)) else [trainer]
     model = trainers[0].model
     head = model.decoder.environment
@@ -176,11 +199,14 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     wake_silent_sharp_lobe(head)
     opt = Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     history, ahead = [], []
+    carried = torch.zeros(len(trainers), 2, dtype=torch.float64)  # per material: the sharp lobe's targets, all
     for step in range(1, steps + 1):
         if not ahead:
             ahead = _rows_ahead(trainers, per, max(1, min(AHEAD, AHEAD_ROWS // (per * len(trainers)),
                                                           steps - step + 1)))
         lat, wi, y = ahead.pop(0)
+        by_material = y.detach().double().view(len(trainers), per, 3, 3)
+        carried += torch.stack([by_material[:, :, 0].sum((1, 2)), by_material.sum((1, 2, 3))], -1).cpu()
         c = model.decoder.predict_lobe_reflectance(lat, wi)
         loss = ((c - y) ** 2 / (c.detach() ** 2 + RELATIVE_EPS)).mean()
         for group in opt.param_groups:
@@ -195,4 +221,9 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
             history.append(rec)
             if listener is not None:
                 listener(step, steps, rec)
+    share = float((carried[:, 0] / carried[:, 1].clamp_min(1e-30)).max()) if steps else 1.0
+    if steps and share < SHARP_MIN_SHARE:
+        silence_sharp_lobe(head)
+    if history:
+        history[-1].update(sharp_share=round(share, 5), sharp_lobe="kept" if share >= SHARP_MIN_SHARE else "silent")
     return history

@@ -262,6 +262,51 @@ def test_the_three_lobes_targets_add_up_to_the_albedo():
     assert shares["coat"] > 0.1 and shares["rough"] < 0.003, shares
 
 
+class _HeadFit:
+    """What ``fit_environment_head`` reads of a trainer: a fresh model with a mirror-centred sampler (as above)
+    and a uniform reference's targets at level 0."""
+
+    def __init__(self, reference, seed: int):
+        torch.manual_seed(seed)
+        self.model = NeuralMaterial((4, 4), in_dim=2, latent_dim=8, frames=2, decoder="2x16", environment_head=True)
+        with torch.no_grad():
+            self.model.sampler.net[-1].weight.zero_()
+            self.model.sampler.net[-1].bias.zero_()
+        self.ref, self.targets = reference, _PlainTargets(reference)
+        self.targets.levels = lambda n, dev: torch.zeros(n, dtype=torch.long, device=dev)
+        self.device, self.gen, self.tiles = "cpu", torch.Generator().manual_seed(seed), None
+
+
+def test_a_sharp_lobe_that_carries_almost_nothing_is_silenced():
+    """After the fit, a material whose sharp-lobe targets carry under SHARP_MIN_SHARE of its reflectance (a rough
+    dielectric: 0.0002 above) gets the legacy head's silent sharp lobe (0 in FP16), which the fit could only
+    approach; a clear coat (0.17) keeps its own; a shared head keeps it when any of its materials needs it."""
+    from materials import reference_of, standard_surface
+
+    from mtlx2neural.formats.weights import SILENT_LOGIT
+    from mtlx2neural.train.environment_fit import SHARP_MIN_SHARE, fit_environment_head
+
+    coat = reference_of(standard_surface("M", "SR", base_color=(0.5, 0.1, 0.1), coat=1.0, coat_roughness=0.05))
+    rough = reference_of(standard_surface("M", "SR", base_color=(0.2, 0.4, 0.6), specular_roughness=0.5))
+    wi = torch.nn.functional.normalize(torch.tensor([[0.5, 0.1, 0.8], [0.0, 0.3, 0.4]]), dim=-1)
+    for group, kept in (([rough], False), ([coat], True), ([rough, coat], True)):
+        fits = [_HeadFit(ref, seed=7) for ref in group]
+        for f in fits[1:]:  # one shared decoder, as train.shared fits it
+            f.model.decoder = fits[0].model.decoder
+        history = fit_environment_head(fits if len(fits) > 1 else fits[0], steps=60, batch=512)
+        last = history[-1]
+        assert last["sharp_lobe"] == ("kept" if kept else "silent")
+        assert (last["sharp_share"] >= SHARP_MIN_SHARE) == kept, last
+        with torch.no_grad():
+            _, _, c = fits[-1].model.environment_lobes(wi, torch.rand(2, 2))
+        bias = fits[0].model.decoder.environment[-1].bias[:3]
+        if kept:
+            assert bool((c[:, 0].sum(-1) > 0).all()) and bool((bias > SILENT_LOGIT).all())
+        else:
+            assert bool((c[:, 0] < 1e-40).all()) and bool((bias == SILENT_LOGIT).all())  # exp(-103): 0 in FP16
+            assert bool((c[:, 1:].sum((1, 2)) > 0).all())  # the other two lobes still carry the reflectance
+
+
 def test_a_legacy_heads_sharp_lobe_wakes_before_it_is_fitted_again():
     """A head upgraded from one without the sharp lobe gives it exp(-103): no gradient reaches it, so a fit
     (the universal networks' fine-tune) first starts it from the specular lobe's outputs, at a tenth."""
