@@ -35,8 +35,8 @@ BRDF, so the prefiltered path's error is measured on its own:
 After the fit, a material whose sharp-lobe targets carry almost none of its reflectance (:data:`SHARP_MIN_SHARE`:
 a rough plastic, a velvet) gets a silent sharp lobe, which the head could only approach, not reach.
 
-The step count is ``TrainConfig.environment_steps`` (``environment_fraction`` of the iterations); the rows per
-step ``environment_batch``.
+``TrainConfig.environment_steps`` (``environment_fraction`` of the iterations) batches of ``environment_batch``
+rows are drawn, and the head takes :data:`PASSES` Adam steps per batch.
 """
 
 from __future__ import annotations
@@ -66,6 +66,13 @@ AHEAD_ROWS = 32768
 """At most this many rows drawn ahead (over every material): a large ``environment_batch`` draws fewer steps."""
 LR_START, LR_END = 5e-3, 5e-4
 """Adam's learning rate, decayed geometrically over the fit."""
+PASSES = 4
+"""Adam steps per batch of rows drawn: each chunk drawn ahead (:data:`AHEAD` batches) is gone over this many times
+before the next is drawn, so the head takes ``PASSES`` x ``environment_steps`` steps for the reference's targets of
+``environment_steps`` (their evaluation is most of a step's time). The head is under-fitted at one step per batch:
+the sample CarPaint's prefiltered render against the reference (torch twin, three seeds of the head's fit) 0.1107 at
+1, 0.1060 at 4 passes (4000 batches drawn fresh: 0.1046-0.1082), the Plastic 0.0720 and 0.0680, at twice the fit's
+time (docs/history/environment-lighting-2026-12-07.md)."""
 SHARP_MIN_SHARE = 0.01
 """A material whose sharp-lobe targets carry less than this share of its reflectance (summed over the fit's rows)
 gets a silent sharp lobe after the fit (:func:`silence_sharp_lobe`). The head cannot fit a reflectance of 0: under
@@ -186,10 +193,10 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     docstring), drawing from ``trainer.gen``; the other networks and the latents are not changed.
     ``trainer`` may be a list of trainers whose models share one decoder (:mod:`.shared`): each step then
     takes ``batch // len(trainers)`` rows (at least 64) of every material. Rows are drawn :data:`AHEAD`
-    steps at a time. After the fit, the sharp lobe is silenced (:func:`silence_sharp_lobe`) when its targets carry
-    under :data:`SHARP_MIN_SHARE` of every material's reflectance. Returns one record per 25 steps (``step``,
+    steps at a time, and each chunk is gone over :data:`PASSES` times (``steps`` x ``PASSES`` Adam steps). After the fit, the sharp lobe is silenced (:func:`silence_sharp_lobe`) when its targets carry
+    under :data:`SHARP_MIN_SHARE` of every material's reflectance. Returns one record per 25 Adam steps (``step``,
     ``loss_environment``; the last adds ``sharp_share``, the largest material's share, and ``sharp_lobe``, ``kept``
-    or ``silent``); ``listener(step, steps, record)`` is called with each."""
+    or ``silent``); ``listener(step, steps * PASSES, record)`` is called with each."""
     trainers = list(trainer) if isinstance(trainer, (list, tuple)) else [trainer]
     model = trainers[0].model
     head = model.decoder.environment
@@ -198,29 +205,34 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     per = batch if len(trainers) == 1 else max(64, batch // len(trainers))
     wake_silent_sharp_lobe(head)
     opt = Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
-    history, ahead = [], []
+    history, chunk, ahead, passes = [], [], [], 0
     carried = torch.zeros(len(trainers), 2, dtype=torch.float64)  # per material: the sharp lobe's targets, all
-    for step in range(1, steps + 1):
+    drawn, updates = 0, steps * PASSES
+    for step in range(1, updates + 1):
         if not ahead:
-            ahead = _rows_ahead(trainers, per, max(1, min(AHEAD, AHEAD_ROWS // (per * len(trainers)),
-                                                          steps - step + 1)))
+            if not chunk or passes == PASSES:  # the next chunk of rows, gone over PASSES times
+                chunk = _rows_ahead(trainers, per, max(1, min(AHEAD, AHEAD_ROWS // (per * len(trainers)),
+                                                              steps - drawn)))
+                drawn, passes = drawn + len(chunk), 0
+                for _, _, y in chunk:
+                    by_material = y.double().view(len(trainers), per, 3, 3)
+                    carried += torch.stack([by_material[:, :, 0].sum((1, 2)), by_material.sum((1, 2, 3))], -1).cpu()
+            ahead, passes = list(chunk), passes + 1
         lat, wi, y = ahead.pop(0)
-        by_material = y.detach().double().view(len(trainers), per, 3, 3)
-        carried += torch.stack([by_material[:, :, 0].sum((1, 2)), by_material.sum((1, 2, 3))], -1).cpu()
         c = model.decoder.predict_lobe_reflectance(lat, wi)
         loss = ((c - y) ** 2 / (c.detach() ** 2 + RELATIVE_EPS)).mean()
         for group in opt.param_groups:
-            group["lr"] = LR_START * (LR_END / LR_START) ** ((step - 1) / max(1, steps - 1))
+            group["lr"] = LR_START * (LR_END / LR_START) ** ((step - 1) / max(1, updates - 1))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         if not math.isfinite(loss.item()):
             raise FloatingPointError(f"non-finite environment-head loss at step {step}")
-        if step % 25 == 0 or step == steps:
+        if step % 25 == 0 or step == updates:
             rec = {"step": step, "loss_environment": round(loss.item(), 6)}
             history.append(rec)
             if listener is not None:
-                listener(step, steps, rec)
+                listener(step, updates, rec)
     share = float((carried[:, 0] / carried[:, 1].clamp_min(1e-30)).max()) if steps else 1.0
     if steps and share < SHARP_MIN_SHARE:
         silence_sharp_lobe(head)

@@ -307,6 +307,23 @@ def test_a_sharp_lobe_that_carries_almost_nothing_is_silenced():
             assert bool((c[:, 1:].sum((1, 2)) > 0).all())  # the other two lobes still carry the reflectance
 
 
+def test_the_head_goes_over_each_drawn_batch_several_times(monkeypatch):
+    """The fit draws ``steps`` batches of the reference's targets (the expensive part) and takes PASSES Adam steps
+    on each, a chunk at a time: the head was under-fitted at one step per batch (docs/history)."""
+    from materials import reference_of, standard_surface
+
+    from mtlx2neural.train import environment_fit
+
+    drawn = []
+    rows_ahead = environment_fit._rows_ahead
+    monkeypatch.setattr(environment_fit, "_rows_ahead",
+                        lambda *a: drawn.append(a[2]) or rows_ahead(*a))
+    fit = _HeadFit(reference_of(standard_surface("M", "SR", specular_roughness=0.5)), seed=8)
+    history = environment_fit.fit_environment_head(fit, steps=60, batch=256)
+    assert sum(drawn) == 60 and len(drawn) == 3  # chunks of AHEAD = 25 batches
+    assert history[-1]["step"] == 60 * environment_fit.PASSES
+
+
 def test_a_legacy_heads_sharp_lobe_wakes_before_it_is_fitted_again():
     """A head upgraded from one without the sharp lobe gives it exp(-103): no gradient reaches it, so a fit
     (the universal networks' fine-tune) first starts it from the specular lobe's outputs, at a tenth."""
