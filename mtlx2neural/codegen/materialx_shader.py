@@ -275,5 +275,8 @@ def node_source(spec: NetworkSpec, name: str, layout: LatentLayout, target: str,
         "seed": int(seed), "has_environment_head": "true" if spec.environment else "false",
         "environment_head": "yes" if spec.environment else "no",
         "sharp_solid_angle": repr(float(SHARP_SOLID_ANGLE)),
+        "sharp_live": "false" if spec.sharp_silent else "true",
+        "sharp_note": ("The conversion silenced the sharp lobe (it carries nothing): no lookup."
+                       if spec.sharp_silent else "The sharp lobe carries reflectance: one lookup."),
     }
     return Template(template(LANGUAGES[target][0])).substitute(subs)

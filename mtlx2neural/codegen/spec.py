@@ -23,6 +23,7 @@ from mtlx2neural.errors import InputError
 from mtlx2neural.formats.fp16 import to_fp16
 from mtlx2neural.formats.weights import (
     ENVIRONMENT_OUTPUTS,
+    SILENT_LOGIT,
     analytic_cosine_of,
     read_weights,
     upgrade_environment_head,
@@ -57,6 +58,17 @@ class NetworkSpec:
     analytic_cosine: bool = True      # the decoder's RGB times max(0, wo.z) (model.decoder)
     udim_tiles: list[int] | None = None  # a UDIM material's trained tiles (model.latent), None otherwise
     environment: list[Layer] | None = None  # the prefiltered-lighting head (model.decoder), None without one
+
+    @property
+    def sharp_silent(self) -> bool:
+        """Whether the environment head's sharp lobe carries nothing: its outputs (the first 3 of the last layer)
+        have zero weights and a bias at or below :data:`~mtlx2neural.formats.weights.SILENT_LOGIT` (a legacy head,
+        or one the fit silenced: ``train.environment_fit.silence_sharp_lobe``), so a shader can skip its lookup.
+        False without an environment head."""
+        if not self.environment:
+            return False
+        last = self.environment[-1]
+        return bool(np.all(last.weight[:3] == 0.0) and np.all(last.bias[:3] <= SILENT_LOGIT))
 
     @property
     def decoder_hidden(self) -> list[int]:

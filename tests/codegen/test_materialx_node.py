@@ -24,6 +24,7 @@ import pytest
 import torch
 from neural_models import randomise_latents
 
+from mtlx2neural.codegen import as_spec
 from mtlx2neural.codegen.compile import find_slangc, slangc
 from mtlx2neural.codegen.glsl_render import (
     directional_light_rig,
@@ -142,6 +143,18 @@ def random_env_node(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def silent_env_node(tmp_path_factory):
+    """The same model with its sharp lobe silenced, as the environment fit leaves a rough material's, with its node."""
+    from mtlx2neural.train.environment_fit import silence_sharp_lobe
+
+    torch.manual_seed(2)
+    model = NeuralMaterial((8, 8), in_dim=2, latent_dim=8, frames=2, decoder="2x16", environment_head=True)
+    silence_sharp_lobe(model.decoder.environment)
+    folder = export(fp16_rounded(model), tmp_path_factory.mktemp("silent_env") / "neural")
+    return folder, model, write_materialx_node(folder, "/World/Looks/Car Paint", folder)
+
+
+@pytest.fixture(scope="module")
 def coarse_node(tmp_path_factory):
     """A seeded random model with a 256² latent grid, exported with its node. Each level holds its
     own random code plus one smooth wave over the texture (one period across, so what a pixel reads
@@ -195,7 +208,7 @@ def test_node_document_validates_with_the_standard_libraries(random_node):
     assert surface.getCategory() == "surface" and surface.getConnectedNode("bsdf").getName() == names.node
 
 
-@pytest.mark.parametrize("node", ["random_node", "random_env_node"])
+@pytest.mark.parametrize("node", ["random_node", "random_env_node", "silent_env_node"])
 @pytest.mark.parametrize("target", ["genglsl", "genslang"])
 def test_generators_emit_a_complete_shader_without_edits(node, target, request, tmp_path):
     _, model, mtlx = request.getfixturevalue(node)
@@ -250,6 +263,16 @@ def test_shader_text_is_generated_from_the_networks(random_node, tmp_path):
     out = write_materialx_node(model, "Car Paint", tmp_path, env_samples=32)  # latents found beside the node
     doc = load_node_document(out)
     assert doc.getNodeDef("ND_neural_Car_Paint_bsdf").getInput("env_samples").getValue() == 32
+
+
+def test_a_silent_sharp_lobe_is_not_looked_up(random_env_node, silent_env_node):
+    """A head whose sharp lobe carries nothing (silenced by the fit, or a legacy head) gets no sharp lookup in the
+    node: the branch is a constant false, which the GLSL and Slang compilers drop; a live one keeps it."""
+    for (folder, _, _), live in ((random_env_node, "true"), (silent_env_node, "false")):
+        assert as_spec(folder).sharp_silent == (live == "false")
+        for ext in ("glsl", "slang"):
+            text = (folder / f"NeuralMaterial_Car_Paint.{ext}").read_text()
+            assert text.count(f"if ({live})") == 1 and text.count("eSharp = nm_Car_Paint_envLookup(") == 1
 
 
 def test_env_prefiltered_follows_the_environment_head(random_node, random_env_node, tmp_path):
