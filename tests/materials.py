@@ -16,6 +16,8 @@ FOOTER = "</materialx>\n"
 def _input(name: str, value) -> str:
     if isinstance(value, dict):  # {"node": "img"}: a connection (type from "type", default color3)
         return f'    <input name="{name}" type="{value.get("type", "color3")}" nodename="{value["node"]}" />\n'
+    if isinstance(value, bool):
+        return f'    <input name="{name}" type="boolean" value="{str(value).lower()}" />\n'
     if isinstance(value, tuple):
         return f'    <input name="{name}" type="color3" value="{", ".join(str(v) for v in value)}" />\n'
     return f'    <input name="{name}" type="float" value="{value}" />\n'

@@ -63,7 +63,7 @@ class NetworkSpec:
     def sharp_silent(self) -> bool:
         """Whether the environment head's sharp lobe carries nothing: its outputs (the first 3 of the last layer)
         have zero weights and a bias at or below :data:`~mtlx2neural.formats.weights.SILENT_LOGIT` (a legacy head,
-        or one the fit silenced: ``train.environment_fit.silence_sharp_lobe``), so a shader can skip its lookup.
+        or one the fit silenced: ``train.environment_fit.silence_lobes``), so a shader can skip its lookup.
         False without an environment head."""
         if not self.environment:
             return False

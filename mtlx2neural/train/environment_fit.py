@@ -33,7 +33,8 @@ BRDF, so the prefiltered path's error is measured on its own:
   gradient so dark and bright texels weigh alike.
 
 After the fit, a material whose sharp-lobe targets carry almost none of its reflectance (:data:`SHARP_MIN_SHARE`:
-a rough plastic, a velvet) gets a silent sharp lobe, which the head could only approach, not reach.
+a rough plastic, a velvet) gets a silent sharp lobe, which the head could only approach, not reach; a material
+that reflects nothing (:data:`BLACK_REFLECTANCE`) gets a silent head.
 
 ``TrainConfig.environment_steps`` (``environment_fraction`` of the iterations) batches of ``environment_batch``
 rows are drawn, and the head takes :data:`PASSES` Adam steps per batch.
@@ -73,9 +74,13 @@ before the next is drawn, so the head takes ``PASSES`` x ``environment_steps`` s
 the sample CarPaint's prefiltered render against the reference (torch twin, three seeds of the head's fit) 0.1107 at
 1, 0.1060 at 4 passes (4000 batches drawn fresh: 0.1046-0.1082), the Plastic 0.0720 and 0.0680, at twice the fit's
 time (docs/history/environment-lighting-2026-12-07.md)."""
+BLACK_REFLECTANCE = 1e-4
+"""Mean directional albedo (over the fit's rows) under which a material's head is silenced whole (:func:`silent_lobes`):
+the head's outputs stop around 1e-4 where every target is 0 (a thin-walled subsurface surface, black in reflection:
+the viewer figure 0.80 against a black reference)."""
 SHARP_MIN_SHARE = 0.01
 """A material whose sharp-lobe targets carry less than this share of its reflectance (summed over the fit's rows)
-gets a silent sharp lobe after the fit (:func:`silence_sharp_lobe`). The head cannot fit a reflectance of 0: under
+gets a silent sharp lobe after the fit (:func:`silent_lobes`). The head cannot fit a reflectance of 0: under
 the relative error's eps its sharp outputs stop at about 1e-3 of the albedo, which one lookup of a bright sun turns
 into a glint the material does not have (an unseen velvet's streak: viewer HDR FLIP 0.35). Shares measured with
 ``fast``: coats and glazes 7-52 % (by view angle), BrushedMetal 0.3-0.4 %, the Plastic 0.02-0.1 %, the velvet
@@ -144,12 +149,18 @@ def ring_direction(wi: torch.Tensor, wo: torch.Tensor, centre: torch.Tensor) -> 
     return proxy.reflect_about_slope(wi, centre + RING * proxy.SHARP_ALPHA * towards)
 
 
-def wake_silent_sharp_lobe(head) -> bool:
-    """Before a head is fitted again: the sharp lobe's outputs of a head upgraded from one without it
-    (:func:`~mtlx2neural.formats.weights.upgrade_environment_head`, exp(-103): no gradient reaches them) start
-    from the specular lobe's, at a tenth of its reflectance. Returns whether they were silent."""
+def wake_silent_lobes(head) -> bool:
+    """Before a head is fitted again, its silent lobes (exp(-103): no gradient reaches them) start anew: the sharp
+    lobe's outputs (of a head upgraded from one without it, :func:`~mtlx2neural.formats.weights.upgrade_environment_head`,
+    or silenced by a fit) from the specular lobe's, at a tenth of its reflectance; a specular or diffuse lobe
+    (silenced with a black material's head) from zero weights and bias, the head's usual scale. Returns whether
+    the sharp lobe was silent."""
     last = head[-1]
     with torch.no_grad():
+        for k in (1, 2):  # a specular or diffuse lobe silenced with a black material's: the head's usual start
+            if bool((last.bias[3 * k:3 * k + 3] <= SILENT_LOGIT).all()):
+                last.weight[3 * k:3 * k + 3] = 0.0
+                last.bias[3 * k:3 * k + 3] = 0.0
         if not bool((last.bias[:3] <= SILENT_LOGIT).all()):
             return False
         last.weight[:3] = last.weight[3:6]
@@ -157,15 +168,31 @@ def wake_silent_sharp_lobe(head) -> bool:
     return True
 
 
-def silence_sharp_lobe(head) -> None:
-    """Make ``head``'s sharp lobe carry nothing, as a legacy head's does
-    (:func:`~mtlx2neural.formats.weights.upgrade_environment_head`): zero weights, bias
-    :data:`~mtlx2neural.formats.weights.SILENT_LOGIT` (exp(-103): 0 in FP16). A later fit wakes it again
-    (:func:`wake_silent_sharp_lobe`)."""
+LOBE_NAMES = ("sharp", "specular", "diffuse")
+
+
+def silent_lobes(carried: torch.Tensor) -> list[int]:
+    """The lobes the fit silences, from ``carried`` [materials, 4]: each material's targets summed per lobe
+    (sharp, specular, diffuse; mean over RGB) and its row count. The sharp lobe when it carries under
+    :data:`SHARP_MIN_SHARE` of every material's reflectance; every lobe when every material reflects under
+    :data:`BLACK_REFLECTANCE` on average (a thin-walled translucent surface: its reflection is black)."""
+    lobes, rows = carried[:, :3], carried[:, 3].clamp_min(1.0)
+    total = lobes.sum(1)
+    if bool((total / rows < BLACK_REFLECTANCE).all()):
+        return [0, 1, 2]
+    return [0] if bool((lobes[:, 0] <= SHARP_MIN_SHARE * total).all()) else []  # a black material: 0 <= 0
+
+
+def silence_lobes(head, lobes=(0,)) -> None:
+    """Make the lobes ``lobes`` of ``head`` (0 sharp, 1 specular, 2 diffuse) carry nothing, as a legacy head's sharp
+    lobe does (:func:`~mtlx2neural.formats.weights.upgrade_environment_head`): zero weights, bias
+    :data:`~mtlx2neural.formats.weights.SILENT_LOGIT` (exp(-103): 0 in FP16). A later fit wakes them again
+    (:func:`wake_silent_lobes`)."""
     last = head[-1]
     with torch.no_grad():
-        last.weight[:3] = 0.0
-        last.bias[:3] = SILENT_LOGIT
+        for k in lobes:
+            last.weight[3 * k:3 * k + 3] = 0.0
+            last.bias[3 * k:3 * k + 3] = SILENT_LOGIT
 
 
 def _rows_ahead(trainers, per: int, steps: int) -> list[tuple[torch.Tensor, ...]]:
@@ -193,20 +220,22 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     docstring), drawing from ``trainer.gen``; the other networks and the latents are not changed.
     ``trainer`` may be a list of trainers whose models share one decoder (:mod:`.shared`): each step then
     takes ``batch // len(trainers)`` rows (at least 64) of every material. Rows are drawn :data:`AHEAD`
-    steps at a time, and each chunk is gone over :data:`PASSES` times (``steps`` x ``PASSES`` Adam steps). After the fit, the sharp lobe is silenced (:func:`silence_sharp_lobe`) when its targets carry
-    under :data:`SHARP_MIN_SHARE` of every material's reflectance. Returns one record per 25 Adam steps (``step``,
-    ``loss_environment``; the last adds ``sharp_share``, the largest material's share, and ``sharp_lobe``, ``kept``
-    or ``silent``); ``listener(step, steps * PASSES, record)`` is called with each."""
+    steps at a time, and each chunk is gone over :data:`PASSES` times (``steps`` x ``PASSES`` Adam steps). After the
+    fit, the sharp lobe is silenced (:func:`silence_lobes`) when its targets carry
+    under :data:`SHARP_MIN_SHARE` of every material's reflectance, and every lobe when the materials reflect nothing
+    (:func:`silent_lobes`). Returns one record per 25 Adam steps (``step``, ``loss_environment``; the last adds
+    ``sharp_share``, the largest material's share, and ``silent_lobes``, the names of those silenced);
+    ``listener(step, steps * PASSES, record)`` is called with each."""
     trainers = list(trainer) if isinstance(trainer, (list, tuple)) else [trainer]
     model = trainers[0].model
     head = model.decoder.environment
     if head is None:
         raise RuntimeError("the model has no environment head to fit")
     per = batch if len(trainers) == 1 else max(64, batch // len(trainers))
-    wake_silent_sharp_lobe(head)
+    wake_silent_lobes(head)
     opt = Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     history, chunk, ahead, passes = [], [], [], 0
-    carried = torch.zeros(len(trainers), 2, dtype=torch.float64)  # per material: the sharp lobe's targets, all
+    carried = torch.zeros(len(trainers), 4, dtype=torch.float64)  # per material: each lobe's targets, rows
     drawn, updates = 0, steps * PASSES
     for step in range(1, updates + 1):
         if not ahead:
@@ -216,7 +245,8 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
                 drawn, passes = drawn + len(chunk), 0
                 for _, _, y in chunk:
                     by_material = y.double().view(len(trainers), per, 3, 3)
-                    carried += torch.stack([by_material[:, :, 0].sum((1, 2)), by_material.sum((1, 2, 3))], -1).cpu()
+                    carried[:, :3] += by_material.mean(-1).sum(1).cpu()
+                    carried[:, 3] += per
             ahead, passes = list(chunk), passes + 1
         lat, wi, y = ahead.pop(0)
         c = model.decoder.predict_lobe_reflectance(lat, wi)
@@ -233,9 +263,10 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
             history.append(rec)
             if listener is not None:
                 listener(step, updates, rec)
-    share = float((carried[:, 0] / carried[:, 1].clamp_min(1e-30)).max()) if steps else 1.0
-    if steps and share < SHARP_MIN_SHARE:
-        silence_sharp_lobe(head)
+    silent = silent_lobes(carried) if steps else []
+    silence_lobes(head, silent)
     if history:
-        history[-1].update(sharp_share=round(share, 5), sharp_lobe="kept" if share >= SHARP_MIN_SHARE else "silent")
+        total = carried[:, :3].sum(1).clamp_min(1e-30)
+        history[-1].update(sharp_share=round(float((carried[:, 0] / total).max()), 5),
+                           silent_lobes=[LOBE_NAMES[k] for k in silent])
     return history

@@ -145,11 +145,11 @@ def random_env_node(tmp_path_factory):
 @pytest.fixture(scope="module")
 def silent_env_node(tmp_path_factory):
     """The same model with its sharp lobe silenced, as the environment fit leaves a rough material's, with its node."""
-    from mtlx2neural.train.environment_fit import silence_sharp_lobe
+    from mtlx2neural.train.environment_fit import silence_lobes
 
     torch.manual_seed(2)
     model = NeuralMaterial((8, 8), in_dim=2, latent_dim=8, frames=2, decoder="2x16", environment_head=True)
-    silence_sharp_lobe(model.decoder.environment)
+    silence_lobes(model.decoder.environment)
     folder = export(fp16_rounded(model), tmp_path_factory.mktemp("silent_env") / "neural")
     return folder, model, write_materialx_node(folder, "/World/Looks/Car Paint", folder)
 

@@ -277,34 +277,46 @@ class _HeadFit:
         self.device, self.gen, self.tiles = "cpu", torch.Generator().manual_seed(seed), None
 
 
-def test_a_sharp_lobe_that_carries_almost_nothing_is_silenced():
+def test_lobes_that_carry_almost_nothing_are_silenced():
     """After the fit, a material whose sharp-lobe targets carry under SHARP_MIN_SHARE of its reflectance (a rough
     dielectric: 0.0002 above) gets the legacy head's silent sharp lobe (0 in FP16), which the fit could only
-    approach; a clear coat (0.17) keeps its own; a shared head keeps it when any of its materials needs it."""
+    approach; a clear coat (0.17) keeps its own; a shared head keeps it when any of its materials needs it. A
+    material that reflects nothing (thin-walled subsurface: all its light goes through) gets a silent head."""
     from materials import reference_of, standard_surface
 
     from mtlx2neural.formats.weights import SILENT_LOGIT
-    from mtlx2neural.train.environment_fit import SHARP_MIN_SHARE, fit_environment_head
+    from mtlx2neural.train.environment_fit import (
+        SHARP_MIN_SHARE,
+        fit_environment_head,
+        wake_silent_lobes,
+    )
 
     coat = reference_of(standard_surface("M", "SR", base_color=(0.5, 0.1, 0.1), coat=1.0, coat_roughness=0.05))
     rough = reference_of(standard_surface("M", "SR", base_color=(0.2, 0.4, 0.6), specular_roughness=0.5))
+    black = reference_of(standard_surface("M", "SR", specular=0.0, thin_walled=True, subsurface=1.0))
     wi = torch.nn.functional.normalize(torch.tensor([[0.5, 0.1, 0.8], [0.0, 0.3, 0.4]]), dim=-1)
-    for group, kept in (([rough], False), ([coat], True), ([rough, coat], True)):
+    for group, silent in (([rough], ["sharp"]), ([coat], []), ([rough, coat], []),
+                          ([black], ["sharp", "specular", "diffuse"]), ([black, rough], ["sharp"])):
         fits = [_HeadFit(ref, seed=7) for ref in group]
         for f in fits[1:]:  # one shared decoder, as train.shared fits it
             f.model.decoder = fits[0].model.decoder
         history = fit_environment_head(fits if len(fits) > 1 else fits[0], steps=60, batch=512)
         last = history[-1]
-        assert last["sharp_lobe"] == ("kept" if kept else "silent")
-        assert (last["sharp_share"] >= SHARP_MIN_SHARE) == kept, last
+        assert last["silent_lobes"] == silent, last
+        if group != [black]:
+            assert (last["sharp_share"] >= SHARP_MIN_SHARE) == ("sharp" not in silent), last
         with torch.no_grad():
             _, _, c = fits[-1].model.environment_lobes(wi, torch.rand(2, 2))
-        bias = fits[0].model.decoder.environment[-1].bias[:3]
-        if kept:
-            assert bool((c[:, 0].sum(-1) > 0).all()) and bool((bias > SILENT_LOGIT).all())
-        else:
-            assert bool((c[:, 0] < 1e-40).all()) and bool((bias == SILENT_LOGIT).all())  # exp(-103): 0 in FP16
-            assert bool((c[:, 1:].sum((1, 2)) > 0).all())  # the other two lobes still carry the reflectance
+        bias = fits[0].model.decoder.environment[-1].bias.view(3, 3)
+        for k, name in enumerate(("sharp", "specular", "diffuse")):
+            if name in silent:  # exp(-103): 0 in FP16
+                assert bool((c[:, k] < 1e-40).all()) and bool((bias[k] == SILENT_LOGIT).all()), name
+            else:
+                assert bool((c[:, k].sum(-1) > 0).all()) and bool((bias[k] > SILENT_LOGIT).all()), name
+    # a silenced head wakes before another fit: the lobes start again from live outputs
+    head = fits[0].model.decoder.environment
+    wake_silent_lobes(head)
+    assert bool((head[-1].bias > SILENT_LOGIT).all())
 
 
 def test_the_head_goes_over_each_drawn_batch_several_times(monkeypatch):
@@ -328,15 +340,15 @@ def test_a_legacy_heads_sharp_lobe_wakes_before_it_is_fitted_again():
     """A head upgraded from one without the sharp lobe gives it exp(-103): no gradient reaches it, so a fit
     (the universal networks' fine-tune) first starts it from the specular lobe's outputs, at a tenth."""
     from mtlx2neural.formats.weights import SILENT_LOGIT
-    from mtlx2neural.train.environment_fit import wake_silent_sharp_lobe
+    from mtlx2neural.train.environment_fit import wake_silent_lobes
 
     torch.manual_seed(6)
     model = NeuralMaterial((4, 4), in_dim=2, latent_dim=8, frames=2, decoder="2x16", environment_head=True)
     last = model.decoder.environment[-1]
-    assert not wake_silent_sharp_lobe(model.decoder.environment)  # a head of today: left alone
+    assert not wake_silent_lobes(model.decoder.environment)  # a head of today: left alone
     with torch.no_grad():
         last.bias[:3] = SILENT_LOGIT
-    assert wake_silent_sharp_lobe(model.decoder.environment)
+    assert wake_silent_lobes(model.decoder.environment)
     wi = torch.nn.functional.normalize(torch.rand(32, 3) + torch.tensor([0.0, 0.0, 0.5]), dim=-1)
     with torch.no_grad():
         _, _, c = model.environment_lobes(wi, torch.rand(32, 2))
