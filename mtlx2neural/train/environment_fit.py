@@ -171,16 +171,15 @@ def wake_silent_lobes(head) -> bool:
 LOBE_NAMES = ("sharp", "specular", "diffuse")
 
 
-def silent_lobes(carried: torch.Tensor) -> list[int]:
-    """The lobes the fit silences, from ``carried`` [materials, 4]: each material's targets summed per lobe
-    (sharp, specular, diffuse; mean over RGB) and its row count. The sharp lobe when it carries under
+def silent_lobes(carried: torch.Tensor, rows: int) -> list[int]:
+    """The lobes the fit silences, from ``carried`` [materials, 3]: each material's targets summed per lobe
+    (sharp, specular, diffuse; mean over RGB) over its ``rows`` rows. The sharp lobe when it carries under
     :data:`SHARP_MIN_SHARE` of every material's reflectance; every lobe when every material reflects under
     :data:`BLACK_REFLECTANCE` on average (a thin-walled translucent surface: its reflection is black)."""
-    lobes, rows = carried[:, :3], carried[:, 3].clamp_min(1.0)
-    total = lobes.sum(1)
-    if bool((total / rows < BLACK_REFLECTANCE).all()):
+    total = carried.sum(1)
+    if bool((total < BLACK_REFLECTANCE * max(rows, 1)).all()):
         return [0, 1, 2]
-    return [0] if bool((lobes[:, 0] <= SHARP_MIN_SHARE * total).all()) else []  # a black material: 0 <= 0
+    return [0] if bool((carried[:, 0] <= SHARP_MIN_SHARE * total).all()) else []  # a black material: 0 <= 0
 
 
 def silence_lobes(head, lobes=(0,)) -> None:
@@ -235,7 +234,7 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
     wake_silent_lobes(head)
     opt = Adam(head.parameters(), lr=LR_START, betas=(0.9, 0.999), eps=1e-7)
     history, chunk, ahead, passes = [], [], [], 0
-    carried = torch.zeros(len(trainers), 4, dtype=torch.float64)  # per material: each lobe's targets, rows
+    carried = torch.zeros(len(trainers), 3, dtype=torch.float64)  # per material: each lobe's targets, summed
     drawn, updates = 0, steps * PASSES
     for step in range(1, updates + 1):
         if not ahead:
@@ -245,8 +244,7 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
                 drawn, passes = drawn + len(chunk), 0
                 for _, _, y in chunk:
                     by_material = y.double().view(len(trainers), per, 3, 3)
-                    carried[:, :3] += by_material.mean(-1).sum(1).cpu()
-                    carried[:, 3] += per
+                    carried += by_material.mean(-1).sum(1).cpu()
             ahead, passes = list(chunk), passes + 1
         lat, wi, y = ahead.pop(0)
         c = model.decoder.predict_lobe_reflectance(lat, wi)
@@ -263,10 +261,10 @@ def fit_environment_head(trainer, steps: int, batch: int, listener=None) -> list
             history.append(rec)
             if listener is not None:
                 listener(step, updates, rec)
-    silent = silent_lobes(carried) if steps else []
+    silent = silent_lobes(carried, drawn * per) if steps else []
     silence_lobes(head, silent)
     if history:
-        total = carried[:, :3].sum(1).clamp_min(1e-30)
+        total = carried.sum(1).clamp_min(1e-30)
         history[-1].update(sharp_share=round(float((carried[:, 0] / total).max()), 5),
                            silent_lobes=[LOBE_NAMES[k] for k in silent])
     return history
