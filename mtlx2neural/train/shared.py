@@ -46,10 +46,11 @@ import torch
 from mtlx2neural.progress import progress_bar
 from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.environment_fit import fit_environment_head
+from mtlx2neural.train.grad_clip import SpikeClip
 from mtlx2neural.train.losses import brdf_loss_of, raw_floor, segment_losses
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.train.row_process import RemoteReplay, Request, RowProcess
-from mtlx2neural.train.trainer import GRAD_CLIP, Trainer, _lr, at_mollify_floor
+from mtlx2neural.train.trainer import Trainer, _lr, at_mollify_floor
 
 SCENE_MIN_ROWS = 256
 """The fewest rows per material in a joint step (a smaller share leaves a material's batch too noisy)."""
@@ -121,6 +122,7 @@ class SharedTrainer:
         self.cfg = lead.cfg
         self.params = _unique_parameters(t.model for t in trainers)
         self.opt = Adam(self.params, lr=self.cfg.lr_start, betas=(0.9, 0.999), eps=1e-7)
+        self.clip = SpikeClip()  # the joint steps' gradient-norm spike guard (train.grad_clip)
         for t in trainers:
             t.opt = self.opt  # a trainer's checkpoint stores the shared optimiser's state
         self.step = 0
@@ -194,13 +196,13 @@ class SharedTrainer:
         parts = [(brdf.detach(), kl.detach()) for _, brdf, kl in parts]
         for group in self.opt.param_groups:
             group["lr"] = _lr(self.cfg, self.step)
-        grad_norm = float(torch.nn.utils.clip_grad_norm_(self.params, GRAD_CLIP))
+        grad_norm, clipped = self.clip(self.params)
         self.opt.step()
         self.step += 1
         for t in self.trainers:
             t.step = self.step
         for t, (lb, lk) in zip(picked, parts):
-            t.clipped_steps += grad_norm > GRAD_CLIP
+            t.clipped_steps += clipped
             t.history.append({**t.step_record(lb, lk, grad_norm), "seconds": round(time.time() - self._t0, 2)})
         return {"step": self.step, "loss_brdf": float(sum(lb for lb, _ in parts)) / m,
                 "loss_kl": float(sum(lk for _, lk in parts)) / m, "grad_norm": grad_norm}
