@@ -50,7 +50,6 @@ from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.formats.weights import SILENT_LOGIT
 from mtlx2neural.model import proxy
 from mtlx2neural.train.adam import Adam
-from mtlx2neural.train.udim import draw_uv
 
 RELATIVE_EPS = 1e-3
 """eps of the relative squared error: reflectances far below it weigh as plain squared error."""
@@ -203,10 +202,11 @@ def _rows_ahead(trainers, per: int, steps: int) -> list[tuple[torch.Tensor, ...]
 
 
 def _rows(trainer, batch: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``batch`` rows of ``trainer``'s material: (latents, wi, the reference's per-lobe reflectance)."""
+    """``batch`` rows of ``trainer``'s material: (latents, wi, the reference's per-lobe reflectance), where the
+    material has surface (``Trainer.surface_uv``: a cut-out's empty texels hold dilated latents, not its look)."""
     model, dev, g = trainer.model, trainer.device, trainer.gen
     with torch.no_grad():
-        uv = draw_uv(batch, trainer.tiles, g).to(dev)
+        uv = trainer.surface_uv(batch).to(dev)
         level = trainer.targets.levels(batch, dev)
         wi = uniform_hemisphere(batch, g, dev)
         lat = model.latents.fetch(uv, level)

@@ -264,6 +264,19 @@ class Trainer:
         the bake, the latents are not trained on, so a probe may fill them early)."""
         self.latent_init.encode(self.model, self.encoder_input)
 
+    def surface_uv(self, n: int) -> torch.Tensor:
+        """[n, 2] uv drawn over the material (over its UDIM tiles), on the CPU from the training's generator; those
+        that land where a cut-out has no surface are drawn again (up to :data:`SURFACE_REDRAWS` rounds), so rows
+        train the surface that is there: the empty texels' latents are dilated copies of their neighbours'."""
+        uv = draw_uv(n, self.tiles, self.gen)
+        if self.surface is not None:
+            for _ in range(SURFACE_REDRAWS):
+                empty = torch.nonzero(~self.surface.texel_covered(uv))[:, 0]
+                if len(empty) == 0:
+                    break
+                uv[empty] = draw_uv(len(empty), self.tiles, self.gen)
+        return uv
+
     def draw_rows(self, batch: int) -> tuple[torch.Tensor, ...]:
         """Fresh training rows for a BRDF batch of ``batch``: ``(uv, level, wi, wo, target)`` with
         ``batch`` plus ``grazing_fraction * batch`` rows (uv in [0,1]^2, or over the UDIM tiles; level a
@@ -272,14 +285,7 @@ class Trainer:
         cfg, g, dev = self.cfg, self.gen, self.device
         n_graze = round(cfg.grazing_fraction * batch)
         b = batch + n_graze
-        uv = draw_uv(b, self.tiles, g)
-        if self.surface is not None:  # redraw the rows that landed where a cut-out has no surface
-            for _ in range(SURFACE_REDRAWS):
-                empty = torch.nonzero(~self.surface.texel_covered(uv))[:, 0]
-                if len(empty) == 0:
-                    break
-                uv[empty] = draw_uv(len(empty), self.tiles, g)
-        uv = uv.to(dev)
+        uv = self.surface_uv(b).to(dev)
         level = self.targets.levels(b, dev)
         wi, wo = half_difference_pairs(b, g, dev)
         if n_graze > 0:  # extra rows whose viewer is near the horizon (their wo stays as drawn, above it)

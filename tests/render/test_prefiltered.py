@@ -276,6 +276,11 @@ class _HeadFit:
         self.targets.levels = lambda n, dev: torch.zeros(n, dtype=torch.long, device=dev)
         self.device, self.gen, self.tiles = "cpu", torch.Generator().manual_seed(seed), None
 
+    def surface_uv(self, n: int) -> torch.Tensor:
+        from mtlx2neural.train.udim import draw_uv
+
+        return draw_uv(n, None, self.gen)
+
 
 def test_lobes_that_carry_almost_nothing_are_silenced():
     """After the fit, a material whose sharp-lobe targets carry under SHARP_MIN_SHARE of its reflectance (a rough
