@@ -22,7 +22,8 @@ builds that scene from :func:`mtlx2neural.scene.stage_render.read_stage_view`:
   procedural sky (:meth:`.lighting.EnvironmentMap.sky`).
 
 :func:`compare_in_scene` renders the reference and each model with the same seed (common random
-numbers, the reference's BSDF samples under environment lights) at :data:`RES` pixels and
+numbers; under environment lights both take the directions of an equal mixture of the reference's and that model's
+samplers, as the summary's sky view does, so the reference is rendered once per model) at :data:`RES` pixels and
 :data:`SPP` samples, and reports HDR FLIP **over the pixels that show the meshes** (``flip``;
 the black background would otherwise dilute it by the empty share of the frame, which the stage's
 framing decides) and over the whole image (``flip_image``, the convention of the analytic views'
@@ -42,6 +43,7 @@ import torch.nn.functional as F
 from mtlx2neural.render.flip import hdr_flip
 from mtlx2neural.render.geometry import Mesh, PinholeCamera, framing_camera
 from mtlx2neural.render.lighting import DirectionalLight, EnvironmentMap
+from mtlx2neural.render.mixture_sampler import MixtureSampler
 from mtlx2neural.render.renderer import image_errors, render_scene
 
 RES = 96
@@ -157,18 +159,23 @@ def compare_in_scene(reference, models: dict, texels: tuple[int, int], scene: In
     are NaN: there is nothing to measure."""
     env = any(isinstance(li, EnvironmentMap) for li in scene.lights)
 
-    def draw(material):
+    def draw(material, sampler=None):
         return render_scene(material, scene.geometry, scene.camera, scene.lights, res, spp, texels, seed,
-                            sampler=reference if env else None)
+                            sampler=sampler)
 
     t0 = time.time()
-    ref = draw(reference)
+    shared = None if env else draw(reference)  # under directional lights alone no direction is sampled
     ref_seconds = time.time() - t0
     mask = coverage(scene.geometry, scene.camera, res)  # the share; the pixels, from the renders
     out = {}
     for label, model in models.items():
         t1 = time.time()
-        test = draw(model)
+        # Under an environment both renders take one mixture's directions (common random numbers): the
+        # reference's sampler alone finds a near mirror's peak but reaches the model's wider lobe only with
+        # rare, huge weights, and the model's figure was that noise (the sample near mirror: 0.42).
+        sampler = MixtureSampler(reference, model) if env else None
+        ref = shared if shared is not None else draw(reference, sampler)
+        test = draw(model, sampler)
         if float(ref.max()) > 0:
             errors = image_errors(ref, test)
             raw, _, _ = hdr_flip(ref, test, apply_magma=False)
@@ -180,5 +187,5 @@ def compare_in_scene(reference, models: dict, texels: tuple[int, int], scene: In
             flip = math.nan
         out[label] = {"reference": ref, label: test, **errors, "flip_image": errors["flip"], "flip": flip,
                       "coverage": round(mask, 4), "res": res, "spp": spp,
-                      "seconds": round(ref_seconds + time.time() - t1, 2)}
+                      "seconds": round(ref_seconds + time.time() - t1, 2)}  # the model's reference render included
     return out
