@@ -447,8 +447,7 @@ def apply_energy(record: MaterialRecord, check: EnergyCheck | None) -> MaterialR
     if check.min_ratio < ENERGY_WARNING:
         record = record.with_warning(
             f"the neural model keeps {check.min_ratio:.0%} of the reference's directional albedo at MIP level "
-            f"{check.worst_level} (energy check; under {ENERGY_WARNING:.0%} renders visibly darker): {longer} "
-            "or try --brdf-loss log_l1+relative_l2")
+            f"{check.worst_level} (energy check; under {ENERGY_WARNING:.0%} renders visibly darker): {longer}")
     if check.max_ratio > ENERGY_WARNING_BRIGHT:
         record = record.with_warning(
             f"the neural model reflects {check.max_ratio:.0%} of the reference's directional albedo at MIP level "

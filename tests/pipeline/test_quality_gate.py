@@ -111,3 +111,21 @@ def test_the_advice_to_train_longer_names_more_than_the_run_had():
     standard = PRESETS["standard"].iterations
     assert train_longer(standard) == f"train longer (--iterations over {standard})"
     assert "standard" not in train_longer(3 * standard)
+
+
+def test_the_dark_energy_warning_advises_what_was_measured_to_help():
+    """A level that keeps too little energy is pointed at a longer run only: `standard` brings the sample near mirror
+    to 0.97-1.08 at every level, where the mixed loss log_l1+relative_l2, which the warning used to suggest, kept 0.82
+    (`fast`, seed 0, FLIP 0.260 against 0.187; docs/history/gradient-clip-2026-12-07.md)."""
+    import dataclasses
+
+    from mtlx2neural.pipeline.material_training import apply_energy
+    from mtlx2neural.verify.energy import EnergyCheck, LevelEnergy
+
+    rec = dataclasses.replace(record("M", 0.05), energy=None, config={"iterations": 1000})
+    check = EnergyCheck([LevelEnergy(0, 0.98, 0.5, 0.49, {}), LevelEnergy(1, 0.80, 0.5, 0.40, {})], 64, 64, 8,
+                        (0.0,))
+    (warning,) = apply_energy(rec, check).warnings
+    assert "80%" in warning and "MIP level 1" in warning and "--preset standard" in warning
+    assert "--brdf-loss" not in warning
+
