@@ -321,13 +321,17 @@ def test_every_preset_is_a_choice_and_overrides_apply(capsys):
         assert options_of(parse("--preset", name)).train_config() == cfg
     args = parse("--preset", "standard", "--iterations", "20", "--seed", "3")
     assert options_of(args).train_config() == dataclasses.replace(PRESETS["standard"], iterations=20, seed=3)
-    # standard is fast for longer: the same sampling and schedule shapes, 8x the steps (and the
-    # preview fallback's fit at its full 200 steps instead of fast's 100, FLIP probes 5x sparser, the
-    # environment head fitted for 2000 steps instead of 1000).
+    # standard is fast for longer: the same sampling and schedule shapes, 4x the steps of twice the rows
+    # (8x fast's rows), the balance's gain of 0.3 it was measured with (and the preview fallback's fit at its
+    # full 200 steps instead of fast's 100, FLIP probes 2x sparser, the environment head fitted for 2000
+    # steps instead of 1000).
     assert PRESETS["standard"].preview_iterations == 2 * PRESETS["fast"].preview_iterations
-    assert PRESETS["standard"].probe_every == 5 * PRESETS["fast"].probe_every
+    assert PRESETS["standard"].probe_every == 2 * PRESETS["fast"].probe_every
     assert PRESETS["standard"].environment_steps > PRESETS["fast"].environment_steps > 0
+    assert (PRESETS["standard"].iterations * PRESETS["standard"].batch
+            == 8 * PRESETS["fast"].iterations * PRESETS["fast"].batch)
     assert dataclasses.replace(PRESETS["standard"], iterations=PRESETS["fast"].iterations,
+                               batch=PRESETS["fast"].batch, energy_gain=PRESETS["fast"].energy_gain,
                                preview_iterations=PRESETS["fast"].preview_iterations,
                                probe_every=PRESETS["fast"].probe_every,
                                environment_fraction=PRESETS["fast"].environment_fraction) == PRESETS["fast"]

@@ -43,7 +43,8 @@ class TrainConfig:
     below their mean, so a level whose directional albedo falls short of the reference's moves its quantile up
     by this times log(ratio) per update (every twentieth of the run, from 30 % on), and one too bright moves it
     down. 0: log_l1's median throughout (the textured samples then keep 85-93 % of their energy with fast, the
-    near mirror 79-81 %). Not used with relative_l2, which follows the mean already."""
+    near mirror 79-81 %). fast: 0.5, its 2000 short steps' energy drifting further between updates (0.3 left
+    the CarPaint at 0.93, seed 1). Not used with relative_l2, which follows the mean already."""
     lift_fraction: float = 1.0
     """Share of the run, from its start, in which the BRDF loss may lift (``train.losses``, "the lift"): in a
     batch where most predictions under a target over ``brdf_eps`` are dead (two decades under it), those
@@ -163,12 +164,16 @@ class TrainConfig:
     steps after tens of seconds of compilation; worth it for long runs only."""
 
 
-_FAST = TrainConfig(iterations=1000, batch=2048, decoder="3x64", lr_start=5e-3, mollify_samples=8,
+_FAST = TrainConfig(iterations=2000, batch=1024, decoder="3x64", lr_start=5e-3, mollify_samples=8,
                     mollify_min_degrees=1.0, mollify_mis=True, lobe_fraction=0.1, preview_iterations=100,
-                    probe_every=100, footprint_samples=8, environment_fraction=1.0)
+                    probe_every=250, footprint_samples=8, environment_fraction=0.5, energy_gain=0.5)
 
 PRESETS = {
-    # fast: a 2-core CPU in a couple of minutes per material. So few steps need a higher
+    # fast: a 2-core CPU in a couple of minutes per material: 2000 steps of 1024 rows. A step is overhead-bound
+    # (half the rows cost about two thirds of the time), and the sharpest lobes need steps more than rows: against
+    # 1000 x 2048, the near mirror's HDR FLIP 0.187 / 0.200 -> 0.159 / 0.160 and its energy 0.85 -> 0.94-0.98, every
+    # sample's held-out error lower, for 20-45 % more training time; the balance's gain 0.5 (0.3 left the CarPaint at
+    # 0.93, docs/history/fast-schedule-2026-12-07.md). So few steps need a higher
     # learning rate than the paper's 1e-3 (sample CarPaint, 3x64: HDR FLIP 0.45 at 1e-3,
     # 0.07 at 5e-3, 0.09 at 1e-2; docs/history/BENCHMARKS-2026-12-01.md).
     # fast and balanced keep a 1-degree mollification floor, estimated by MIS, with a tenth of the
@@ -180,16 +185,17 @@ PRESETS = {
     # the same FLIP (GlazedCeramic, BrushedMetal); 4 points are cheaper still and reach the
     # GlazedCeramic's 0.05 in 8.2 min, but stall the BrushedMetal at a higher error
     # (docs/history/time-to-quality-2026-12-03.md, section 8).
-    # standard: fast's settings for 8x the steps, the CPU's quality setting (one thread: about 8 min
-    # for a uniform material, about 11 for a 256² textured one). On the sample CarPaint (3x64,
-    # HDR FLIP, sky / directional light) 1000 steps give 0.101 / 0.061 and 8000 give 0.075-0.088 /
+    # standard: fast's settings for 8x the rows (8000 steps of 2048), the CPU's quality setting (one thread:
+    # about 8 min for a uniform material, about 11 for a 256² textured one). On the sample CarPaint (3x64,
+    # HDR FLIP, sky / directional light) 1000 steps of 2048 gave 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
-    # Every preset fits the environment head (prefiltered environment lighting): 1000 steps in fast (300 left
+    # Every preset fits the environment head (prefiltered environment lighting): 1000 steps in fast (half its 2000; 300 left
     # the three-lobe head under-fitted: the sample Plastic's prefiltered render 0.063 against 0.057 at 1000,
     # docs/history/environment-lighting-2026-12-06.md); standard 2000, balanced 2000, paper 6000.
-    "standard": dataclasses.replace(_FAST, iterations=8000, preview_iterations=200, probe_every=500,
-                                    environment_fraction=0.25),
+    # standard keeps the 2048 rows and the gain of 0.3 it was measured with (the near mirror: 0.144, energy 0.97-1.08).
+    "standard": dataclasses.replace(_FAST, iterations=8000, batch=2048, energy_gain=0.3, preview_iterations=200,
+                                    probe_every=500, environment_fraction=0.25),
     "balanced": TrainConfig(iterations=20_000, batch=16_384, decoder="3x64", lr_start=2e-3, mollify_samples=16,
                             max_resolution=1024, compile=True, mollify_min_degrees=1.0, mollify_mis=True,
                             lobe_fraction=0.1, probe_every=2000, environment_fraction=0.1, environment_batch=4096),

@@ -50,7 +50,7 @@ MIN_ITERATIONS = 200
 START_FRACTION = 0.3
 """Share of the run before the first update."""
 EVERY_FRACTION = 0.05
-"""Share of the run between updates (50 steps of ``fast``'s 1000)."""
+"""Share of the run between updates (100 steps of ``fast``'s 2000)."""
 PROBE_TEXELS = 64
 """Texels per level in the probe set (each seen from four view angles)."""
 PROBE_POINTS = 4

@@ -102,7 +102,7 @@ def test_the_near_mirror_sample_is_flagged_and_not_the_default_render(tmp_path, 
 
 
 def test_the_advice_to_train_longer_names_more_than_the_run_had():
-    """The energy warnings' advice: a fast run (1000 steps) is pointed at the standard preset; a run of the
+    """The energy warnings' advice: a fast run (2000 steps) is pointed at the standard preset; a run of the
     standard preset's steps or more at more steps than it had, not at the preset it already used."""
     from mtlx2neural.pipeline.material_training import train_longer
     from mtlx2neural.train.config import PRESETS

@@ -306,10 +306,14 @@ def test_a_floor_outside_the_brdfs_range_is_refused():
 @pytest.mark.slow
 def test_fast_fits_a_near_mirrors_dim_tails(tmp_path):
     """The near-mirror sample (metalness 1, roughness 0.02-0.3 from a texture, a normal map), ``fast``, seed 0:
-    the summary's HDR FLIP (three directional views and the sky, as summary.json's ``flip_mean``) is 0.220
-    (seed 1: 0.226; with the energy balance 0.226 / 0.229). HDR FLIP exposes the sphere down to a luminance of about 1e-7, where the lobe's tails
-    are; with the loss's scale and floor of before (1e-3, f 6e-6) they came out 3x too bright and the figure
-    was 0.321 (seed 1: 0.340). Bound 0.26: over the seeds' spread, under the old figures by 0.06."""
+    the summary's HDR FLIP (three directional views and the sky, as summary.json's ``flip_mean``) is 0.161
+    (seed 1: 0.170), and the energy check's lowest level keeps 1.00 (seed 1: 1.03; 0.94-0.98 in probes of the
+    schedule). HDR FLIP exposes the sphere down to a luminance of about 1e-7, where the lobe's tails are; with
+    the loss's scale and floor of before (1e-3, f 6e-6) they came out 3x too bright and the figure was 0.321
+    (seed 1: 0.340); with fast's 1000 steps of 2048 rows before 2026-12-07 it was 0.187 / 0.200, energy 0.85 /
+    0.85 (docs/history/fast-schedule-2026-12-07.md).
+    Bounds: FLIP 0.185, over seed 0 by 0.024 (seed 1 by 0.015) and under both old figures; energy 0.88, 0.06
+    under the schedule's lowest probe and over the old 0.85. The issue's goal (0.15) is not met."""
     from mtlx2neural.graph import compile_material
     from mtlx2neural.pipeline.plan import latent_resolution
     from mtlx2neural.reference import ReferenceMaterial
@@ -318,6 +322,7 @@ def test_fast_fits_a_near_mirrors_dim_tails(tmp_path):
     from mtlx2neural.textures.parameter_stack import build_parameter_stack
     from mtlx2neural.train.config import preset
     from mtlx2neural.train.trainer import Trainer
+    from mtlx2neural.verify.energy import energy_check
 
     mirror = Path(__file__).resolve().parents[2] / "samples" / "mirror" / "polished_metal.usda"
     src = find_material(mirror, "/World/Looks/PolishedMetal")
@@ -330,4 +335,6 @@ def test_fast_fits_a_near_mirrors_dim_tails(tmp_path):
     with torch.no_grad():
         rows = summary_views(ref, {"neural": model}, tuple(stack.resolution))["neural"]
     flip = sum(r["flip"] for r in rows) / len(rows)
-    assert flip < 0.26, [round(r["flip"], 3) for r in rows]
+    assert flip < 0.185, [round(r["flip"], 3) for r in rows]
+    check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels))
+    assert check.min_ratio >= 0.88, [round(lv.ratio, 3) for lv in check.levels]
