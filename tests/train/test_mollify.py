@@ -3,7 +3,6 @@ parameter paths, the lobe directions, and what the floor buys in training (grazi
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 
@@ -147,24 +146,18 @@ def _grazing_albedo(model, ref, elevation: float, n: int = 100_000) -> tuple[flo
 
 
 @pytest.mark.slow
-def test_mollification_floor_keeps_the_grazing_energy_of_a_sharp_coat(carpaint, tmp_path):
-    """The fast preset (1000 steps) on the CarPaint, with and without the MIS floor. At 10 degrees
-    above the horizon the coat carries most of the reference's albedo (0.66, grey average); without
-    the floor the decoder loses half of it (measured 0.31 when this test was written; 0.54 on 2026-12-07,
-    with the energy balance, against 0.81 with the floor, one thread). With it the energy stays: the test asks
-    at least 85 % of the reference and 0.2 above the model without the floor. The floored model
-    overshoots instead since the decoder's cosine became analytic (measured 0.85, 129 %, at seed 0;
-    0.76-0.79 at seeds 0-1 of the benchmark runs, whose parameter stack differs), and a little more
-    with the paper's cosine mollification decay and the proposal-sampled KL loss (measured 0.89, 136 %,
-    in CI), so the upper bound is 150 %: it catches a runaway, not the known overshoot (BENCHMARKS.md,
-    "Mollification floor"; ``grazing_fraction`` removes it for this material). (Shorter runs are not settled: at 300 steps, with a quarter of lobe
-    directions, it overshot by a third.)"""
+def test_fast_keeps_the_grazing_energy_of_a_sharp_coat(carpaint, tmp_path):
+    """The fast preset on the CarPaint: at 10 degrees above the horizon the coat carries most of the reference's
+    albedo (0.66, grey average), and the model keeps it: the test asks at least 85 % of the reference. It
+    overshoots a little instead (measured 0.73, 111 %, at seed 0 with 2000 steps of 1024 rows; 129-136 % with 1000
+    of 2048), so the upper bound is 150 %: it catches a runaway, not the known overshoot (``grazing_fraction``
+    removes it for this material). The mollification floor (1 degree, MIS) was what kept this energy with 1000
+    steps of 2048 rows and the balance's gain of 0.3: without it the decoder lost half (0.31 when the floor was
+    added, 0.54 on 2026-12-07 against 0.81 with it). With 2000 steps of 1024 rows and a gain of 0.5 the model
+    without the floor keeps 0.63 (96 %) as well, so the comparison run is gone; ``fast`` keeps the floor, not
+    measured without it on the other samples since (docs/history/fast-schedule-2026-12-07.md). (Shorter runs are not
+    settled: at 300 steps, with a quarter of lobe directions, it overshot by a third.)"""
     stack = build_parameter_stack(carpaint.compiled)
-    fast = preset("fast")
-    off = dataclasses.replace(fast, mollify_min_degrees=0.0, mollify_mis=False, lobe_fraction=0.0)
-    with_floor = Trainer(carpaint, stack, fast, tmp_path / "on").run(progress=False)
-    without = Trainer(carpaint, stack, off, tmp_path / "off").run(progress=False)
+    with_floor = Trainer(carpaint, stack, preset("fast"), tmp_path / "on").run(progress=False)
     a_on, a_ref = _grazing_albedo(with_floor, carpaint, 10.0)
-    a_off, _ = _grazing_albedo(without, carpaint, 10.0)
     assert 0.85 < a_on / a_ref < 1.5, (a_on, a_ref)
-    assert a_on > a_off + 0.2, (a_on, a_off, a_ref)
