@@ -89,20 +89,34 @@ def model_level_albedo(model, reference, wi: torch.Tensor, uv: torch.Tensor, lev
     return mixture_albedo(model, reference, wi, at, centre, samples=samples, seed=seed)
 
 
+ROW_SHIFT_SEED_OFFSET = 10007
+"""The per-row shifts of :func:`row_shifted_sobol` come from a generator seeded with the estimate's seed plus this."""
+
+
+def row_shifted_sobol(rows: int, samples: int, dims: int, seed: int, device=None, dtype=torch.float32) -> torch.Tensor:
+    """``[rows * samples, dims]`` in [0, 1): ``samples`` scrambled Sobol points (seed ``seed``), shifted modulo 1
+    by a uniform random vector of each row's own (a Cranley-Patterson rotation, drawn on the CPU). Each row keeps
+    the points' even spread; the rows' errors are no longer one shared error, so a sum over many rows (an energy
+    ratio) averages them out. With one unshifted sequence for every row, one model's energy check read 0.942 /
+    0.941 / 0.927 at seeds 0 / 1 / 2 (docs/history/fast-schedule-2026-12-07.md)."""
+    sobol = torch.quasirandom.SobolEngine(dims, scramble=True, seed=seed).draw(samples)
+    shift = torch.rand(rows, 1, dims, generator=torch.Generator().manual_seed(seed + ROW_SHIFT_SEED_OFFSET))
+    return torch.frac(sobol[None] + shift).reshape(rows * samples, dims).to(device=device, dtype=dtype)
+
+
 def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples: int = 256,
                    seed: int = 0) -> torch.Tensor:
     """Directional albedo ``[N, 3]`` of ``model`` at unit ``wi`` ``[N, 3]`` (local frame, towards the viewer;
     cosine included), estimated with directions drawn from a mixture of three samplers: ``model``'s own
     at ``at``, ``reference``'s at ``reference_at`` (the same rows, the reference's parameters) and the
     cosine-weighted hemisphere, ``samples`` scrambled-Sobol points per row of which sample j uses
-    strategy j mod 3. Each direction is weighed by the mixture's density (the mean of the three pdfs,
-    the balance heuristic), so the estimate is unbiased wherever the cosine is positive, however poorly
-    the model's sampler matches its BRDF. A failed draw contributes 0. No gradients."""
+    strategy j mod 3, shifted per row (:func:`row_shifted_sobol`). Each direction is weighed by the mixture's
+    density (the mean of the three pdfs, the balance heuristic), so the estimate is unbiased wherever the cosine
+    is positive, however poorly the model's sampler matches its BRDF. A failed draw contributes 0. No gradients."""
     n = wi.shape[0]
     rep = wi.repeat_interleave(samples, 0)
     point, ref_point = at.repeat_rows(samples, n), reference_at.repeat_rows(samples, n)
-    sobol = torch.quasirandom.SobolEngine(3, scramble=True, seed=seed).draw(samples)
-    u = sobol.to(device=wi.device, dtype=wi.dtype).repeat(n, 1)
+    u = row_shifted_sobol(n, samples, 3, seed, device=wi.device, dtype=wi.dtype)
     strategy = torch.arange(samples, device=wi.device).repeat(n) % 3
     with torch.no_grad():
         wo = cosine_sample(u[:, :2])

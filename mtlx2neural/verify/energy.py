@@ -28,7 +28,10 @@ rarely goes measured 1.1x its reference that way, and rendered 2.2x as bright):
 :func:`~mtlx2neural.textures.footprint_albedo.mixture_albedo`
 draws a third of the directions from each of the model's sampler, the reference's sampler at the row's
 uv and the cosine-weighted hemisphere, and weighs them by the mixture's density (the balance
-heuristic), which is unbiased wherever the cosine is positive. With the defaults a ratio is good to
+heuristic), which is unbiased wherever the cosine is positive. Its directions are one Sobol sequence
+shifted per row (:func:`~mtlx2neural.textures.footprint_albedo.row_shifted_sobol`), so the rows' errors
+average out in the level's sum: with one shared sequence a textured BrushedMetal model read 0.942 / 0.941 /
+0.927 at seeds 0 / 1 / 2, with the shifts 0.953 / 0.947 / 0.947. With the defaults a ratio is good to
 about 1-2 % for rough lobes and about 5 % for a near-mirror one.
 """
 
