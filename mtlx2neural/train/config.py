@@ -171,7 +171,7 @@ _FAST = TrainConfig(iterations=2000, batch=1024, decoder="3x64", lr_start=5e-3, 
 PRESETS = {
     # fast: a 2-core CPU in a couple of minutes per material: 2000 steps of 1024 rows. A step is overhead-bound
     # (half the rows cost about two thirds of the time), and the sharpest lobes need steps more than rows: against
-    # 1000 x 2048, the near mirror's HDR FLIP 0.187 / 0.200 -> 0.159 / 0.160 and its energy 0.85 -> 0.94-0.98, every
+    # 1000 x 2048, the near mirror's HDR FLIP 0.187 / 0.200 -> 0.158 / 0.163 and its energy 0.85 -> 0.945 / 1.012, every
     # sample's held-out error lower, for 20-45 % more training time; the balance's gain 0.5 (0.3 left the CarPaint at
     # 0.93, docs/history/fast-schedule-2026-12-07.md). So few steps need a higher
     # learning rate than the paper's 1e-3 (sample CarPaint, 3x64: HDR FLIP 0.45 at 1e-3,
@@ -190,8 +190,8 @@ PRESETS = {
     # HDR FLIP, sky / directional light) 1000 steps of 2048 gave 0.101 / 0.061 and 8000 give 0.075-0.088 /
     # 0.018-0.020, 4.3-5.0x better than the analytic fit (BENCHMARKS.md, "Accuracy against the analytic fit").
     # standard fits the preview fallback for the default 200 steps (fast: 100).
-    # Every preset fits the environment head (prefiltered environment lighting): 1000 steps in fast (half its 2000; 300 left
-    # the three-lobe head under-fitted: the sample Plastic's prefiltered render 0.063 against 0.057 at 1000,
+    # Every preset fits the environment head (prefiltered environment lighting): 1000 steps in fast (half its
+    # 2000; 300 left the three-lobe head under-fitted: the sample Plastic's prefiltered render 0.063 against 0.057 at 1000,
     # docs/history/environment-lighting-2026-12-06.md); standard 2000, balanced 2000, paper 6000.
     # standard keeps the 2048 rows and the gain of 0.3 it was measured with (the near mirror: 0.144, energy 0.97-1.08).
     "standard": dataclasses.replace(_FAST, iterations=8000, batch=2048, energy_gain=0.3, preview_iterations=200,

@@ -307,8 +307,9 @@ def test_a_floor_outside_the_brdfs_range_is_refused():
 def test_fast_fits_a_near_mirrors_dim_tails(tmp_path):
     """The near-mirror sample (metalness 1, roughness 0.02-0.3 from a texture, a normal map), ``fast``, seed 0:
     the summary's HDR FLIP (three directional views and the sky, as summary.json's ``flip_mean``) is 0.158
-    (seed 1: 0.163), and the energy check's lowest level keeps 0.945 (seed 1: 1.01). HDR FLIP exposes the sphere down to a luminance of about 1e-7, where the lobe's tails are; with
-    the loss's scale and floor of before (1e-3, f 6e-6) they came out 3x too bright and the figure was 0.321
+    (seed 1: 0.163), and the energy check's lowest level keeps 0.945 (seed 1: 1.01). HDR FLIP exposes the
+    sphere down to a luminance of about 1e-7, where the lobe's tails are; with the loss's scale and floor of
+    before (1e-3, f 6e-6) they came out 3x too bright and the figure was 0.321
     (seed 1: 0.340); with fast's 1000 steps of 2048 rows before 2026-12-07 it was 0.187 / 0.200, energy 0.85 /
     0.85 (docs/history/fast-schedule-2026-12-07.md).
     Bounds: FLIP 0.185, over seed 0 by 0.027 (seed 1 by 0.022) and under both old figures; energy 0.88, 0.065
