@@ -62,7 +62,7 @@ from mtlx2neural.train.shared import (
     shape_differences,
 )
 from mtlx2neural.train.trainer import TrainingInterrupted
-from mtlx2neural.universal.choice import SCENE_STEP_SHARE
+from mtlx2neural.universal.choice import SCENE_FINE_TUNE_ROWS, SCENE_STEP_SHARE
 from mtlx2neural.universal.fit import (
     LayoutMismatch,
     load_encoder,
@@ -332,7 +332,8 @@ def warm_start(setups, jobs) -> WarmStart | None:
     to; each material of that model bakes its latents with the shipped encoder. When all of the group's
     materials are so encoded, every trainer takes the universal fine-tune's schedule
     (:func:`~mtlx2neural.universal.fit.use_fine_tune_schedule`) for
-    :data:`~mtlx2neural.universal.choice.SCENE_STEP_SHARE` of ``--universal-steps``, on the group's batch; otherwise the
+    :data:`~mtlx2neural.universal.choice.SCENE_STEP_SHARE` of ``--universal-steps``, on
+    :data:`~mtlx2neural.universal.choice.SCENE_FINE_TUNE_ROWS` rows a step; otherwise the
     group runs :data:`WARM_SCHEDULE` of its schedule (the others' encoders train in its encoder phase),
     from the shipped network rather than from random weights. Returns None when no material took the universal path."""
     models = [job.encoder["model"] for job in jobs if job.encoder is not None]
@@ -358,7 +359,7 @@ def warm_start(setups, jobs) -> WarmStart | None:
     if not others:
         steps = max(1, round(jobs[0].encoder["steps"] * SCENE_STEP_SHARE))
         for setup in setups:
-            use_fine_tune_schedule(setup.trainer, steps, batch_share=1.0)
+            use_fine_tune_schedule(setup.trainer, steps, rows=scene_batch(SCENE_FINE_TUNE_ROWS, len(setups)))
     else:
         steps = max(1, round(WARM_SCHEDULE * setups[0].trainer.cfg.iterations))
         for setup in setups:

@@ -77,15 +77,18 @@ def reference_footprint_albedo(reference, wi: torch.Tensor, uv: torch.Tensor, le
         return (ref.view(n, points, 3) * w).sum(1) / w.sum(1).clamp_min(1e-12)
 
 
-def model_level_albedo(model, reference, wi: torch.Tensor, uv: torch.Tensor, level: int, *, samples: int,
+def model_level_albedo(model, reference, wi: torch.Tensor, uv: torch.Tensor, level, *, samples: int,
                        seed: int, params_at=None, device="cpu") -> torch.Tensor:
     """[N, 3] ``model``'s directional albedo at ``wi`` [N, 3], read at ``uv`` [N, 2] and MIP level ``level``
+    (an int, or an [N] tensor of one level per row, so that one call covers every level)
     (:func:`mixture_albedo`, ``samples`` directions per row; the reference's sampler at the rows' centres,
     through ``params_at`` as in :func:`reference_footprint_albedo`). No gradients."""
     n = wi.shape[0]
     wi, uv = wi.to(device), uv.to(device)
     centre = ShadingPoint(params=params_at(uv)) if params_at is not None else ShadingPoint(uv=uv)
-    at = ShadingPoint(uv=uv, lod=torch.full((n,), float(level), device=device))
+    lod = (level.to(device=device, dtype=torch.float32) if isinstance(level, torch.Tensor)
+           else torch.full((n,), float(level), device=device))
+    at = ShadingPoint(uv=uv, lod=lod)
     return mixture_albedo(model, reference, wi, at, centre, samples=samples, seed=seed)
 
 
@@ -111,8 +114,10 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
     at ``at``, ``reference``'s at ``reference_at`` (the same rows, the reference's parameters) and the
     cosine-weighted hemisphere, ``samples`` scrambled-Sobol points per row of which sample j uses
     strategy j mod 3, shifted per row (:func:`row_shifted_sobol`). Each direction is weighed by the mixture's
-    density (the mean of the three pdfs, the balance heuristic), so the estimate is unbiased wherever the cosine
-    is positive, however poorly the model's sampler matches its BRDF. A failed draw contributes 0. No gradients."""
+    density (the three pdfs, each weighed by its strategy's share of the ``samples``: the balance heuristic), so
+    the estimate is unbiased wherever the cosine is positive, however poorly the model's sampler matches its
+    BRDF, and for any ``samples`` (with equal weights, 32 samples split 11 / 11 / 10 read a near mirror 2-3 %
+    high). A failed draw contributes 0. No gradients."""
     n = wi.shape[0]
     rep = wi.repeat_interleave(samples, 0)
     point, ref_point = at.repeat_rows(samples, n), reference_at.repeat_rows(samples, n)
@@ -125,8 +130,9 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
             # the direction alone: a model that can draw it without evaluating its BRDF does so
             draw = getattr(who, "sample_direction", None) or who.sample
             wo[rows] = draw(rep[rows], u[rows], at_rows.select(rows, rep.shape[0]))[0].to(wo.dtype)
-        density = (model.pdf(rep, wo, point) + reference.pdf(rep, wo, ref_point)
-                   + wo[:, 2].clamp(min=0.0) / math.pi) / 3.0
+        share = torch.bincount(torch.arange(samples) % 3, minlength=3).to(wo.dtype) / samples
+        density = (share[0] * model.pdf(rep, wo, point) + share[1] * reference.pdf(rep, wo, ref_point)
+                   + share[2] * wo[:, 2].clamp(min=0.0) / math.pi)
         f = model.eval(rep, wo, point)
         weight = torch.where((density > 0)[:, None], f / density.clamp(min=1e-30)[:, None], torch.zeros_like(f))
     return weight.view(n, samples, 3).mean(1)

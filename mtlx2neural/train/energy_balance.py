@@ -24,8 +24,8 @@ not plain log-L1 (``held_out_log_l1`` in the summary is). A level that keeps its
 so a material whose fit already conserves energy (a uniform plastic) trains as plain log-L1 would. The
 model's energy swings between updates (the near mirror's by up to 2x between steps 50 apart, the coated
 CarPaint's by 1.8x early in the run), which is why each move is bounded and smoothed and the first waits for
-30 % of the run. The probe's rows go in :data:`PROBE_GROUPS` groups with Sobol points of their own
-(:func:`_by_group`).
+30 % of the run. The reference's albedo of the probe rows is estimated once, in :data:`PROBE_GROUPS` groups
+with Sobol points of their own (:func:`_by_group`); the model's at each update in one call over every level.
 
 Measured with ``fast``, seeds 0 / 1, lowest level ratio (docs/history/energy-balance-2026-12-07.md):
 BrushedMetal 0.85 / 0.87 -> 0.99 / 1.01, GlazedCeramic 0.93 / 0.91 -> 0.99 / 0.97 (32 probe texels: 0.97 /
@@ -56,7 +56,9 @@ PROBE_TEXELS = 64
 PROBE_POINTS = 4
 """Footprint points per probe row for the reference's albedo."""
 PROBE_SAMPLES = 32
-"""Directions per footprint point (the model's albedo: this times :data:`PROBE_POINTS` per row)."""
+"""Directions per footprint point of the reference's albedo (drawn once)."""
+MODEL_SAMPLES = 32
+"""Directions per probe row of the model's albedo at each update."""
 PROBE_GROUPS = 8
 """Groups of probe rows with Sobol points of their own (:func:`_by_group`)."""
 PROBE_VIEWS = (0.0, 30.0, 60.0, 80.0)
@@ -115,14 +117,17 @@ class EnergyBalance:
 
     def ratios(self, model) -> torch.Tensor:
         """[levels] the model's energy ratio per level on the probe set (model / reference albedo luminance),
-        the rows in groups with Sobol points of their own (:func:`_by_group`)."""
-        out = []
-        for k, (uv, wi, ref_sum) in enumerate(self.rows):
-            mod = _by_group(wi.shape[0], lambda idx, j, uv=uv, wi=wi, k=k: model_level_albedo(
-                model, self.reference, wi[idx], uv[idx], k, samples=PROBE_POINTS * PROBE_SAMPLES, seed=self.seed + j,
-                params_at=self.params_at, device=self.device))
-            out.append(float(luminance(mod.float().cpu()).sum()) / ref_sum if ref_sum > 0 else 1.0)
-        return torch.tensor(out)
+        from :data:`MODEL_SAMPLES` directions per row. Every level's rows go in one call, each row at its own
+        level with Sobol points shifted by a vector of its own
+        (:func:`~mtlx2neural.textures.footprint_albedo.row_shifted_sobol`), so a level's sum averages its rows'
+        errors."""
+        uv = torch.cat([r[0] for r in self.rows])
+        wi = torch.cat([r[1] for r in self.rows])
+        level = torch.cat([torch.full((r[1].shape[0],), k) for k, r in enumerate(self.rows)])
+        mod = model_level_albedo(model, self.reference, wi, uv, level, samples=MODEL_SAMPLES, seed=self.seed,
+                                 params_at=self.params_at, device=self.device)
+        sums = torch.zeros(len(self.rows)).index_add_(0, level, luminance(mod.float().cpu()))
+        return torch.tensor([float(m) / r[2] if r[2] > 0 else 1.0 for m, r in zip(sums, self.rows)])
 
     def update(self, model) -> list[float]:
         """Measure the model's ratios and move each level's quantile (module docstring); returns the ratios."""

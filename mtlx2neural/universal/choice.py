@@ -19,16 +19,19 @@ ENCODERS = ("material", "universal")
 TUNES = ("networks", "latents")
 """What the universal path's fine-tune trains besides the latents (:mod:`mtlx2neural.universal.fit`)."""
 STEPS = 900
-"""The universal path's fine-tune steps by default (``--universal-steps``), each on :data:`BATCH_SHARE` of the
-settings' batch. Measured on the scene sample (``fast``, 2 cores, 2026-12-06; own training: lava 0.0114, leaf
+"""The universal path's fine-tune steps by default (``--universal-steps``), each on :data:`FINE_TUNE_ROWS` rows. Measured on the scene sample (``fast``, 2 cores, 2026-12-06; own training: lava 0.0114, leaf
 0.0381 HDR FLIP): 900 steps of 1024 rows give the lava 0.0124 (1.09x) in 22.8 s and the leaf 0.0302 in 25.4 s,
 where 300 steps of 2048 gave 0.0170 (1.49x) in 19.2 s and 0.0336 in 20.4 s
 (docs/history/fine-tune-speed-2026-12-06.md)."""
-BATCH_SHARE = 0.5
-"""The share of the settings' ``batch`` each fine-tune step trains on. A step's cost on the CPU is mostly
-fixed (half the rows cost about two thirds of the time), and more, smaller steps of the same material
-converge faster: the lava reached 0.0144 with 600 steps of 1024 rows in 11.5 s of training against 0.0146
-with 450 of 2048 in 13.2 s."""
+FINE_TUNE_ROWS = 1024
+"""Rows of each fine-tune step, whatever the preset's ``batch``: the step count is fixed (:data:`STEPS`), so the
+rows a fine-tune sees are set here. A step's cost on the CPU is mostly fixed (half the rows cost about two
+thirds of the time), and more, smaller steps of the same material converge faster: the lava reached 0.0144
+with 600 steps of 1024 rows in 11.5 s of training against 0.0146 with 450 of 2048 in 13.2 s."""
+SCENE_FINE_TUNE_ROWS = 2048
+"""Rows of a joint step of a group whose every material is on the universal path, split between the step's
+materials (:func:`~mtlx2neural.train.shared.scene_batch`). Scene sample, 2026-12-07, 300 joint steps: 2048
+rows HDR FLIP 0.088 in 62 s (one run), 1024 rows 0.105 in 62 s (``fast``'s own batch, which halved them)."""
 SCENE_STEP_SHARE = 1 / 3
 """``--network scene``, every material of the group encoded by the shipped network: the group's joint steps
 are this share of ``--universal-steps`` (300 of the default 900). A joint step trains every material at once on

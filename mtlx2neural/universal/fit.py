@@ -6,7 +6,7 @@ canonical form (:mod:`.canonical`: its stack then has the layout the shipped enc
 1. loads the shipped encoder, decoder (with its environment head) and sampler (:mod:`.weights`);
 2. bakes: the encoder runs over every texel of every level of the material's parameter pyramid;
 3. fine-tunes for ``steps`` steps on the material's own training rows (each step on
-   :data:`~mtlx2neural.universal.choice.BATCH_SHARE` of the settings' batch), Adam with a cosine decay from
+   :data:`~mtlx2neural.universal.choice.FINE_TUNE_ROWS` rows), Adam with a cosine decay from
    :data:`LR_START` to the settings' ``lr_end`` (a block-compressed ``latent_format`` reads the latents
    through its codec in the last ``block_fraction``), with ``tune`` (:data:`TUNES`):
 
@@ -34,7 +34,7 @@ from mtlx2neural.train.adam import Adam
 from mtlx2neural.train.encoder_input import EncoderInput
 from mtlx2neural.train.replay import RowReplay
 from mtlx2neural.universal.canonical import SHADING_MODELS, canonical_name
-from mtlx2neural.universal.choice import BATCH_SHARE, STEPS, TUNES
+from mtlx2neural.universal.choice import FINE_TUNE_ROWS, STEPS, TUNES
 from mtlx2neural.universal.weights import universal_config
 
 LR_START = 5e-3
@@ -113,14 +113,14 @@ def load_networks(model, weights: dict) -> None:
     model.sampler.load_state_dict(weights["sampler"])
 
 
-def use_fine_tune_schedule(trainer, steps: int, batch_share: float = BATCH_SHARE) -> None:
-    """Replace ``trainer``'s schedule with the fine-tune's: ``steps`` iterations on ``batch_share`` of its batch
-    (:data:`~mtlx2neural.universal.choice.BATCH_SHARE`), no encoder phase, Adam from :data:`LR_START`, the
+def use_fine_tune_schedule(trainer, steps: int, rows: int = FINE_TUNE_ROWS) -> None:
+    """Replace ``trainer``'s schedule with the fine-tune's: ``steps`` iterations of ``rows`` rows
+    (:data:`~mtlx2neural.universal.choice.FINE_TUNE_ROWS`; not the preset's batch), no encoder phase, Adam from :data:`LR_START`, the
     mollification at its floor throughout (as the shipped decoder ended its training), rows drawn
     :data:`PREFETCH` steps at a time, no FLIP probe."""
     cfg = trainer.cfg
     trainer.cfg = dataclasses.replace(cfg, iterations=max(1, steps), encoder_fraction=0.0, lr_start=LR_START,
-                                      batch=max(1, round(cfg.batch * batch_share)), probe_every=0,
+                                      batch=max(1, int(rows)), probe_every=0,
                                       mollify_degrees=cfg.mollify_min_degrees,
                                       target_prefetch=max(cfg.target_prefetch, PREFETCH))
     trainer.replay = RowReplay(trainer.cfg.batch, cfg.target_reuse, trainer.cfg.target_prefetch)

@@ -37,3 +37,51 @@ def test_a_sum_over_rows_averages_their_errors_out():
                                          ShadingPoint(uv=torch.full((1, 2), 0.5)), samples=24, seed=s)[0]
                           for s in range(6)])
     assert float(means.std(0).mean()) < 0.5 * float(single.std(0).mean()), (means, single)
+
+
+class _UniformLambert:
+    """A Lambertian of albedo ``rho`` (grey) that samples the hemisphere uniformly (pdf 1 / 2 pi), a poor match."""
+
+    def __init__(self, rho: float):
+        self.rho = rho
+
+    def eval(self, wi, wo, at=None):
+        return (self.rho / math.pi * wo[:, 2].clamp(min=0.0))[:, None].expand(-1, 3)
+
+    def pdf(self, wi, wo, at=None):
+        return (wo[:, 2] > 0).to(wo.dtype) / (2 * math.pi)
+
+    def sample(self, wi, u, at=None):
+        z, phi = u[:, 0], 2 * math.pi * u[:, 1]
+        r = (1 - z * z).clamp(min=0.0).sqrt()
+        wo = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+        return wo, None, self.pdf(wi, wo)
+
+
+class _NormalLobe(_UniformLambert):
+    """Samples a narrow lobe about the normal (pdf (n + 1) / 2 pi cos^n), the reference's strategy stand-in."""
+
+    N = 20.0
+
+    def pdf(self, wi, wo, at=None):
+        return (self.N + 1) / (2 * math.pi) * wo[:, 2].clamp(min=0.0) ** self.N
+
+    def sample(self, wi, u, at=None):
+        z, phi = u[:, 0] ** (1 / (self.N + 1)), 2 * math.pi * u[:, 1]
+        r = (1 - z * z).clamp(min=0.0).sqrt()
+        wo = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+        return wo, None, self.pdf(wi, wo)
+
+
+def test_the_mixture_is_unbiased_when_the_samples_do_not_split_evenly_between_its_strategies():
+    """A Lambertian of albedo 0.6 whose own sampler is uniform, beside a narrow lobe standing in for the reference's
+    sampler and the cosine, at 4 and 5 directions per row (2 / 1 / 1 and 2 / 2 / 1 between the strategies), over
+    4096 rows: the mean is the albedo. Weighing the three pdfs equally reads 0.622 at 4 and 0.564 at 5 (0.599 at 3).
+    Tolerance 1 %: the estimate's standard error over 4096 rows is about 0.2 %."""
+    model, lobe = _UniformLambert(0.6), _NormalLobe(0.6)
+    n = 4096
+    wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3)
+    at = ShadingPoint(uv=torch.full((n, 2), 0.5))
+    for samples in (4, 5):
+        albedo = mixture_albedo(model, lobe, wi, at, at, samples=samples, seed=1)
+        assert abs(float(albedo.mean()) - 0.6) < 0.006, (samples, float(albedo.mean()))
