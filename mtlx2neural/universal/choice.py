@@ -30,8 +30,8 @@ thirds of the time), and more, smaller steps of the same material converge faste
 with 600 steps of 1024 rows in 11.5 s of training against 0.0146 with 450 of 2048 in 13.2 s."""
 SCENE_FINE_TUNE_ROWS = 2048
 """Rows of a joint step of a group whose every material is on the universal path, split between the step's
-materials (:func:`~mtlx2neural.train.shared.scene_batch`). Scene sample, 2026-12-07, 300 joint steps: 2048
-rows HDR FLIP 0.088 in 62 s (one run), 1024 rows 0.105 in 62 s (``fast``'s own batch, which halved them)."""
+materials (:func:`~mtlx2neural.train.shared.scene_batch`). Scene sample, 300 joint steps, without the energy
+balance (2026-12-07): 2048 rows give HDR FLIP 0.0855 in 28.9 s, 1024 (``fast``'s own batch) 0.1026 in 28.7 s."""
 SCENE_STEP_SHARE = 1 / 3
 """``--network scene``, every material of the group encoded by the shipped network: the group's joint steps
 are this share of ``--universal-steps`` (300 of the default 900). A joint step trains every material at once on

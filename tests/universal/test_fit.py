@@ -23,9 +23,11 @@ from mtlx2neural.pipeline.options import ConvertOptions
 from mtlx2neural.pipeline.scene_network import WARM_SCHEDULE
 from mtlx2neural.reference.material import ReferenceMaterial
 from mtlx2neural.textures.parameter_stack import build_parameter_stack
+from mtlx2neural.train import energy_balance
 from mtlx2neural.train.config import preset
 from mtlx2neural.train.trainer import Trainer
 from mtlx2neural.universal.canonical import canonical_document
+from mtlx2neural.universal.choice import FINE_TUNE_ROWS
 from mtlx2neural.universal.fit import LayoutMismatch, encoder_columns, fit_universal
 from mtlx2neural.universal.weights import load_weights
 
@@ -130,6 +132,17 @@ def test_encode_then_fine_tune_fits_the_material(tmp_path, weights, tune):
     same = {part: _digest(getattr(model, part)) == shipped[part] for part in ("decoder", "sampler")}
     assert same == ({"decoder": True, "sampler": True} if tune == "latents" else {"decoder": False, "sampler": False})
     assert trainer.checkpoint_path.is_file()
+
+
+def test_the_fine_tune_takes_its_own_rows_and_no_energy_balance(tmp_path, weights):
+    """Settings of 512 rows a step and a balance (``fast``'s gain), a fine-tune long enough for the balance's
+    updates: the steps take :data:`FINE_TUNE_ROWS` rows and the balance is never built (it cost the scene sample
+    12.4 s and its near-mirror Gold energy, ``use_fine_tune_schedule``)."""
+    _, _, trainer = _setup(tmp_path)
+    assert trainer.cfg.batch == 512 and trainer.cfg.energy_gain > 0
+    fit_universal(trainer, weights, steps=energy_balance.MIN_ITERATIONS, progress=False, tune="latents")
+    assert trainer.cfg.batch == FINE_TUNE_ROWS and trainer.balance is None
+    assert not any("energy_tau_min" in rec for rec in trainer.history)
 
 
 def test_a_conversion_routes_each_material_and_says_why(tmp_path, weights, monkeypatch):
