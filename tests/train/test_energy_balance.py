@@ -90,6 +90,24 @@ def test_the_balance_measures_the_energy_and_moves_the_quantile_against_it(carpa
     assert torch.equal(restored.taus, balance.taus) and torch.allclose(restored.smoothed, balance.smoothed)
 
 
+class LevelScaled(Scaled):
+    """The reference times 1 + 0.1 x the MIP level it is read at (``at.lod``, one per row)."""
+
+    def __init__(self, reference):
+        super().__init__(reference, 1.0)
+
+    def eval(self, wi, wo, at=None):
+        return (1.0 + 0.1 * at.lod)[:, None] * self.ref.eval(wi, wo, ShadingPoint(uv=at.uv))
+
+
+def test_one_call_reads_each_row_at_its_own_level(carpaint):
+    """Three levels' probe rows measured in one call: a model whose energy is 1, 1.1 and 1.2 times the reference's at
+    levels 0, 1 and 2 reads so, each level within 3 % (the estimators' Monte Carlo error on the coat, as above)."""
+    ref, _ = carpaint
+    ratios = eb.EnergyBalance(ref, 3, (4, 4), gain=0.3, seed=0).ratios(LevelScaled(ref))
+    assert torch.allclose(ratios, torch.tensor([1.0, 1.1, 1.2]), rtol=0.03), ratios
+
+
 def test_a_training_run_updates_its_balance_draws_none_of_its_random_numbers_and_resumes_it(carpaint, tmp_path):
     """With ``energy_gain`` the curves record each update (from 30 % of the run, every twentieth), the quantile
     moves off 0.5, the checkpoint keeps it and a resumed run starts from it; the rows drawn are the same as
