@@ -69,8 +69,9 @@ class ConvertOptions:
     material takes and why. With --network scene the group's shared network starts from the shipped one
     (the fine-tune's schedule when every material of the group takes the universal path). Not with --max-error."""
     universal_steps: int = field(default=STEPS, metadata={"metavar": "N"})
-    """Fine-tune steps of a material on the universal path (--encoder universal), each on 1024 rows whatever --batch. With
-    --network scene and every material of the group on that path, the group runs a third of them as joint steps."""
+    """Fine-tune steps of a material on the universal path (--encoder universal), each on 1024 rows whatever
+    --batch. With --network scene and every material of the group on that path, the group runs a third of them as
+    joint steps."""
     universal_tune: str = field(default="networks", metadata={"choices": TUNES})
     """What the universal path's fine-tune trains: networks (the latents, decoder and sampler: the material
     ships its own copy, fitted to it) or latents (the latents alone: every such material shares the

@@ -122,7 +122,8 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
     rep = wi.repeat_interleave(samples, 0)
     point, ref_point = at.repeat_rows(samples, n), reference_at.repeat_rows(samples, n)
     u = row_shifted_sobol(n, samples, 3, seed, device=wi.device, dtype=wi.dtype)
-    strategy = torch.arange(samples, device=wi.device).repeat(n) % 3
+    per_row = torch.arange(samples, device=wi.device) % 3  # the strategy of each of a row's samples
+    strategy = per_row.repeat(n)
     with torch.no_grad():
         wo = cosine_sample(u[:, :2])
         for who, at_rows, k in ((model, point, 0), (reference, ref_point, 1)):  # each samples its third
@@ -130,7 +131,7 @@ def mixture_albedo(model, reference, wi: torch.Tensor, at, reference_at, samples
             # the direction alone: a model that can draw it without evaluating its BRDF does so
             draw = getattr(who, "sample_direction", None) or who.sample
             wo[rows] = draw(rep[rows], u[rows], at_rows.select(rows, rep.shape[0]))[0].to(wo.dtype)
-        share = torch.bincount(torch.arange(samples) % 3, minlength=3).to(wo.dtype) / samples
+        share = torch.bincount(per_row, minlength=3).to(wo.dtype) / samples
         density = (share[0] * model.pdf(rep, wo, point) + share[1] * reference.pdf(rep, wo, ref_point)
                    + share[2] * wo[:, 2].clamp(min=0.0) / math.pi)
         f = model.eval(rep, wo, point)

@@ -79,8 +79,9 @@ TAU_MIN, TAU_MAX = 0.3, 0.8
 def _by_group(rows: int, albedo) -> torch.Tensor:
     """``albedo(rows [m], group j) -> [m, 3]`` over ``rows`` probe rows split into :data:`PROBE_GROUPS` groups,
     concatenated in row order: each group draws Sobol points of its own seed, so rows of one view angle do not
-    share their error (one sequence for every row gave one CarPaint model 0.91-0.99 across probe seeds; the
-    model's estimate now also shifts the points per row, :func:`~mtlx2neural.textures.footprint_albedo.row_shifted_sobol`)."""
+    share their error (one sequence for every row gave one CarPaint model 0.91-0.99 across probe seeds). Used for
+    the reference's albedo, drawn once; the model's estimate shifts its points per row instead
+    (:func:`~mtlx2neural.textures.footprint_albedo.row_shifted_sobol`)."""
     return torch.cat([albedo(idx, j) for j, idx in enumerate(torch.arange(rows).chunk(PROBE_GROUPS))])
 
 
