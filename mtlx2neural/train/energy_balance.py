@@ -18,6 +18,9 @@ equals their mean depends on how skewed each level's targets are, so it is measu
    luminance over the reference's (:func:`~mtlx2neural.textures.footprint_albedo.mixture_albedo`), smoothed
    in log space (:data:`SMOOTHING`), moves its quantile by ``-gain * log r_k`` (``cfg.energy_gain``), at most
    :data:`MAX_MOVE` per update, within [:data:`TAU_MIN`, :data:`TAU_MAX`].
+3. **Calibration**, once, after the last step (:meth:`EnergyBalance.calibrate`, from ``Trainer.finish``): the run
+   ends where the model's energy swings it, so each level's codes are shifted by one vector that brings the
+   level's probe ratio into [:data:`CALIBRATION_LOW`, :data:`CALIBRATION_HIGH`]; the decoder is left as trained.
 
 The training curves' ``loss_brdf`` is the loss each step minimised, so with quantiles other than 0.5 it is
 not plain log-L1 (``held_out_log_l1`` in the summary is). A level that keeps its energy stays at its quantile,
@@ -32,8 +35,9 @@ BrushedMetal 0.85 / 0.87 -> 0.99 / 1.01, GlazedCeramic 0.93 / 0.91 -> 0.99 / 0.9
 0.93), the CarPaint 0.96 / 0.99 -> 1.00 / 0.99; the near mirror 0.81-0.89 / 0.79 -> 0.95-0.97 / 0.79-0.92, one draw
 from swings of tens of percent; the sphere views' HDR FLIP by 0-6 %, within the seeds' spread. With ``fast``'s
 2000 steps of 1024 rows and 32 directions an update (0.15 s; 0.85 s at 128), the lowest level over every sample
-and both seeds is 0.937-1.037: a level still swings by several percent between late updates, and 64 texels
-read a textured level within about 2 % (docs/history/balance-cost-2026-12-07.md). A UDIM
+and both seeds was 0.937-1.037 before the calibration: a level still swings by several percent between late
+updates, and 64 texels read a textured level within about 2 % (docs/history/balance-cost-2026-12-07.md). With
+it, 0.957-1.037, HDR FLIP as before within the seeds' spread (docs/history/energy-calibration-2026-12-07.md). A UDIM
 material is not balanced (its levels are per tile), as the energy check does not measure it.
 """
 
@@ -74,6 +78,15 @@ MAX_MOVE = 0.05
 """Largest change of a level's quantile in one update."""
 TAU_MIN, TAU_MAX = 0.3, 0.8
 """The quantile's bounds."""
+CALIBRATION_STEPS = 2
+"""Gauss-Newton steps of :meth:`EnergyBalance.calibrate` (the second brings every level of the near mirror's
+probe set from within 1 % to within 0.1 % of 1)."""
+CALIBRATION_LOW, CALIBRATION_HIGH = 1.0, 1.1
+"""The band a level's probe ratio is calibrated into: a level under 1 is raised to 1, one over 1.1 lowered to 1.1,
+one inside left as trained."""
+CALIBRATION_MAX_LOG = 0.2
+"""Largest |log ratio| one calibration step corrects (a level further off than 22 % moves that far and no
+further: the energy check then reports it)."""
 
 
 def _by_group(rows: int, albedo) -> torch.Tensor:
@@ -119,19 +132,55 @@ class EnergyBalance:
                 generator=g, params_at=params_at, coverage=coverage, device=device))
             self.rows.append((uv, wi, float(luminance(ref.float().cpu()).sum())))
 
-    def ratios(self, model) -> torch.Tensor:
+    def ratios(self, model, grad: bool = False) -> torch.Tensor:
         """[levels] the model's energy ratio per level on the probe set (model / reference albedo luminance),
         from :data:`MODEL_SAMPLES` directions per row. Every level's rows go in one call, each row at its own
         level with Sobol points shifted by a vector of its own
         (:func:`~mtlx2neural.textures.footprint_albedo.row_shifted_sobol`), so a level's sum averages its rows'
-        errors."""
+        errors. ``grad``: the ratios keep their graph to the model's BRDF values (the directions held fixed)."""
         uv = torch.cat([r[0] for r in self.rows])
         wi = torch.cat([r[1] for r in self.rows])
         level = torch.cat([torch.full((r[1].shape[0],), k) for k, r in enumerate(self.rows)])
         mod = model_level_albedo(model, self.reference, wi, uv, level, samples=MODEL_SAMPLES, seed=self.seed,
-                                 params_at=self.params_at, device=self.device)
-        sums = torch.zeros(len(self.rows)).index_add_(0, level, luminance(mod.float().cpu()))
-        return torch.tensor([float(m) / r[2] if r[2] > 0 else 1.0 for m, r in zip(sums, self.rows)])
+                                 params_at=self.params_at, device=self.device, grad=grad)
+        sums = torch.zeros(len(self.rows)).index_add(0, level, luminance(mod.float().cpu()))
+        refs = torch.tensor([r[2] for r in self.rows])
+        return torch.where(refs > 0, sums / refs.clamp_min(1e-30), torch.ones_like(sums))
+
+    def calibrate(self, model, steps: int = CALIBRATION_STEPS) -> list[float]:
+        """The balance's last step, after the run's: shift every latent code of MIP level k by one vector
+        d_k so that the level's ratio on the probe set comes into [:data:`CALIBRATION_LOW`,
+        :data:`CALIBRATION_HIGH`], and return the ratios after.
+
+        d_k is a Gauss-Newton step on e_k = log r_k - log clamp(r_k, low, high): with g_k the gradient of
+        log r_k with respect to a common shift of the level's codes (the sum of its per-texel gradients),
+        d_k = -e_k g_k / |g_k|^2, the smallest shift that moves e_k to 0 to first order;
+        :data:`CALIBRATION_STEPS` of them (the quadrature's directions drawn again from the shifted model,
+        :data:`CALIBRATION_MAX_LOG` at most each). A shift of the codes is what a level's texture can carry:
+        the decoder, shared by every level and every texel, stays as trained.
+
+        Why a band and not 1: a level's ratio averages four view angles, and a level over 1 is mostly one too
+        bright at grazing views (the GlazedCeramic's level 0: 0.97 at 0-60 degrees, 1.08-1.13 at 80); shifting it
+        to 1 darkened its other views, and its HDR FLIP rose 10 %. Under 1 is the issue this corrects (a level
+        that lost energy: a dark near mirror, a lost highlight). Measured on ``fast``
+        (docs/history/energy-calibration-2026-12-07.md)."""
+        levels = list(model.latents.levels)
+        for _ in range(steps):
+            ratios = self.ratios(model, grad=True)
+            log_r = torch.log(ratios.clamp_min(1e-6))
+            # each level's error: how far its ratio lies outside [CALIBRATION_LOW, CALIBRATION_HIGH], in log
+            excess = (log_r - torch.log(ratios.detach().clamp(CALIBRATION_LOW, CALIBRATION_HIGH))).detach()
+            if not bool((excess != 0).any()):
+                break
+            grads = torch.autograd.grad(log_r.sum(), levels, allow_unused=True)
+            with torch.no_grad():
+                for lv, g, e in zip(levels, grads, excess):
+                    if g is None or float(e) == 0.0:  # inside the band, or a level the probe did not read
+                        continue
+                    d = g.sum(dim=(-2, -1))  # d log r_k / d(a shift of every code of level k), [channels]
+                    shift = -e.clamp(-CALIBRATION_MAX_LOG, CALIBRATION_MAX_LOG) * d / (d @ d).clamp_min(1e-20)
+                    lv.add_(shift[:, None, None].to(lv.dtype))
+        return self.ratios(model).tolist()
 
     def update(self, model) -> list[float]:
         """Measure the model's ratios and move each level's quantile (module docstring); returns the ratios."""

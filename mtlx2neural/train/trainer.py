@@ -406,10 +406,16 @@ class Trainer:
         return self.step_record(loss_brdf, loss_kl, grad_norm)
 
     def finish(self) -> None:
-        """After the last step: bake (if the run never reached it), fill a cut-out's empty texels, and put
-        a block-compressed pyramid through its codec, as it ships."""
+        """After the last step: bake (if the run never reached it), calibrate each level's energy when the
+        run was balanced (:meth:`.EnergyBalance.calibrate`), fill a cut-out's empty texels, and put a
+        block-compressed pyramid through its codec, as it ships."""
         if not self.baked:
             self.bake()
+        if self.balance is not None:  # the curves' last record gets the lowest level's ratio before and after
+            before = min(self.balance.ratios(self.model).tolist())
+            after = min(self.balance.calibrate(self.model))
+            if self.history and self.history[-1].get("step") == self.step:
+                self.history[-1].update(energy_calibrated_from=round(before, 4), energy_ratio_min=round(after, 4))
         self.dilate_empty_texels()
         if self.model.latents.codec is not None:  # what ships: the latents through the codec
             if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)

@@ -108,6 +108,56 @@ def test_one_call_reads_each_row_at_its_own_level(carpaint):
     assert torch.allclose(ratios, torch.tensor([1.0, 1.1, 1.2]), rtol=0.03), ratios
 
 
+class LatentScaled(Scaled):
+    """The reference times exp(the first channel of a latent pyramid's code at the row's uv and MIP level): a
+    stand-in whose level energies its latents set, as a trained model's do."""
+
+    def __init__(self, reference, pyramid):
+        super().__init__(reference, 1.0)
+        self.latents = pyramid
+
+    def eval(self, wi, wo, at=None):
+        code = self.latents.fetch(at.uv, at.lod.round().long())
+        return torch.exp(code[:, :1]) * self.ref.eval(wi, wo, ShadingPoint(uv=at.uv))
+
+
+def test_the_calibration_brings_every_level_to_the_references_energy_by_shifting_its_codes(carpaint):
+    """Levels 0-3 of an 8 x 8 pyramid at 0.8, 1.15, 0.9 and 1.05 times the reference's energy (with texel to texel
+    spread): after the calibration the levels under the band's floor (1) come to it, the one over its ceiling
+    (1.1) to that, each within 0.5 % (two Gauss-Newton steps on an exact log-linear model: the tolerance is the
+    rounding of the estimate's fixed directions, far below it), a second probe set of its own seed reads them
+    within 3 % (the estimators' error on the coat, as above), the level inside the band is left as it was, and
+    only the channel the energy depends on moved, by the same amount at every texel of a level."""
+    from mtlx2neural.model.latent import LatentPyramid
+
+    ref, _ = carpaint
+    torch.manual_seed(0)
+    pyramid = LatentPyramid(8, 8, channels=2, init_std=0.05)
+    before = [lv.detach().clone() for lv in pyramid.levels]
+    scales = (0.8, 1.15, 0.9, 1.05)
+    with torch.no_grad():
+        for lv, scale in zip(pyramid.levels, scales):
+            lv[0] += math.log(scale) - lv[0].mean()
+    start = [lv.detach().clone() for lv in pyramid.levels]
+    model = LatentScaled(ref, pyramid)
+    balance = eb.EnergyBalance(ref, 4, (8, 8), gain=0.3, seed=0)
+    measured = balance.ratios(model)
+    assert torch.allclose(measured, torch.tensor(scales), rtol=0.03)
+    after = torch.tensor(balance.calibrate(model))
+    want = torch.tensor([eb.CALIBRATION_LOW, eb.CALIBRATION_HIGH, eb.CALIBRATION_LOW, float(measured[3])])
+    assert torch.allclose(after, want, atol=0.005), after
+    other = eb.EnergyBalance(ref, 4, (8, 8), gain=0.3, seed=11).ratios(model)
+    assert torch.allclose(other, want, atol=0.03), other
+    for k, (lv, s0, b0) in enumerate(zip(pyramid.levels, start, before)):
+        moved = lv.detach() - s0
+        assert torch.equal(lv.detach()[1], b0[1])  # the channel that sets no energy stays
+        if k == 3:  # inside the band
+            assert torch.equal(moved, torch.zeros_like(moved))
+        else:
+            assert float(moved[0].abs().max()) > 0.03
+            assert torch.allclose(moved[0], moved[0].mean().expand_as(moved[0]))
+
+
 def test_a_training_run_updates_its_balance_draws_none_of_its_random_numbers_and_resumes_it(carpaint, tmp_path):
     """With ``energy_gain`` the curves record each update (from 30 % of the run, every twentieth), the quantile
     moves off 0.5, the checkpoint keeps it and a resumed run starts from it; the rows drawn are the same as
@@ -120,16 +170,24 @@ def test_a_training_run_updates_its_balance_draws_none_of_its_random_numbers_and
                  preview_iterations=0)
     on = Trainer(ref, stack, cfg, tmp_path / "on")
     on.run(progress=False)
-    updates = [r for r in on.history if "energy_ratio_min" in r]
+    updates = [r for r in on.history if "energy_tau_min" in r]
     assert [r["step"] for r in updates] == list(range(60, 200, 10))
     assert all(0 < r["energy_ratio_min"] < 10 and eb.TAU_MIN <= r["energy_tau_min"] <= r["energy_tau_max"]
                <= eb.TAU_MAX for r in updates)
     assert float(on.balance.taus[0]) != 0.5
     rows = list(csv.DictReader(open(tmp_path / "on" / "training_curves.csv")))
-    assert sum(1 for r in rows if r["energy_ratio_min"]) == len(updates)
+    assert sum(1 for r in rows if r["energy_tau_min"]) == len(updates)
+    # the calibration after the last step (EnergyBalance.calibrate), in the last record: its one level is brought
+    # into the band, or left where it was inside it
+    last = on.history[-1]
+    assert last["step"] == 200 and eb.CALIBRATION_LOW - 0.005 <= last["energy_ratio_min"] <= eb.CALIBRATION_HIGH + 0.005
+    if eb.CALIBRATION_LOW <= last["energy_calibrated_from"] <= eb.CALIBRATION_HIGH:
+        assert last["energy_ratio_min"] == last["energy_calibrated_from"]
+    assert rows[-1]["energy_calibrated_from"] == str(last["energy_calibrated_from"])
     off = Trainer(ref, stack, dataclasses.replace(cfg, energy_gain=0.0), tmp_path / "off")
     off.run(progress=False)
-    assert off.balance is None and not any("energy_ratio_min" in r for r in off.history)
+    assert off.balance is None and not any("energy_ratio_min" in r or "energy_calibrated_from" in r
+                                           for r in off.history)
     assert torch.equal(on.gen.get_state(), off.gen.get_state())
     saved = torch.load(tmp_path / "on" / "checkpoint.pt", weights_only=False)["energy_balance"]
     assert saved["taus"] == on.balance.taus.tolist()
