@@ -305,8 +305,10 @@ class SharedTrainer:
         self.seconds["joint"] = round(time.time() - t0, 2)
         t1 = time.time()
         for t in self.trainers:
-            t.finish()
+            t.finish(calibrate=False)
         self.fit_latents(latent_steps(cfg.iterations))
+        for t in self.trainers:  # each material's codes, after the latent fine-tune has moved them
+            t.calibrate_energy()
         self.seconds["latents"] = round(time.time() - t1, 2)
         t2 = time.time()
         if cfg.environment_steps > 0:

@@ -405,22 +405,30 @@ class Trainer:
         self.step += 1
         return self.step_record(loss_brdf, loss_kl, grad_norm)
 
-    def finish(self) -> None:
-        """After the last step: bake (if the run never reached it), calibrate each level's energy when the
-        run was balanced (:meth:`.EnergyBalance.calibrate`), fill a cut-out's empty texels, and put a
-        block-compressed pyramid through its codec, as it ships."""
+    def finish(self, calibrate: bool = True) -> None:
+        """After the last step: bake (if the run never reached it), calibrate each level's energy
+        (:meth:`calibrate_energy`; ``calibrate`` False: the caller does it after steps of its own), fill a
+        cut-out's empty texels, and put a block-compressed pyramid through its codec, as it ships."""
         if not self.baked:
             self.bake()
-        if self.balance is not None:  # the curves' last record gets the lowest level's ratio before and after
-            before = min(self.balance.ratios(self.model).tolist())
-            after = min(self.balance.calibrate(self.model))
-            if self.history and self.history[-1].get("step") == self.step:
-                self.history[-1].update(energy_calibrated_from=round(before, 4), energy_ratio_min=round(after, 4))
+        if calibrate:
+            self.calibrate_energy()
         self.dilate_empty_texels()
         if self.model.latents.codec is not None:  # what ships: the latents through the codec
             if self.step <= self.block_start:  # never trained through it (block_fraction 0, or no steps)
                 self.model.latents.codec.fit(list(self.model.latents.levels))
             self.model.latents.codec_active = True
+
+    def calibrate_energy(self) -> None:
+        """When the run was balanced, shift each MIP level's codes into the balance's band
+        (:meth:`.EnergyBalance.calibrate`); the curves' last record gets the lowest probe ratio before
+        (``energy_calibrated_from``) and after (``energy_ratio_min``). Nothing without a balance."""
+        if self.balance is None:
+            return
+        before = min(self.balance.ratios(self.model).tolist())
+        after = min(self.balance.calibrate(self.model))
+        if self.history and self.history[-1].get("step") == self.step:
+            self.history[-1].update(energy_calibrated_from=round(before, 4), energy_ratio_min=round(after, 4))
 
     def fit_environment(self) -> None:
         """Fit the environment head (``cfg.environment_steps`` steps, :mod:`.environment_fit`) once the

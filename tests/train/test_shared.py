@@ -103,3 +103,26 @@ def test_refuses_materials_of_another_shape(materials, tmp_path):
     other = Trainer(*materials[1], preset("fast", iterations=80, batch=512, decoder="2x32"), tmp_path / "other")
     with pytest.raises(ValueError, match="decoder"):
         SharedTrainer([first, other])
+
+
+def test_each_materials_energy_is_calibrated_after_the_latent_fine_tune(materials, tmp_path, monkeypatch):
+    """A balanced shared run (200 steps, the balance's shortest) calibrates each material's codes once, after the
+    latent fine-tune that would otherwise move them again: every level's probe ratio ends inside the band (0.005:
+    the calibration's two Gauss-Newton steps, measured within 0.001 of its edge)."""
+    from mtlx2neural.train import energy_balance as eb
+
+    cfg = preset("fast", iterations=200, batch=256, seed=3, environment_fraction=0.0, preview_iterations=0)
+    trainers = [Trainer(ref, stack, cfg, tmp_path / name) for (ref, stack), name in zip(materials, NAMES)]
+    shared = SharedTrainer(trainers)
+    events = []
+    real_fit = shared.fit_latents
+    monkeypatch.setattr(shared, "fit_latents", lambda steps: (events.append("latents"), real_fit(steps)))
+    for t in trainers:
+        real = t.calibrate_energy
+        monkeypatch.setattr(t, "calibrate_energy", lambda real=real, name=t.out_dir.name: (events.append(name), real()))
+    shared.run(progress=False)
+    assert events == ["latents", *NAMES]
+    for t in trainers:
+        ratios = t.balance.ratios(t.model)
+        assert bool(((ratios > eb.CALIBRATION_LOW - 0.005) & (ratios < eb.CALIBRATION_HIGH + 0.005)).all()), ratios
+        assert "energy_calibrated_from" in t.history[-1]
