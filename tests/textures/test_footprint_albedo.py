@@ -85,3 +85,27 @@ def test_the_mixture_is_unbiased_when_the_samples_do_not_split_evenly_between_it
     for samples in (4, 5):
         albedo = mixture_albedo(model, lobe, wi, at, at, samples=samples, seed=1)
         assert abs(float(albedo.mean()) - 0.6) < 0.006, (samples, float(albedo.mean()))
+
+
+def test_a_footprint_without_surface_keeps_the_plain_mean_as_the_training_targets_do():
+    """A cut-out whose surface is the left half of the texture: at the finest level of a 2 x 2 grid (footprint sigma a
+    quarter of the texture) rows centred on the right half have footprints whose points all miss the surface. Their
+    reference albedo is the points' plain mean (the uniform CarPaint's albedo, within 3 %: its Monte Carlo error), as
+    ``footprint_targets`` trains them, not 0; rows on the left read the same albedo through their covered points."""
+    from mtlx2neural.textures.footprint_albedo import reference_footprint_albedo
+
+    ref, _ = layered_spheres_material("CarPaint")
+    n = 32
+    wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3)
+    uv = torch.stack([torch.where(torch.arange(n) < n // 2, 0.25, 0.75), torch.full((n,), 0.5)], -1)
+
+    def left_half(points):
+        return (torch.frac(points[:, 0]) < 0.5).float()
+
+    def albedo(coverage):
+        return reference_footprint_albedo(ref, wi, uv, 0, (2, 2), points=1, samples=64, seed=0,
+                                          generator=torch.Generator().manual_seed(0), coverage=coverage)
+
+    plain, cut = albedo(None), albedo(left_half)
+    assert float(plain.min()) > 0.05
+    assert torch.allclose(cut, plain, rtol=0.03), (cut, plain)
