@@ -42,9 +42,11 @@ class TrainConfig:
     energy (``train.energy_balance``): log_l1 follows the median of the footprint-averaged targets, which lies
     below their mean, so a level whose directional albedo falls short of the reference's moves its quantile up
     by this times log(ratio) per update (every twentieth of the run, from 30 % on), and one too bright moves it
-    down. 0: log_l1's median throughout (the textured samples then keep 85-93 % of their energy with fast, the
-    near mirror 79-81 %). fast: 0.5, its 2000 short steps' energy drifting further between updates (0.3 left
-    the CarPaint at 0.93, seed 1). Not used with relative_l2, which follows the mean already."""
+    down; after the last step each level's latent codes are shifted into 1-1.1 times the reference's energy
+    (``EnergyBalance.calibrate``). 0: log_l1's median throughout and no calibration (the textured samples then
+    keep 85-93 % of their energy with fast, the near mirror 79-81 %). fast: 0.5, its 2000 short steps' energy
+    drifting further between updates (0.3 left the CarPaint at 0.93, seed 1). Not used with relative_l2, which
+    follows the mean already."""
     lift_fraction: float = 1.0
     """Share of the run, from its start, in which the BRDF loss may lift (``train.losses``, "the lift"): in a
     batch where most predictions under a target over ``brdf_eps`` are dead (two decades under it), those
