@@ -43,6 +43,8 @@ material is not balanced (its levels are per tile), as the energy check does not
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from mtlx2neural.reference.vec import luminance
@@ -84,6 +86,11 @@ probe set from within 1 % to within 0.1 % of 1)."""
 CALIBRATION_LOW, CALIBRATION_HIGH = 1.0, 1.1
 """The band a level's probe ratio is calibrated into: a level under 1 is raised to 1, one over 1.1 lowered to 1.1,
 one inside left as trained."""
+CALIBRATION_MAX_SHIFT = 0.25
+"""The largest shift of a level's codes in one calibration step, as a share of the norm of its typical code (the
+root mean square over its texels and channels, times the square root of the channels): a level whose energy
+hardly depends on its codes is not pushed far off its trained codes (the near mirror's shifts were 1-3 % of it).
+A level the steps did not bring half way to the band gets its trained codes back."""
 CALIBRATION_MAX_LOG = 0.2
 """Largest |log ratio| one calibration step corrects (a level further off than 22 % moves that far and no
 further: the energy check then reports it)."""
@@ -96,6 +103,11 @@ def _by_group(rows: int, albedo) -> torch.Tensor:
     the reference's albedo, drawn once; the model's estimate shifts its points per row instead
     (:func:`~mtlx2neural.textures.footprint_albedo.row_shifted_sobol`)."""
     return torch.cat([albedo(idx, j) for j, idx in enumerate(torch.arange(rows).chunk(PROBE_GROUPS))])
+
+
+def _band_excess(log_r: torch.Tensor) -> torch.Tensor:
+    """How far each log ratio lies outside [log :data:`CALIBRATION_LOW`, log :data:`CALIBRATION_HIGH`] (0 inside)."""
+    return log_r - log_r.clamp(math.log(CALIBRATION_LOW), math.log(CALIBRATION_HIGH))
 
 
 def update_due(step: int, iterations: int) -> bool:
@@ -156,7 +168,8 @@ class EnergyBalance:
         log r_k with respect to a common shift of the level's codes (the sum of its per-texel gradients),
         d_k = -e_k g_k / |g_k|^2, the smallest shift that moves e_k to 0 to first order;
         :data:`CALIBRATION_STEPS` of them (the quadrature's directions drawn again from the shifted model,
-        :data:`CALIBRATION_MAX_LOG` at most each). A shift of the codes is what a level's texture can carry:
+        :data:`CALIBRATION_MAX_LOG` and :data:`CALIBRATION_MAX_SHIFT` at most each); a level they did not bring
+        half way to the band gets its trained codes back. A shift of the codes is what a level's texture can carry:
         the decoder, shared by every level and every texel, stays as trained.
 
         Why a band and not 1: a level's ratio averages four view angles, and a level over 1 is mostly one too
@@ -165,22 +178,37 @@ class EnergyBalance:
         that lost energy: a dark near mirror, a lost highlight). Measured on ``fast``
         (docs/history/energy-calibration-2026-12-07.md)."""
         levels = list(model.latents.levels)
+        trained = [lv.detach().clone() for lv in levels]
+        # the largest shift a level takes in one step: CALIBRATION_MAX_SHIFT of the norm of its typical code
+        caps = [CALIBRATION_MAX_SHIFT * float(lv.detach().square().mean().sqrt()) * lv.shape[-3] ** 0.5
+                for lv in levels]
+        start = None
         for _ in range(steps):
             ratios = self.ratios(model, grad=True)
             log_r = torch.log(ratios.clamp_min(1e-6))
-            # each level's error: how far its ratio lies outside [CALIBRATION_LOW, CALIBRATION_HIGH], in log
-            excess = (log_r - torch.log(ratios.detach().clamp(CALIBRATION_LOW, CALIBRATION_HIGH))).detach()
+            excess = _band_excess(log_r.detach())
+            start = excess if start is None else start
             if not bool((excess != 0).any()):
                 break
             grads = torch.autograd.grad(log_r.sum(), levels, allow_unused=True)
             with torch.no_grad():
-                for lv, g, e in zip(levels, grads, excess):
+                for lv, g, e, cap in zip(levels, grads, excess, caps):
                     if g is None or float(e) == 0.0:  # inside the band, or a level the probe did not read
                         continue
                     d = g.sum(dim=(-2, -1))  # d log r_k / d(a shift of every code of level k), [channels]
                     shift = -e.clamp(-CALIBRATION_MAX_LOG, CALIBRATION_MAX_LOG) * d / (d @ d).clamp_min(1e-20)
+                    shift = shift * min(1.0, cap / max(float(shift.norm()), 1e-30))
                     lv.add_(shift[:, None, None].to(lv.dtype))
-        return self.ratios(model).tolist()
+        after = self.ratios(model)
+        if start is not None:  # a level the steps did not bring half way to the band goes back
+            worse = _band_excess(torch.log(after.clamp_min(1e-6))).abs() > 0.5 * start.abs() + 1e-6
+            if bool(worse.any()):
+                with torch.no_grad():
+                    for lv, old, back in zip(levels, trained, worse.tolist()):
+                        if back:
+                            lv.copy_(old)
+                after = self.ratios(model)
+        return after.tolist()
 
     def update(self, model) -> list[float]:
         """Measure the model's ratios and move each level's quantile (module docstring); returns the ratios."""
