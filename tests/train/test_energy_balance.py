@@ -4,6 +4,7 @@ sample that keeps its energy with ``fast``."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -266,6 +267,34 @@ def test_fast_keeps_a_brushed_metals_energy(tmp_path):
     ref = ReferenceMaterial(compiled)
     model = Trainer(ref, stack, cfg, tmp_path).run(progress=False)
     check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels))
+    assert check.min_ratio >= 0.94, [round(lv.ratio, 3) for lv in check.levels]
+
+
+@pytest.mark.slow
+def test_fast_keeps_the_near_mirrors_energy_at_every_level(tmp_path):
+    """The near-mirror sample (metalness 1, roughness 0.02-0.3 from a texture, a normal map), ``fast``, seed 0: every
+    MIP level keeps the reference's energy in the energy check (its own texels, not the balance's probe). Without
+    the calibration it kept 0.937 / 1.037 at its lowest level (seeds 0 / 1), with it 0.988 / 1.037; before the
+    balance 0.79-0.85, and plain log-L1 with an earlier fast trained it black. Bound 0.94: the calibration brings
+    every level to at least 1 on the probe, and the check read the calibrated model's lowest level at 0.981-0.993
+    over four texel seeds (seed 1's model: 1.017-1.035), so 4 % under the lowest of them; the uncalibrated model's
+    0.937 is under it. (The issue's floor for this sample is 0.90.)"""
+    from mtlx2neural.graph import compile_material
+    from mtlx2neural.pipeline.plan import latent_resolution
+    from mtlx2neural.reference import ReferenceMaterial
+    from mtlx2neural.scene import find_material
+    from mtlx2neural.textures.parameter_stack import build_parameter_stack
+    from mtlx2neural.verify.energy import energy_check
+
+    asset = Path(__file__).resolve().parents[2] / "samples" / "mirror" / "polished_metal.usda"
+    src = find_material(asset, "/World/Looks/PolishedMetal")
+    compiled = compile_material(src.document, src.material)
+    cfg = preset("fast", seed=0, environment_fraction=0.0, preview_iterations=0)
+    stack = build_parameter_stack(compiled, resolution=latent_resolution(compiled, cfg))
+    ref = ReferenceMaterial(compiled)
+    model = Trainer(ref, stack, cfg, tmp_path).run(progress=False)
+    check = energy_check(ref, model, tuple(stack.resolution), len(model.latents.levels),
+                         params_at=stack.native_params_at())
     assert check.min_ratio >= 0.94, [round(lv.ratio, 3) for lv in check.levels]
 
 
