@@ -109,9 +109,20 @@ def footprint_targets(reference, stack: ParameterStack, wi: torch.Tensor, wo: to
         if weight is not None:
             w = weight(pts).to(out.dtype)
             wsum = torch.zeros(n, dtype=out.dtype, device=out.device).index_add_(0, rows, w)
-            wmean = torch.zeros_like(out).index_add_(0, rows, vals * w[:, None]) / wsum.clamp_min(1e-12)[:, None]
-            out = torch.where((wsum > 1e-6)[:, None], wmean, out)
+            out = covered_mean(torch.zeros_like(out).index_add_(0, rows, vals * w[:, None]), wsum, out)
     return out
+
+
+EMPTY_WEIGHT = 1e-6
+"""A footprint whose points' weights (a cut-out's coverage) sum to no more than this has no surface."""
+
+
+def covered_mean(weighted_sum: torch.Tensor, weight_sum: torch.Tensor, plain: torch.Tensor) -> torch.Tensor:
+    """[n, 3] each row's weighted mean (``weighted_sum`` [n, 3] over ``weight_sum`` [n]), or its ``plain`` mean
+    [n, 3] where the weights sum to no more than :data:`EMPTY_WEIGHT` (a footprint without surface): the rule the
+    training targets and the energy estimators share."""
+    mean = weighted_sum / weight_sum.clamp_min(1e-12)[:, None]
+    return torch.where((weight_sum > EMPTY_WEIGHT)[:, None], mean, plain)
 
 
 def stratified_gaussian(m: int, s: int, generator: torch.Generator | None = None) -> torch.Tensor:

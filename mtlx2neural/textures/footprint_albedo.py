@@ -26,7 +26,11 @@ import torch
 
 from mtlx2neural.contract import ShadingPoint
 from mtlx2neural.reference.vec import cosine_sample
-from mtlx2neural.textures.footprint import footprint_sigma, stratified_gaussian
+from mtlx2neural.textures.footprint import (
+    covered_mean,
+    footprint_sigma,
+    stratified_gaussian,
+)
 
 
 def view_directions(n: int, degrees, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -78,8 +82,7 @@ def reference_footprint_albedo(reference, wi: torch.Tensor, uv: torch.Tensor, le
             return ref.view(n, points, 3).mean(1)
         ref = ref.view(n, points, 3)
         w = coverage(pts.cpu()).to(ref.dtype).to(ref.device).view(n, points, 1)
-        wsum = w.sum(1)
-        return torch.where(wsum > 1e-6, (ref * w).sum(1) / wsum.clamp_min(1e-12), ref.mean(1))
+        return covered_mean((ref * w).sum(1), w.sum(1)[:, 0], ref.mean(1))
 
 
 def model_level_albedo(model, reference, wi: torch.Tensor, uv: torch.Tensor, level, *, samples: int,

@@ -159,10 +159,10 @@ class EnergyBalance:
         refs = torch.tensor([r[2] for r in self.rows])
         return torch.where(refs > 0, sums / refs.clamp_min(1e-30), torch.ones_like(sums))
 
-    def calibrate(self, model, steps: int = CALIBRATION_STEPS) -> list[float]:
+    def calibrate(self, model, steps: int = CALIBRATION_STEPS) -> tuple[list[float], list[float]]:
         """The balance's last step, after the run's: shift every latent code of MIP level k by one vector
         d_k so that the level's ratio on the probe set comes into [:data:`CALIBRATION_LOW`,
-        :data:`CALIBRATION_HIGH`], and return the ratios after.
+        :data:`CALIBRATION_HIGH`]; returns the probe's ratios before and after.
 
         d_k is a Gauss-Newton step on e_k = log r_k - log clamp(r_k, low, high): with g_k the gradient of
         log r_k with respect to a common shift of the level's codes (the sum of its per-texel gradients),
@@ -182,14 +182,15 @@ class EnergyBalance:
         # the largest shift a level takes in one step: CALIBRATION_MAX_SHIFT of the norm of its typical code
         caps = [CALIBRATION_MAX_SHIFT * float(lv.detach().square().mean().sqrt()) * lv.shape[-3] ** 0.5
                 for lv in levels]
-        start = None
+        before, moved = None, False
         for _ in range(steps):
             ratios = self.ratios(model, grad=True)
             log_r = torch.log(ratios.clamp_min(1e-6))
             excess = _band_excess(log_r.detach())
-            start = excess if start is None else start
+            before = ratios.detach() if before is None else before
             if not bool((excess != 0).any()):
                 break
+            moved = True
             grads = torch.autograd.grad(log_r.sum(), levels, allow_unused=True)
             with torch.no_grad():
                 for lv, g, e, cap in zip(levels, grads, excess, caps):
@@ -199,16 +200,20 @@ class EnergyBalance:
                     shift = -e.clamp(-CALIBRATION_MAX_LOG, CALIBRATION_MAX_LOG) * d / (d @ d).clamp_min(1e-20)
                     shift = shift * min(1.0, cap / max(float(shift.norm()), 1e-30))
                     lv.add_(shift[:, None, None].to(lv.dtype))
+        if before is None:  # no steps
+            before = self.ratios(model)
+        if not moved:
+            return before.tolist(), before.tolist()
         after = self.ratios(model)
-        if start is not None:  # a level the steps did not bring half way to the band goes back
-            worse = _band_excess(torch.log(after.clamp_min(1e-6))).abs() > 0.5 * start.abs() + 1e-6
-            if bool(worse.any()):
-                with torch.no_grad():
-                    for lv, old, back in zip(levels, trained, worse.tolist()):
-                        if back:
-                            lv.copy_(old)
-                after = self.ratios(model)
-        return after.tolist()
+        start = _band_excess(torch.log(before.clamp_min(1e-6))).abs()
+        worse = _band_excess(torch.log(after.clamp_min(1e-6))).abs() > 0.5 * start + 1e-6
+        if bool(worse.any()):  # a level the steps did not bring half way to the band goes back
+            with torch.no_grad():
+                for lv, old, back in zip(levels, trained, worse.tolist()):
+                    if back:
+                        lv.copy_(old)
+            after = self.ratios(model)
+        return before.tolist(), after.tolist()
 
     def update(self, model) -> list[float]:
         """Measure the model's ratios and move each level's quantile (module docstring); returns the ratios."""

@@ -425,10 +425,9 @@ class Trainer:
         (``energy_calibrated_from``) and after (``energy_ratio_min``). Nothing without a balance."""
         if self.balance is None:
             return
-        before = min(self.balance.ratios(self.model).tolist())
-        after = min(self.balance.calibrate(self.model))
+        before, after = self.balance.calibrate(self.model)
         if self.history and self.history[-1].get("step") == self.step:
-            self.history[-1].update(energy_calibrated_from=round(before, 4), energy_ratio_min=round(after, 4))
+            self.history[-1].update(energy_calibrated_from=round(min(before), 4), energy_ratio_min=round(min(after), 4))
 
     def fit_environment(self) -> None:
         """Fit the environment head (``cfg.environment_steps`` steps, :mod:`.environment_fit`) once the

@@ -20,9 +20,9 @@ TUNES = ("networks", "latents")
 """What the universal path's fine-tune trains besides the latents (:mod:`mtlx2neural.universal.fit`)."""
 STEPS = 900
 """The universal path's fine-tune steps by default (``--universal-steps``), each on :data:`FINE_TUNE_ROWS` rows.
-Measured on the scene sample (``fast``, 2 cores, 2026-12-06; own training: lava 0.0114, leaf 0.0381 HDR FLIP): 900 steps of 1024 rows give the lava 0.0124 (1.09x) in 22.8 s and the leaf 0.0302 in 25.4 s,
-where 300 steps of 2048 gave 0.0170 (1.49x) in 19.2 s and 0.0336 in 20.4 s
-(docs/history/fine-tune-speed-2026-12-06.md)."""
+Measured on the scene sample (``fast``, 2 cores, 2026-12-06; own training: lava 0.0114, leaf 0.0381 HDR FLIP):
+900 steps of 1024 rows give the lava 0.0124 (1.09x) in 22.8 s and the leaf 0.0302 in 25.4 s, where 300 steps of
+2048 gave 0.0170 (1.49x) in 19.2 s and 0.0336 in 20.4 s (docs/history/fine-tune-speed-2026-12-06.md)."""
 FINE_TUNE_ROWS = 1024
 """Rows of each fine-tune step, whatever the preset's ``batch``: the step count is fixed (:data:`STEPS`), so the
 rows a fine-tune sees are set here. A step's cost on the CPU is mostly fixed (half the rows cost about two
