@@ -42,8 +42,8 @@ class TrainConfig:
     energy (``train.energy_balance``): log_l1 follows the median of the footprint-averaged targets, which lies
     below their mean, so a level whose directional albedo falls short of the reference's moves its quantile up
     by this times log(ratio) per update (every twentieth of the run, from 30 % on), and one too bright moves it
-    down; after the last step each level's latent codes are shifted into 1-1.1 times the reference's energy
-    (``EnergyBalance.calibrate``). 0: log_l1's median throughout and no calibration (the textured samples then
+    down; after the last step the latent codes of each level under the reference's energy are shifted up to it
+    (``EnergyBalance.calibrate``; a universal fine-tune, which does not update the balance, ends with it too). 0: log_l1's median throughout and no calibration (the textured samples then
     keep 85-93 % of their energy with fast, the near mirror 79-81 %). fast: 0.5, its 2000 short steps' energy
     drifting further between updates (0.3 left the CarPaint at 0.93, seed 1). Not used with relative_l2, which
     follows the mean already."""

@@ -44,7 +44,7 @@ from mtlx2neural.train.adam import Adam, cosine_lr
 from mtlx2neural.train.config import TrainConfig
 from mtlx2neural.train.directions import grazing_directions, half_difference_pairs
 from mtlx2neural.train.encoder_input import EncoderInput
-from mtlx2neural.train.energy_balance import EnergyBalance, update_due
+from mtlx2neural.train.energy_balance import MIN_ITERATIONS, EnergyBalance, update_due
 from mtlx2neural.train.environment_fit import fit_environment_head
 from mtlx2neural.train.grad_clip import SpikeClip
 from mtlx2neural.train.latent_init import (
@@ -90,6 +90,13 @@ class StepRows:
 
 class TrainingInterrupted(Exception):
     """Raised after Ctrl-C once a checkpoint has been written."""
+
+
+def balanced(cfg: TrainConfig, tiles) -> bool:
+    """Whether a run of ``cfg`` balances its energy (:mod:`.energy_balance`): not without ``energy_gain``, not
+    for a UDIM material (``tiles``: its levels are per tile) and not with relative_l2 (which seeks the mean
+    already)."""
+    return cfg.energy_gain > 0 and tiles is None and cfg.brdf_loss != "relative_l2"
 
 
 def _lr(cfg: TrainConfig, step: int) -> float:
@@ -170,6 +177,9 @@ class Trainer:
                                    floor=raw_floor(cfg.brdf_floor))
         self._losses = torch.compile(losses) if cfg.compile else losses
         self.balance: EnergyBalance | None = None  # built at its first update (:meth:`balance_energy`)
+        # Whether the run ends with the energy calibration (:meth:`calibrate_energy`): fixed by the config the
+        # trainer is built with, so a fine-tune that turns the balance's updates off (universal.fit) keeps it.
+        self.calibrates = balanced(cfg, self.tiles)
         self._balance_state = None  # a resumed run's balance, restored when it is built
         if cfg.encoder_fraction <= 0:
             self._direct_latents()
@@ -381,8 +391,7 @@ class Trainer:
         seeks the mean already). The probe fills the latents from the encoder before the bake, as a FLIP
         probe does."""
         cfg = self.cfg
-        if (cfg.energy_gain <= 0 or self.tiles is not None or cfg.brdf_loss == "relative_l2"
-                or not update_due(self.step, cfg.iterations)):
+        if not balanced(cfg, self.tiles) or not update_due(self.step, cfg.iterations):
             return {}
         self._build_balance()
         if not self.baked:
@@ -420,11 +429,14 @@ class Trainer:
             self.model.latents.codec_active = True
 
     def calibrate_energy(self) -> None:
-        """When the run was balanced, shift each MIP level's codes into the balance's band
-        (:meth:`.EnergyBalance.calibrate`); the curves' last record gets the lowest probe ratio before
-        (``energy_calibrated_from``) and after (``energy_ratio_min``). Nothing without a balance."""
-        if self.balance is None:
+        """When the trainer's config balances the energy (:attr:`calibrates`, set when it was built), shift each
+        MIP level's codes into the balance's band (:meth:`.EnergyBalance.calibrate`; the balance is built here
+        when no update built it: a fine-tune without updates); the curves' last record gets the lowest probe
+        ratio before (``energy_calibrated_from``) and after (``energy_ratio_min``). A run shorter than
+        :data:`.energy_balance.MIN_ITERATIONS` is not calibrated, as it is not balanced."""
+        if not self.calibrates or self.cfg.iterations < MIN_ITERATIONS:
             return
+        self._build_balance()
         before, after = self.balance.calibrate(self.model)
         if self.history and self.history[-1].get("step") == self.step:
             self.history[-1].update(energy_calibrated_from=round(min(before), 4), energy_ratio_min=round(min(after), 4))

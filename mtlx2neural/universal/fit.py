@@ -117,11 +117,12 @@ def use_fine_tune_schedule(trainer, steps: int, rows: int = FINE_TUNE_ROWS) -> N
     """Replace ``trainer``'s schedule with the fine-tune's: ``steps`` iterations of ``rows`` rows
     (:data:`~mtlx2neural.universal.choice.FINE_TUNE_ROWS`; not the preset's batch), no encoder phase, Adam from
     :data:`LR_START`, the mollification at its floor throughout (as the shipped decoder ended its training), rows
-    drawn :data:`PREFETCH` steps at a time, no FLIP probe, and no energy balance
+    drawn :data:`PREFETCH` steps at a time, no FLIP probe, and no updates of the energy balance
     (:mod:`mtlx2neural.train.energy_balance`): the shipped networks start the fine-tune with their energy
     settled, and the balance's updates then only cost. Scene sample, ``--network scene --encoder universal``
     (300 joint steps, 2026-12-07): with the balance 41.3 s, HDR FLIP 0.087, the near-mirror Gold keeping 0.89 of
-    its energy; without, 28.9 s, 0.0855, 0.98."""
+    its energy; without, 28.9 s, 0.0855, 0.98. The run still ends with the balance's calibration when
+    ``trainer`` was built to balance (``Trainer.calibrates``): its levels' energy is then in the band."""
     cfg = trainer.cfg
     trainer.cfg = dataclasses.replace(cfg, iterations=max(1, steps), encoder_fraction=0.0, lr_start=LR_START,
                                       batch=max(1, int(rows)), probe_every=0, energy_gain=0.0,

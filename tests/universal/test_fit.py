@@ -58,12 +58,12 @@ def _painted(folder, threshold: float = 0.5, seed: int = 0) -> str:
     return path
 
 
-def _setup(tmp_path):
+def _setup(tmp_path, **overrides):
     doc = mx.createDocument()
     mx.readFromXmlFile(doc, str(_painted(tmp_path)))
     compiled = compile_material(canonical_document(doc, "Painted"), "Painted")
     ref, stack = ReferenceMaterial(compiled), build_parameter_stack(compiled)
-    return ref, stack, Trainer(ref, stack, TINY, tmp_path / "run")
+    return ref, stack, Trainer(ref, stack, dataclasses.replace(TINY, **overrides), tmp_path / "run")
 
 
 def _digest(module) -> str:
@@ -134,15 +134,28 @@ def test_encode_then_fine_tune_fits_the_material(tmp_path, weights, tune):
     assert trainer.checkpoint_path.is_file()
 
 
-def test_the_fine_tune_takes_its_own_rows_and_no_energy_balance(tmp_path, weights):
+def test_the_fine_tune_takes_its_own_rows_no_balance_updates_and_ends_calibrated(tmp_path, weights):
     """Settings of 512 rows a step and a balance (``fast``'s gain), a fine-tune long enough for the balance's
-    updates: the steps take :data:`FINE_TUNE_ROWS` rows and the balance is never built (it cost the scene sample
-    12.4 s and its near-mirror Gold energy, ``use_fine_tune_schedule``)."""
+    updates: the steps take :data:`FINE_TUNE_ROWS` rows and the balance's quantiles are never updated (the updates
+    cost the scene sample 12.4 s and its near-mirror Gold energy, ``use_fine_tune_schedule``), but the run ends
+    with the balance's calibration, as a balanced run of the material's own does (``Trainer.calibrates``); with
+    ``energy_gain`` 0 it does not, nor does a fine-tune too short to balance."""
     _, _, trainer = _setup(tmp_path)
     assert trainer.cfg.batch == 512 and trainer.cfg.energy_gain > 0
     fit_universal(trainer, weights, steps=energy_balance.MIN_ITERATIONS, progress=False, tune="latents")
-    assert trainer.cfg.batch == FINE_TUNE_ROWS and trainer.balance is None
+    assert trainer.cfg.batch == FINE_TUNE_ROWS
     assert not any("energy_tau_min" in rec for rec in trainer.history)
+    assert trainer.balance is not None and bool((trainer.balance.taus == 0.5).all())
+    assert "energy_calibrated_from" in trainer.history[-1]
+
+    (tmp_path / "off").mkdir()
+    _, _, off = _setup(tmp_path / "off", energy_gain=0.0)
+    fit_universal(off, weights, steps=energy_balance.MIN_ITERATIONS, progress=False, tune="latents")
+    assert off.balance is None and "energy_calibrated_from" not in off.history[-1]
+    (tmp_path / "short").mkdir()
+    _, _, short = _setup(tmp_path / "short")
+    fit_universal(short, weights, steps=energy_balance.MIN_ITERATIONS - 1, progress=False, tune="latents")
+    assert short.balance is None and "energy_calibrated_from" not in short.history[-1]
 
 
 def test_a_conversion_routes_each_material_and_says_why(tmp_path, weights, monkeypatch):
