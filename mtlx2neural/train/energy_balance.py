@@ -179,9 +179,9 @@ class EnergyBalance:
 
         Why only upwards: a level's ratio averages four view angles, and a level over 1 is mostly one too
         bright at grazing views (the GlazedCeramic's level 0: 0.97 at 0-60 degrees, 1.08-1.13 at 80); shifting it
-        to 1 darkened its other views, and its HDR FLIP rose 10 %; to 1.1 cost in-scene figures (:data:`CALIBRATION_HIGH`). Under 1 is
-        the issue this corrects (a level that lost energy: a dark near mirror, a lost highlight). Measured on
-        ``fast`` (docs/history/energy-calibration-2026-12-07.md, -12-08.md)."""
+        to 1 darkened its other views, and its HDR FLIP rose 10 %; to 1.1 cost in-scene figures
+        (:data:`CALIBRATION_HIGH`). Under 1 is the issue this corrects (a level that lost energy: a dark near
+        mirror, a lost highlight). Measured on ``fast`` (docs/history/energy-calibration-2026-12-07.md, -12-08.md)."""
         levels = list(model.latents.levels)
         trained = [lv.detach().clone() for lv in levels]
         # the largest shift a level takes in one step: CALIBRATION_MAX_SHIFT of the norm of its typical code
