@@ -99,6 +99,9 @@ class MaterialJob:
     """The instant ``time``/``frame`` nodes fold to (``--frame``/``--fps``; None: frame 1 at 24 fps)."""
     encoder: dict | None = None
     """The universal path's choice (:meth:`~mtlx2neural.universal.choice.EncoderChoice.record`), None: its own training."""
+    encoder_note: str | None = None
+    """Why ``--encoder universal`` was not taken (:attr:`~mtlx2neural.universal.choice.EncoderChoice.reason`), None
+    when it was or was not asked: printed when the job starts and kept in the record's ``notes``."""
     measured: bool = False
     """A measured BRDF: ``source_file`` is its MERL table and ``document_xml`` is empty."""
     preview_surface: bool = False
@@ -132,7 +135,9 @@ def make_job(plan, folder: Path, cfg: TrainConfig, **options) -> MaterialJob:
                        plan.content, tuple(plan.grid), warnings=list(plan.warnings), latent=plan.latent_info(),
                        stage_file=getattr(src, "stage_file", None), input_hash=input_hash(src), measured=measured,
                        preview_surface=getattr(src, "preview_surface", False),
-                       encoder=plan.encoder.record() if plan.encoder.universal else None, **options)
+                       encoder=plan.encoder.record() if plan.encoder.universal else None,
+                       encoder_note=(f"--encoder universal not taken: {plan.encoder.text}" if plan.encoder.reason
+                                     else None), **options)
 
 
 def _merged(extra: dict, more: dict) -> dict:
@@ -164,8 +169,11 @@ def run_job(job: MaterialJob) -> MaterialRecord | Shipped:
     folder.mkdir(parents=True, exist_ok=True)
     if job.ship and job.checkpoint is not None:
         (folder / "checkpoint.pt").write_bytes(job.checkpoint)
-    extra = {"content_hash": job.content, "warnings": list(job.warnings), "notes": list(job.warnings),
+    extra = {"content_hash": job.content, "warnings": list(job.warnings),
+             "notes": [*job.warnings, *([job.encoder_note] if job.encoder_note else [])],
              "input_hash": job.input_hash, "latent": job.latent, "options": job.options}
+    if job.encoder_note and job.progress:
+        print(f"{job.name}: {job.encoder_note}", flush=True)
     try:
         with _running():
             if job.trained is not None:

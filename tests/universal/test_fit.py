@@ -175,6 +175,10 @@ def test_a_conversion_routes_each_material_and_says_why(tmp_path, weights, monke
     records = {r.material: r for r in convert_asset(path, opts)}
     assert records["Painted"].encoder["path"] == "universal" and records["Painted"].steps == 20
     assert records["Plain"].encoder is None and records["Plain"].steps == 40
+    # the record says why the asked-for path was not taken (inspect says it too)
+    said = [n for n in records["Plain"].notes if n.startswith("--encoder universal not taken")]
+    assert len(said) == 1 and "spatially uniform" in said[0]
+    assert not any("--encoder universal" in n for n in records["Painted"].notes)
     # the universal choice joins the hash: the other path is a different result, so it converts again
     again = {r.material: r for r in convert_asset(path, dataclasses.replace(opts, encoder="material"))}
     assert again["Painted"].encoder is None and again["Painted"].source_hash != records["Painted"].source_hash
