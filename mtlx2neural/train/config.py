@@ -45,9 +45,8 @@ class TrainConfig:
     down; after the last step the latent codes of each level under the reference's energy are shifted up to it
     (``EnergyBalance.calibrate``; a universal fine-tune, which does not update the balance, ends with it too).
     0: log_l1's median throughout and no calibration (the textured samples then keep 85-93 % of their energy with
-    fast, the near mirror 79-81 %). fast: 0.5, its 2000 short steps' energy
-    drifting further between updates (0.3 left the CarPaint at 0.93, seed 1). Not used with relative_l2, which
-    follows the mean already."""
+    fast, the near mirror 79-81 %). fast: 0.5, its 2000 short steps' energy drifting further between updates (0.3
+    left the CarPaint at 0.93, seed 1). Not used with relative_l2, which follows the mean already."""
     lift_fraction: float = 1.0
     """Share of the run, from its start, in which the BRDF loss may lift (``train.losses``, "the lift"): in a
     batch where most predictions under a target over ``brdf_eps`` are dead (two decades under it), those
